@@ -1,0 +1,29 @@
+#!/usr/bin/env bash
+# Install the system libraries glraster loads at run time, through apt, only when missing:
+#   libEGL + Mesa's EGL driver (default backend), libOSMesa (fallback backend),
+#   Mesa's DRI drivers (llvmpipe).
+set -euo pipefail
+
+have_lib() { ldconfig -p | grep -q "$1"; }
+
+missing=()
+have_lib 'libEGL.so.1 '       || missing+=(libegl1)
+have_lib 'libEGL_mesa.so.0 '  || missing+=(libegl-mesa0)
+have_lib 'libOSMesa.so'       || missing+=(libosmesa6)
+[ -e /usr/lib/x86_64-linux-gnu/dri/swrast_dri.so ] || [ -n "$(ls /usr/lib/*/dri/swrast_dri.so 2>/dev/null)" ] \
+    || missing+=(libgl1-mesa-dri)
+
+if [ ${#missing[@]} -eq 0 ]; then
+    exit 0
+fi
+
+echo "glraster: installing system libraries: ${missing[*]}"
+SUDO=""
+if [ "$(id -u)" -ne 0 ]; then
+    if command -v sudo >/dev/null; then SUDO="sudo"; else
+        echo "glraster: need root to run: apt-get install -y ${missing[*]}" >&2; exit 1
+    fi
+fi
+export DEBIAN_FRONTEND=noninteractive
+$SUDO apt-get update -qq
+$SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"
