@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Install the system libraries glraster loads at run time, through apt, only when missing:
 #   libEGL + Mesa's EGL driver (default backend), libOSMesa (fallback backend),
-#   Mesa's DRI drivers (llvmpipe).
+#   Mesa's DRI drivers (llvmpipe), Chromium (headless screenshots of the HTML report in tests).
 set -euo pipefail
 
 have_lib() { ldconfig -p | grep -q "$1"; }
@@ -12,6 +12,7 @@ have_lib 'libEGL_mesa.so.0 '  || missing+=(libegl-mesa0)
 have_lib 'libOSMesa.so'       || missing+=(libosmesa6)
 [ -e /usr/lib/x86_64-linux-gnu/dri/swrast_dri.so ] || [ -n "$(ls /usr/lib/*/dri/swrast_dri.so 2>/dev/null)" ] \
     || missing+=(libgl1-mesa-dri)
+command -v chromium >/dev/null || missing+=(chromium)
 
 if [ ${#missing[@]} -eq 0 ]; then
     exit 0
