@@ -1,0 +1,85 @@
+"""Per-pixel attributes from rasterized barycentrics.
+
+For a covered pixel with triangle ``t = tri_id[y, x]`` and barycentrics
+``(b0, b1, b2)`` the attribute is::
+
+    out[y, x] = b0 * attr[tri[t, 0]] + b1 * attr[tri[t, 1]] + b2 * attr[tri[t, 2]]
+
+With ``space="persp"`` the barycentrics are the perspective-correct ones (GL 4.6 eq. 14.9,
+seed 001's 1/z interpolation already folded in), so the result is the attribute of the
+3D surface point seen through the pixel.  With ``space="screen"`` they are window-space
+(``noperspective``, eq. 14.10): linear on the screen, which is what affine texture mapping
+does and what window depth obeys.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["interpolate"]
+
+_SPACES = {"persp": "persp", "screen": "screen"}
+
+
+def interpolate(attr, raster, tri, space: str = "persp") -> np.ndarray:
+    """Interpolate per-vertex attributes over a :class:`~glraster.Raster`.
+
+    Args:
+        attr: (V, C) per-vertex attributes (uv, normals, view depth, colors, ...), or (V,)
+            for a single channel.
+        raster: a GPU raster (float32 barycentrics) or a reference raster (float64), with
+            ``tri_id`` and the barycentrics of ``space`` among its outputs.
+        tri: (T, 3) integer vertex indices, the same array that was rasterized.
+        space: "persp" (perspective-correct) or "screen" (affine in window space).
+
+    Returns:
+        (H, W, C) array, or (H, W) for 1-D ``attr``, indexed ``[y, x]`` with row 0 at the
+        bottom, of the barycentrics' dtype (float32 for GPU rasters, float64 for reference
+        rasters).  The sums are formed in float64 and rounded once.  Empty pixels are 0.
+    """
+    if space not in _SPACES:
+        raise ValueError(f"space must be 'persp' or 'screen', got {space!r}")
+    bary = getattr(raster, _SPACES[space], None)
+    if bary is None:
+        raise ValueError(f"raster has no {space!r} barycentrics; rasterize with '{space}' in outputs")
+    tri_id = getattr(raster, "tri_id", None)
+    if tri_id is None:
+        raise ValueError("raster has no 'tri_id'; rasterize with 'tri_id' in outputs")
+    if bary.ndim != 3 or bary.shape[2] != 3 or tri_id.shape != bary.shape[:2]:
+        raise ValueError(f"raster barycentrics must be (H, W, 3) with tri_id (H, W), got "
+                         f"{bary.shape} and {tri_id.shape}")
+
+    try:
+        a = np.asarray(attr)
+    except (TypeError, ValueError):
+        raise ValueError("attr must be a numeric array of shape (V, C)") from None
+    if a.dtype.kind not in "biuf":
+        raise ValueError(f"attr must be numeric, got dtype {a.dtype}")
+    squeeze = a.ndim == 1
+    if squeeze:
+        a = a[:, None]
+    if a.ndim != 2:
+        raise ValueError(f"attr must have shape (V, C) or (V,), got {np.shape(attr)}")
+
+    t = np.asarray(tri)
+    if t.ndim != 2 or t.shape[1] != 3:
+        raise ValueError(f"tri must have shape (T, 3), got {t.shape}")
+    if t.dtype.kind not in "iu":
+        raise ValueError(f"tri must hold integers, got dtype {t.dtype}")
+    if t.size and (t.min() < 0 or t.max() >= a.shape[0]):
+        raise ValueError(f"tri indexes vertices 0..{a.shape[0] - 1} of attr, got indices "
+                         f"in [{t.min()}, {t.max()}]")
+
+    covered = tri_id >= 0
+    ids = tri_id[covered]
+    if ids.size and ids.max() >= t.shape[0]:
+        raise ValueError(f"raster.tri_id refers to triangle {ids.max()} but tri has "
+                         f"{t.shape[0]} triangles")
+
+    H, W = tri_id.shape
+    out = np.zeros((H, W, a.shape[1]), dtype=bary.dtype)
+    if ids.size:
+        corners = a[t[ids]].astype(np.float64, copy=False)       # (N, 3, C)
+        b = bary[covered].astype(np.float64, copy=False)          # (N, 3)
+        out[covered] = np.einsum("nk,nkc->nc", b, corners)
+    return out[..., 0] if squeeze else out

@@ -1,0 +1,395 @@
+"""The analytic reference rasterizer: float64 NumPy, vectorized, no per-pixel Python loop.
+
+Formulation (2D homogeneous rasterization, Olano & Greer 1997). With homogeneous window
+coordinates X_i = (x_i + w_i) W/2, Y_i = (y_i + w_i) H/2 of the three clip-space vertices, the
+3x3 matrix M = [[X_0 X_1 X_2], [Y_0 Y_1 Y_2], [w_0 w_1 w_2]] maps the clip-space barycentrics
+of a point to its homogeneous window position. For a pixel center p = (p_x, p_y):
+
+    s = M^-1 (p_x, p_y, 1)            s_i = lambda_i / w_p,   sum(s) = 1 / w_p
+    persp_i  = s_i / sum(s)            perspective-correct (GL 4.5 eq. 14.9; seed 002 eq. 2.4.9)
+    screen_i = s_i w_i                 window-space affine barycentrics (eq. 14.10)
+    z_ndc    = sum(s_i z_i),  depth = z_ndc / 2 + 1/2
+
+A point is on the triangle and in front of the eye when every s_i >= 0 (then w_p > 0), and
+inside the near/far planes when -1 <= z_ndc <= 1: this handles vertices with w <= 0 and
+near/far crossings without splitting triangles, and the values are those of the unclipped
+triangle, as GL requires. M^-1 = adj(M) / det(M); the rows of adj(M) are the three edge
+functions e_i(p), linear in window space.
+
+Coverage of triangles whose vertices lie inside the viewport follows Mesa llvmpipe's fill
+rule exactly (:func:`llvmpipe_edges`); other triangles (clipped by the near/far planes or
+reaching outside the viewport, where the driver's clipper makes new float vertices) and
+every triangle when ``fill_rule=None`` mark the pixel centers within ``edge_band_px`` of
+their edges in ``edge_band``, where either answer is accepted.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import validate
+from .raster import Raster
+
+SUBPIXEL_BITS = 8  # llvmpipe: FIXED_ORDER = 8, so positions snap to 1/256 px
+FIXED_ONE = 1 << SUBPIXEL_BITS
+DEFAULT_EDGE_BAND_PX = 4.0 / FIXED_ONE
+# Two candidates whose window depths differ by less than this are a depth tie: the GPU's
+# float32 plane equations may order them either way. ~2^-17, above the depth error the
+# tolerance model allows for well-shaped triangles (docs/tolerance.md).
+DEPTH_TIE = 2.0**-17
+CHUNK_CANDIDATES = 1 << 21
+
+
+@dataclass
+class ReferenceRaster(Raster):
+    """A :class:`Raster` from the reference, in float64, plus where it cannot judge.
+
+    edge_band : (H, W) bool   pixel centers within ``edge_band_px`` of an edge of a triangle
+                              whose coverage is not modeled exactly: either answer accepted
+    depth_tie : (H, W) bool   two triangles within DEPTH_TIE in depth: either may win
+    """
+
+    edge_band: np.ndarray | None = None
+    depth_tie: np.ndarray | None = None
+
+    @property
+    def ambiguous(self) -> np.ndarray:
+        """Pixels whose coverage or winning triangle may differ between correct drivers."""
+        return self.edge_band | self.depth_tie
+
+
+@dataclass
+class TriangleSetup:
+    """Per-triangle data, float64 unless noted. T triangles.
+
+    clip   : (T, 3, 4)  clip-space vertices
+    adj    : (T, 3, 3)  rows: edge functions e_i(p) = adj[i, 0] p_x + adj[i, 1] p_y + adj[i, 2]
+    det    : (T,)       det(M); s = e / det
+    exact  : (T,) bool  coverage modeled bit for bit (llvmpipe rule, no clipping)
+    fixed  : (T, 3, 3) int64 or None   llvmpipe edges (dcdx, dcdy, c) when usable
+    fixed_ok : (T,) bool  ``fixed`` holds a valid edge setup (not culled as zero area)
+    bbox   : (T, 4) int64 x0, x1, y0, y1 inclusive pixel range (x1 < x0: no pixels)
+    """
+
+    clip: np.ndarray
+    adj: np.ndarray
+    det: np.ndarray
+    exact: np.ndarray
+    fixed: np.ndarray
+    fixed_ok: np.ndarray
+    bbox: np.ndarray
+
+
+def window_float32(clip: np.ndarray, resolution) -> np.ndarray:
+    """Window x, y of clip-space vertices as the driver computes them, in float32.
+
+    clip: (..., 4) float32. Returns (..., 2) float32: x_w = (x_c * (1 / w_c)) W/2 + W/2.
+    """
+    height, width = resolution
+    c = clip.astype(np.float32)
+    with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
+        rcp = np.float32(1.0) / c[..., 3]
+        scale = np.array([width / 2, height / 2], np.float32)
+        return (c[..., :2] * rcp[..., None]) * scale + scale
+
+
+def llvmpipe_edges(window: np.ndarray):
+    """llvmpipe's fixed-point edge setup for triangles given by float32 window positions.
+
+    window: (T, 3, 2) float32. Returns (edges, ok): edges (T, 3, 3) int64 holding
+    (dcdx, dcdy, c) per edge and ok (T,) bool (False: zero area after snapping, culled).
+
+    Vertices snap to X = rint((x_w - 0.5) * 256) (round half to even), so pixel (i, j)
+    samples the fixed-point point (256 i, 256 j). After ordering the vertices so that the
+    opposite vertex lies on the positive side, per edge i -> i+1:
+    dcdx = Y_i - Y_{i+1}, dcdy = X_i - X_{i+1}, c = dcdx X_i - dcdy Y_i, plus 1 when dcdx < 0
+    or (dcdx == 0 and dcdy > 0). A sample is covered when c - dcdx x + dcdy y >= 1 on all
+    three edges: a bottom-left fill rule in GL window coordinates.
+    """
+    snapped = np.rint((window - np.float32(0.5)) * np.float32(FIXED_ONE)).astype(np.int64)
+    x, y = snapped[..., 0].copy(), snapped[..., 1].copy()
+    side = (y[:, 0] - y[:, 1]) * (x[:, 0] - x[:, 2]) - (x[:, 0] - x[:, 1]) * (y[:, 0] - y[:, 2])
+    flip = side < 0
+    x[flip, 1], x[flip, 2] = x[flip, 2], x[flip, 1].copy()
+    y[flip, 1], y[flip, 2] = y[flip, 2], y[flip, 1].copy()
+    nxt = [1, 2, 0]
+    dcdx = y - y[:, nxt]
+    dcdy = x - x[:, nxt]
+    c = dcdx * x - dcdy * y
+    c += (dcdx < 0) | ((dcdx == 0) & (dcdy > 0))
+    return np.stack([dcdx, dcdy, c], axis=-1), side != 0
+
+
+def setup(pos: np.ndarray, tri: np.ndarray, resolution, fill_rule: str | None) -> TriangleSetup:
+    """Per-triangle setup of the reference. pos (V, 4) float32, tri (T, 3) int32."""
+    height, width = resolution
+    clip32 = pos[tri]                                   # (T, 3, 4) float32
+    clip = clip32.astype(np.float64)
+    w = clip[..., 3]
+    hom = np.stack(
+        [(clip[..., 0] + w) * (width / 2), (clip[..., 1] + w) * (height / 2), w], axis=1
+    )                                                   # (T, 3 rows X/Y/w, 3 vertices)
+    cols = np.moveaxis(hom, 2, 1)                       # (T, vertex, xyw)
+    adj = np.cross(cols[:, [1, 2, 0]], cols[:, [2, 0, 1]])  # row i = col_{i+1} x col_{i+2}
+    det = np.einsum("ti,ti->t", adj[:, 0], cols[:, 0])
+
+    z = clip[..., 2]
+    in_front = (w > 0).all(axis=1)
+    in_depth = (np.abs(z) <= w).all(axis=1)
+    win = window_float32(clip32, resolution)            # (T, 3, 2) float32
+    with np.errstate(invalid="ignore"):
+        inside = (
+            in_front & in_depth
+            & (win[..., 0] >= 0).all(1) & (win[..., 0] <= width).all(1)
+            & (win[..., 1] >= 0).all(1) & (win[..., 1] <= height).all(1)
+        )
+        # The fixed-point model stays meaningful (and inside int64) for unclipped
+        # triangles within a wide guard band; past it only the float test is used.
+        limit = float(1 << 22)
+        modeled = in_front & in_depth & (np.abs(win) < limit).all(axis=(1, 2))
+    fixed = np.zeros((len(tri), 3, 3), np.int64)
+    fixed_ok = np.zeros(len(tri), bool)
+    if fill_rule == "llvmpipe" and modeled.any():
+        fixed[modeled], fixed_ok[modeled] = llvmpipe_edges(win[modeled])
+    exact = inside if fill_rule == "llvmpipe" else np.zeros(len(tri), bool)
+
+    bbox = _bounding_boxes(clip, resolution, w, z)
+    return TriangleSetup(clip, adj, det, exact, fixed if fill_rule else None, fixed_ok & modeled, bbox)
+
+
+def _bounding_boxes(clip, resolution, w, z) -> np.ndarray:
+    """(T, 4) inclusive pixel ranges x0, x1, y0, y1 that can hold a fragment, widened by one
+    pixel for the edge band and clipped to the viewport. Triangles crossing the near or far
+    plane are clipped in clip space first; if a clipped vertex reaches w ~ 0 the whole
+    viewport is used."""
+    height, width = resolution
+    T = len(clip)
+    lo = np.full((T, 2), -np.inf)
+    hi = np.full((T, 2), np.inf)
+    simple = (w > 0).all(1) & (np.abs(z) <= w).all(1)
+    if simple.any():
+        ndc = clip[simple][..., :2] / w[simple][..., None]
+        lo[simple] = ndc.min(1)
+        hi[simple] = ndc.max(1)
+    for t in np.flatnonzero(~simple):
+        poly = _clip_near_far(clip[t])
+        if len(poly) and (poly[:, 3] > 1e-12 * np.abs(poly[:, :3]).max(initial=1.0)).all():
+            ndc = poly[:, :2] / poly[:, 3:4]
+            lo[t], hi[t] = ndc.min(0), ndc.max(0)
+        elif not len(poly):
+            lo[t], hi[t] = np.inf, -np.inf  # nothing survives clipping
+    size = np.array([width, height], np.float64)
+    with np.errstate(invalid="ignore"):
+        lo_px = np.floor((lo + 1) * size / 2 - 0.5) - 1
+        hi_px = np.ceil((hi + 1) * size / 2 - 0.5) + 1
+    lo_px = np.clip(np.nan_to_num(lo_px, nan=0, posinf=size.max() + 1, neginf=-1), -1, size)
+    hi_px = np.clip(np.nan_to_num(hi_px, nan=-1, posinf=size.max() + 1, neginf=-1), -1, size)
+    lo_px = np.maximum(lo_px, 0)
+    hi_px = np.minimum(hi_px, size - 1)
+    return np.stack([lo_px[:, 0], hi_px[:, 0], lo_px[:, 1], hi_px[:, 1]], 1).astype(np.int64)
+
+
+def _clip_near_far(vertices: np.ndarray) -> np.ndarray:
+    """Sutherland-Hodgman clip of one triangle (3, 4) against -w <= z <= w. Returns (N, 4)."""
+    poly = list(vertices)
+    for sign in (1.0, -1.0):  # keep w + z >= 0, then w - z >= 0
+        out = []
+        for a, b in zip(poly, poly[1:] + poly[:1]):
+            da, db = a[3] + sign * a[2], b[3] + sign * b[2]
+            if da >= 0:
+                out.append(a)
+            if (da >= 0) != (db >= 0):
+                out.append(a + (b - a) * (da / (da - db)))
+        poly = out
+        if not poly:
+            break
+    return np.array(poly).reshape(-1, 4)
+
+
+def rasterize(
+    pos,
+    tri,
+    resolution,
+    *,
+    outputs=validate.OUTPUTS,
+    fill_rule: str | None = "llvmpipe",
+    edge_band_px: float = DEFAULT_EDGE_BAND_PX,
+) -> ReferenceRaster:
+    """Rasterize analytically in float64, with the same conventions as :func:`glraster.rasterize`.
+
+    Parameters
+    ----------
+    pos, tri, resolution, outputs : as for :func:`glraster.rasterize`
+    fill_rule : "llvmpipe" or None
+        "llvmpipe": coverage of unclipped triangles inside the viewport follows Mesa
+        llvmpipe's fixed-point rule bit for bit. None: a point-in-triangle test at pixel
+        centers, and every triangle's edges form the edge band.
+    edge_band_px : float
+        Half-width, in pixels, of the band around edges where coverage is not judged.
+
+    Returns
+    -------
+    ReferenceRaster with float64 ``persp``/``screen``/``depth``, int32 ``tri_id``, plus
+    ``edge_band`` and ``depth_tie`` (H, W) bool.
+    """
+    names = validate.outputs(outputs)
+    if fill_rule not in ("llvmpipe", None):
+        raise ValueError(f"fill_rule must be 'llvmpipe' or None, got {fill_rule!r}")
+    if not (np.isfinite(edge_band_px) and edge_band_px >= 0):
+        raise ValueError(f"edge_band_px must be a finite number >= 0, got {edge_band_px!r}")
+    pos = validate.positions(pos)
+    tri = validate.triangles(tri, len(pos))
+    height, width = validate.resolution(resolution)
+
+    best_depth = np.ones(height * width)       # the cleared depth buffer
+    second_depth = np.full(height * width, np.inf)
+    best_tri = np.full(height * width, -1, np.int64)
+    band = np.zeros(height * width, bool)
+
+    if len(tri):
+        ts = setup(pos, tri, (height, width), fill_rule)
+        for cand in _candidates(ts):
+            _depth_test(ts, cand, best_depth, second_depth, best_tri, band, width,
+                        fill_rule, edge_band_px)
+
+    covered = best_tri >= 0
+    values = _values(ts if len(tri) else None, best_tri, covered, (height, width), names)
+    depth_tie = covered & (second_depth - best_depth <= DEPTH_TIE)
+    shape = (height, width)
+    return ReferenceRaster(
+        resolution=shape,
+        mask=covered.reshape(shape),
+        edge_band=band.reshape(shape),
+        depth_tie=depth_tie.reshape(shape),
+        info={"backend": "reference", "renderer": f"numpy float64, fill rule {fill_rule}"},
+        **values,
+    )
+
+
+def _candidates(ts: TriangleSetup):
+    """Yield (tri, px, py) int64 arrays of (triangle, pixel) pairs inside the bounding
+    boxes, in draw order, at most CHUNK_CANDIDATES at a time (a big triangle is split)."""
+    x0, x1, y0, y1 = ts.bbox.T
+    bw = np.maximum(x1 - x0 + 1, 0)
+    count = bw * np.maximum(y1 - y0 + 1, 0)
+    ends = np.cumsum(count)
+    total = int(ends[-1]) if len(ends) else 0
+    for start in range(0, total, CHUNK_CANDIDATES):
+        g = np.arange(start, min(start + CHUNK_CANDIDATES, total), dtype=np.int64)
+        t = np.searchsorted(ends, g, side="right")
+        local = g - (ends[t] - count[t])
+        yield t, x0[t] + local % bw[t], y0[t] + local // bw[t]
+
+
+def _edge_values(ts: TriangleSetup, t, px, py):
+    """s = M^-1 (p, 1) at pixel centers: (N, 3) float64, and the edge gradients (N, 3, 2)."""
+    a = ts.adj[t]
+    cx = px + 0.5
+    cy = py + 0.5
+    e = a[..., 0] * cx[:, None] + a[..., 1] * cy[:, None] + a[..., 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = e / ts.det[t][:, None]
+    return s, a
+
+
+def _depth_test(ts, cand, best_depth, second_depth, best_tri, band, width, fill_rule, band_px):
+    """Coverage, clipping and the LESS depth test of one chunk of candidates, merged into
+    the running per-pixel state (arrays of length H*W, updated in place)."""
+    t, px, py = cand
+    s, adj = _edge_values(ts, t, px, py)
+    z = ts.clip[t, :, 2]
+    with np.errstate(invalid="ignore"):
+        z_ndc = (s * z).sum(1)
+        inside_float = (s >= 0).all(1) & (s.sum(1) > 0)
+    in_depth_range = (z_ndc >= -1) & (z_ndc <= 1)
+
+    covered = inside_float & in_depth_range
+    if fill_rule == "llvmpipe":
+        use_fixed = ts.fixed_ok[t]
+        f = ts.fixed[t]
+        sx = (px * FIXED_ONE)[:, None]
+        sy = (py * FIXED_ONE)[:, None]
+        fixed_in = ((f[..., 2] - f[..., 0] * sx + f[..., 1] * sy) >= 1).all(1)
+        covered = np.where(use_fixed, fixed_in & in_depth_range, covered)
+        # llvmpipe culls triangles that snap to zero area: an exact triangle with
+        # fixed_ok False produces nothing.
+        covered &= ~(ts.exact[t] & ~use_fixed)
+        judge_band = ~ts.exact[t]
+    else:
+        judge_band = np.ones(len(t), bool)
+
+    if band_px > 0 and judge_band.any():
+        # Signed distance (px) of the center to each edge line and to the near/far lines.
+        grad = np.hypot(adj[..., 0], adj[..., 1])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            # s_i |det| / |grad e_i| is the distance, positive on the triangle's side.
+            dist = np.where(grad > 0, s * np.abs(ts.det[t])[:, None] / grad, np.inf)
+            zgrad = (adj[..., :2] * (z / ts.det[t][:, None])[..., None]).sum(1)
+            zg = np.hypot(zgrad[:, 0], zgrad[:, 1])
+            dnear = np.where(zg > 0, (z_ndc + 1) / zg, np.inf)
+            dfar = np.where(zg > 0, (1 - z_ndc) / zg, np.inf)
+        signed = np.concatenate([dist, dnear[:, None], dfar[:, None]], 1)
+        signed = np.nan_to_num(signed, nan=-np.inf)
+        near_edge = (signed >= -band_px).all(1) & (np.abs(signed) < band_px).any(1)
+        front = s.sum(1) > 0
+        band[(py * width + px)[judge_band & near_edge & front]] = True
+
+    # Depth: GL stores float32 and tests LESS against the cleared 1.0.
+    depth = z_ndc * 0.5 + 0.5
+    keep = covered & (depth.astype(np.float32) < np.float32(1.0))
+    if not keep.any():
+        return
+    pix = (py * width + px)[keep]
+    depth = depth[keep]
+    tk = t[keep]
+    order = np.lexsort((tk, depth, pix))
+    pix, depth, tk = pix[order], depth[order], tk[order]
+    first = np.ones(len(pix), bool)
+    first[1:] = pix[1:] != pix[:-1]
+    starts = np.flatnonzero(first)
+    win_pix, win_depth, win_tri = pix[starts], depth[starts], tk[starts]
+    runner = np.full(len(starts), np.inf)
+    has_second = np.append(starts[1:], len(pix)) - starts > 1
+    runner[has_second] = depth[starts[has_second] + 1]
+
+    old_best = best_depth[win_pix]
+    old_second = second_depth[win_pix]
+    wins = win_depth < old_best  # strict: earlier chunks (earlier triangles) keep ties
+    new_best = np.where(wins, win_depth, old_best)
+    loser = np.where(wins, old_best, win_depth)
+    new_second = np.minimum(np.minimum(old_second, runner), loser)
+    best_depth[win_pix] = new_best
+    second_depth[win_pix] = new_second
+    best_tri[win_pix] = np.where(wins, win_tri, best_tri[win_pix])
+
+
+def _values(ts, best_tri, covered, resolution, names) -> dict:
+    """The requested outputs at every pixel from the winning triangle (float64)."""
+    height, width = resolution
+    n = height * width
+    out = {}
+    pix = np.flatnonzero(covered)
+    if ts is not None and len(pix):
+        t = best_tri[pix]
+        s, _ = _edge_values(ts, t, pix % width, pix // width)
+        total = s.sum(1, keepdims=True)
+    if "persp" in names:
+        persp = np.zeros((n, 3))
+        if len(pix):
+            persp[pix] = s / total
+        out["persp"] = persp.reshape(height, width, 3)
+    if "screen" in names:
+        screen = np.zeros((n, 3))
+        if len(pix):
+            screen[pix] = s * ts.clip[t, :, 3]
+        out["screen"] = screen.reshape(height, width, 3)
+    if "depth" in names:
+        depth = np.ones(n)
+        if len(pix):
+            depth[pix] = (s * ts.clip[t, :, 2]).sum(1) * 0.5 + 0.5
+        out["depth"] = depth.reshape(height, width)
+    if "tri_id" in names:
+        out["tri_id"] = best_tri.astype(np.int32).reshape(height, width)
+    return out

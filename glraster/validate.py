@@ -1,0 +1,79 @@
+"""Checking and converting user input once, with errors that name the argument."""
+
+from __future__ import annotations
+
+import numbers
+
+import numpy as np
+
+OUTPUTS = ("persp", "screen", "depth", "tri_id")
+
+
+def positions(pos) -> np.ndarray:
+    """``pos`` as a C-contiguous (V, 4) float32 array of finite clip-space positions."""
+    arr = np.asarray(pos)
+    if arr.dtype == object or not (
+        np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)
+    ) or arr.dtype == np.bool_:
+        raise ValueError(f"pos must hold real numbers (float or int), got dtype {arr.dtype}")
+    if arr.ndim != 2 or arr.shape[1] != 4:
+        raise ValueError(f"pos must have shape (V, 4), got {arr.shape}")
+    with np.errstate(over="ignore"):
+        out = np.ascontiguousarray(arr, dtype=np.float32)
+    bad = ~np.isfinite(out)
+    if bad.any():
+        row = int(np.argwhere(bad)[0][0])
+        what = "NaN or Inf" if not np.isfinite(arr[row]).all() else "values beyond float32 range"
+        raise ValueError(f"pos must be finite, row {row} has {what}: {arr[row].tolist()}")
+    return out
+
+
+def triangles(tri, num_vertices: int) -> np.ndarray:
+    """``tri`` as a C-contiguous (T, 3) int32 array of indices in [0, num_vertices)."""
+    arr = np.asarray(tri)
+    if arr.size == 0 and arr.ndim <= 2 and (arr.ndim < 2 or arr.shape[-1] in (0, 3)):
+        return np.zeros((0, 3), np.int32)
+    if not np.issubdtype(arr.dtype, np.integer) or arr.dtype == np.bool_:
+        raise ValueError(f"tri must have an integer dtype, got {arr.dtype}")
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"tri must have shape (T, 3), got {arr.shape}")
+    low, high = int(arr.min()), int(arr.max())
+    if low < 0:
+        raise ValueError(f"tri must hold indices >= 0, got {low}")
+    if high >= num_vertices:
+        raise ValueError(f"tri index {high} is out of range for pos with {num_vertices} vertices")
+    return np.ascontiguousarray(arr, dtype=np.int32)
+
+
+def resolution(res, max_size: int | None = None) -> tuple[int, int]:
+    """``res`` as (height, width) python ints, each in [1, max_size]."""
+    try:
+        height, width = res
+    except (TypeError, ValueError):
+        raise ValueError(f"resolution must be (height, width), got {res!r}") from None
+    for name, value in (("height", height), ("width", width)):
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
+            raise ValueError(f"resolution {name} must be an integer, got {value!r}")
+        if value <= 0:
+            raise ValueError(f"resolution {name} must be > 0, got {value}")
+        if max_size is not None and value > max_size:
+            raise ValueError(
+                f"resolution {name} {value} exceeds the driver's maximum of {max_size}"
+            )
+    return int(height), int(width)
+
+
+def outputs(names) -> tuple[str, ...]:
+    """``names`` as a tuple of output names in canonical order, at least one."""
+    if isinstance(names, str):
+        names = (names,)
+    try:
+        names = tuple(names)
+    except TypeError:
+        raise ValueError(f"outputs must be a sequence of names from {OUTPUTS}, got {names!r}") from None
+    unknown = [n for n in names if n not in OUTPUTS]
+    if unknown:
+        raise ValueError(f"outputs has unknown names {unknown}; choose from {OUTPUTS}")
+    if not names:
+        raise ValueError(f"outputs must name at least one of {OUTPUTS}")
+    return tuple(n for n in OUTPUTS if n in names)
