@@ -1,0 +1,112 @@
+"""interpolate(): exact sums on hand-made rasters, and geometric meaning on GPU rasters."""
+
+import numpy as np
+import pytest
+
+import glraster as gr
+from glraster import camera as cam
+from glraster.interpolate import interpolate
+
+
+def _toy_raster(dtype=np.float64):
+    """2x3 raster: two covered pixels of triangles 1 and 0, the rest empty."""
+    tri_id = np.full((2, 3), -1, np.int32)
+    bary = np.zeros((2, 3, 3), dtype)
+    tri_id[0, 1], bary[0, 1] = 1, (0.25, 0.25, 0.5)
+    tri_id[1, 2], bary[1, 2] = 0, (1.0, 0.0, 0.0)
+    return gr.Raster(resolution=(2, 3), mask=tri_id >= 0, persp=bary, screen=bary * 1,
+                     tri_id=tri_id)
+
+
+def test_exact_weighted_sum_and_empty_pixels_zero():
+    r = _toy_raster()
+    tri = np.array([[0, 1, 2], [2, 3, 1]])
+    attr = np.array([[1.0, 10.0], [2.0, 20.0], [4.0, 40.0], [8.0, 80.0]])
+    out = interpolate(attr, r, tri)
+    expected = np.zeros((2, 3, 2))
+    expected[0, 1] = 0.25 * attr[2] + 0.25 * attr[3] + 0.5 * attr[1]   # (4.0, 40.0)
+    expected[1, 2] = attr[0]
+    # Dyadic weights and small integers: every product and sum is exact in float64.
+    np.testing.assert_array_equal(out, expected)
+    assert out.dtype == np.float64
+    one = interpolate(attr[:, 0], r, tri, space="screen")
+    assert one.shape == (2, 3)
+    np.testing.assert_array_equal(one, expected[..., 0])
+
+
+def test_output_dtype_follows_barycentrics():
+    r = _toy_raster(np.float32)
+    out = interpolate(np.ones((4, 3), np.float64), r, [[0, 1, 2], [2, 3, 1]])
+    assert out.dtype == np.float32 and out.shape == (2, 3, 3)
+
+
+def _gpu_scene():
+    """One large triangle with view depths 1.5, 6 and 3 (w differ, so persp != screen)."""
+    eye = np.array([[-1.2, -0.9, -1.5], [4.0, -2.0, -6.0], [0.1, 1.2, -3.0]])
+    P = cam.perspective(60.0, 1.0, 0.5, 20.0)
+    pos = cam.project(eye, proj=P)
+    return eye, P, pos, np.array([[0, 1, 2]])
+
+
+def test_persp_interpolated_eye_position_reprojects_to_pixel_center():
+    """Perspective-correct interpolation of eye-space position gives the 3D surface point
+    on the pixel's ray, so projecting it back lands on the pixel center."""
+    eye, P, pos, tri = _gpu_scene()
+    H = W = 64
+    r = gr.rasterize(pos, tri, (H, W), outputs=("persp", "tri_id"))
+    pts = interpolate(eye, r, tri, space="persp")[r.mask]
+    assert pts.dtype == np.float32 and len(pts) > 500
+    win = cam.clip_to_window(cam.project(pts.astype(np.float64), proj=P, dtype=np.float64),
+                             (H, W))
+    ys, xs = np.nonzero(r.mask)
+    err = np.abs(win[:, :2] - np.stack([xs + 0.5, ys + 0.5], 1)).max()
+    # llvmpipe barycentrics carry ~1e-5 error on a triangle this size (DESIGN.md) and the
+    # triangle spans ~60 px, so position errors of ~1e-3 px are expected; 1e-2 px still
+    # rejects affine interpolation, which is off by several pixels here.
+    assert err < 1e-2, err
+
+
+def test_screen_interpolated_window_position_is_pixel_center():
+    """Window coordinates are affine in window space: screen barycentrics reproduce them."""
+    eye, P, pos, tri = _gpu_scene()
+    H = W = 64
+    r = gr.rasterize(pos, tri, (H, W), outputs=("screen", "tri_id"))
+    win = cam.clip_to_window(pos, (H, W))
+    got = interpolate(win[:, :2], r, tri, space="screen")[r.mask]
+    ys, xs = np.nonzero(r.mask)
+    err = np.abs(got - np.stack([xs + 0.5, ys + 0.5], 1)).max()
+    # noperspective barycentrics are within ~6e-5 on llvmpipe (DESIGN.md) times a ~60 px
+    # triangle extent: a few 1e-3 px.
+    assert err < 1e-2, err
+    # and the perspective-correct path does NOT reproduce window positions here
+    rp = gr.rasterize(pos, tri, (H, W), outputs=("persp", "tri_id"))
+    bad = interpolate(win[:, :2], rp, tri, space="persp")[rp.mask]
+    assert np.abs(bad - np.stack([xs + 0.5, ys + 0.5], 1)).max() > 1.0
+
+
+@pytest.mark.parametrize("kwargs, name", [
+    (dict(space="ndc"), "space"),
+    (dict(attr=np.ones((3, 2, 2))), "attr"),
+    (dict(attr=np.array(["a", "b", "c", "d"])), "attr"),
+    (dict(tri=np.array([[0, 1]])), "tri"),
+    (dict(tri=np.array([[0, 1, 9], [0, 1, 2]])), "tri"),
+    (dict(tri=np.array([[0.0, 1.0, 2.0], [0, 1, 2]])), "tri"),
+    (dict(tri=np.array([[0, 1, 2]])), "tri_id"),
+])
+def test_invalid_arguments_raise_valueerror_naming_them(kwargs, name):
+    args = dict(attr=np.ones((4, 2)), raster=_toy_raster(), tri=np.array([[0, 1, 2], [2, 3, 1]]),
+                space="persp")
+    args.update(kwargs)
+    with pytest.raises(ValueError, match=name):
+        interpolate(**args)
+
+
+def test_missing_outputs_are_named():
+    r = _toy_raster()
+    r.tri_id = None
+    with pytest.raises(ValueError, match="tri_id"):
+        interpolate(np.ones((4, 1)), r, [[0, 1, 2]])
+    r = _toy_raster()
+    r.screen = None
+    with pytest.raises(ValueError, match="screen"):
+        interpolate(np.ones((4, 1)), r, [[0, 1, 2]], space="screen")
