@@ -25,7 +25,7 @@ their edges in ``edge_band``, where either answer is accepted.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -53,6 +53,7 @@ class ReferenceRaster(Raster):
 
     edge_band: np.ndarray | None = None
     depth_tie: np.ndarray | None = None
+    setup: "TriangleSetup | None" = field(default=None, repr=False)
 
     @property
     def ambiguous(self) -> np.ndarray:
@@ -254,8 +255,9 @@ def rasterize(
             _depth_test(ts, cand, best_depth, second_depth, best_tri, band, width,
                         fill_rule, edge_band_px)
 
+    ts = ts if len(tri) else None
     covered = best_tri >= 0
-    values = _values(ts if len(tri) else None, best_tri, covered, (height, width), names)
+    values = _values(ts, best_tri, covered, (height, width), names)
     depth_tie = covered & (second_depth - best_depth <= DEPTH_TIE)
     shape = (height, width)
     return ReferenceRaster(
@@ -263,6 +265,7 @@ def rasterize(
         mask=covered.reshape(shape),
         edge_band=band.reshape(shape),
         depth_tie=depth_tie.reshape(shape),
+        setup=ts,
         info={"backend": "reference", "renderer": f"numpy float64, fill rule {fill_rule}"},
         **values,
     )
