@@ -44,6 +44,7 @@ __all__ = [
     "view_from_opencv",
     "project",
     "clip_to_window",
+    "shift_window",
     "opencv_project",
     "opencv_to_window",
     "window_to_opencv",
@@ -375,3 +376,29 @@ def clip_to_window(pos, resolution) -> np.ndarray:
     ndc = p[:, :3] / p[:, 3:4]
     return np.stack([(ndc[:, 0] + 1) * W / 2, (ndc[:, 1] + 1) * H / 2, ndc[:, 2] * 0.5 + 0.5],
                     axis=1)
+
+
+def shift_window(proj, dx: float, dy: float, resolution) -> np.ndarray:
+    """Projection whose window positions are those of ``proj`` moved by (dx, dy) pixels.
+
+    ``x_w' = x_w + dx`` means ``x_ndc' = x_ndc + 2 dx / W``, i.e. adding ``2 dx / W`` times
+    the w row to the x row (same for y).  Rendering with the result samples the scene at
+    window position ``(x + 0.5 - dx, y + 0.5 - dy)`` of the original projection in pixel
+    (x, y); with ``dx = 0.5 - sx`` that is a sample at ``(x + sx, y + sy)``.
+
+    Args:
+        proj: (4, 4) projection.
+        dx, dy: shift in pixels.
+        resolution: (H, W).
+
+    Returns:
+        (4, 4) float64.
+    """
+    m = _array("proj", proj, (4, 4))
+    dx, dy = _scalar("dx", dx), _scalar("dy", dy)
+    if len(resolution) != 2:
+        raise ValueError(f"resolution must be (H, W), got {resolution!r}")
+    H, W = _size("resolution[0]", resolution[0]), _size("resolution[1]", resolution[1])
+    m[0] += 2.0 * dx / W * m[3]
+    m[1] += 2.0 * dy / H * m[3]
+    return m

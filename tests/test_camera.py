@@ -151,3 +151,14 @@ def test_look_at_frame():
 def test_invalid_arguments_raise_valueerror_naming_them(call, name):
     with pytest.raises(ValueError, match=name):
         call()
+
+
+def test_shift_window_moves_every_point_by_the_shift():
+    rng = np.random.default_rng(3)
+    P = cam.from_intrinsics([[300, 0, 100], [0, 310, 80], [0, 0, 1]], 200, 160, 0.1, 50)
+    pts = rng.uniform(-1, 1, (30, 3)) + [0, 0, -5]
+    a = cam.clip_to_window(cam.project(pts, proj=P, dtype=np.float64), (160, 200))
+    b = cam.clip_to_window(cam.project(pts, proj=cam.shift_window(P, 0.125, -0.375, (160, 200)),
+                                       dtype=np.float64), (160, 200))
+    # float64 rounding of window coordinates of size ~200 px
+    np.testing.assert_allclose(b - a, np.tile([0.125, -0.375, 0.0], (30, 1)), atol=1e-10)
