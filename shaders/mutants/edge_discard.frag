@@ -1,0 +1,38 @@
+#version 450 core
+// MUTANT (deliberate fault for glraster check --mutants): fragments whose center lies on an edge are discarded: shared edges lose their pixels.
+// Writes the requested barycentric targets. Window depth needs no output: the depth
+// attachment (32-bit float, test LESS) holds gl_FragCoord.z.
+//
+// Host defines: OUT_PERSP, OUT_SCREEN, OUT_TRI_ID and PERSP_LOCATION, SCREEN_LOCATION,
+// TRI_ID_LOCATION (the color attachment of each).
+
+#ifdef OUT_PERSP
+smooth in vec3 v_persp;
+layout(location = PERSP_LOCATION) out vec3 out_persp;
+#endif
+#ifdef OUT_SCREEN
+noperspective in vec3 v_screen;
+layout(location = SCREEN_LOCATION) out vec3 out_screen;
+#endif
+#ifdef OUT_TRI_ID
+// Triangle index + 1, so that the cleared value 0 means "empty"; exact for any count
+// below 2^31 because the target is a 32-bit integer texture.
+layout(location = TRI_ID_LOCATION) out int out_tri_id;
+#endif
+
+noperspective in vec3 v_edge;
+
+void main() {
+    // distance of the center to the nearest edge, in pixels: b / |grad b|
+    vec3 dist = v_edge / max(fwidth(v_edge), vec3(1e-30));
+    if (min(dist.x, min(dist.y, dist.z)) < 1e-3) discard;
+#ifdef OUT_PERSP
+    out_persp = v_persp;
+#endif
+#ifdef OUT_SCREEN
+    out_screen = v_screen;
+#endif
+#ifdef OUT_TRI_ID
+    out_tri_id = gl_PrimitiveID + 1;
+#endif
+}

@@ -1,0 +1,32 @@
+#version 450 core
+// MUTANT (deliberate fault for glraster check --mutants): fragments whose center lies on an edge are discarded: shared edges lose their pixels.
+// Vertex pulling of indexed triangles. The draw is glDrawArrays(GL_TRIANGLES, 0, 3 T):
+// vertex k is corner k % 3 of triangle k / 3, so every corner gets its own barycentric
+// unit vector even where triangles share a vertex.
+//
+// Host defines (one line each, inserted after #version): OUT_PERSP, OUT_SCREEN.
+
+layout(std430, binding = 0) readonly buffer Positions { vec4 positions[]; };  // (V, 4) clip space
+layout(std430, binding = 1) readonly buffer Indices { int indices[]; };       // (T, 3) flattened
+
+#ifdef OUT_PERSP
+smooth out vec3 v_persp;          // perspective-correct: GL 4.5 core eq. 14.9
+#endif
+#ifdef OUT_SCREEN
+noperspective out vec3 v_screen;  // linear in window space: GL 4.5 core eq. 14.10
+#endif
+
+noperspective out vec3 v_edge;  // window-space barycentrics, always
+
+void main() {
+    int corner = gl_VertexID % 3;
+    vec3 unit = vec3(corner == 0, corner == 1, corner == 2);
+    gl_Position = positions[indices[gl_VertexID]];
+    v_edge = unit;
+#ifdef OUT_PERSP
+    v_persp = unit;
+#endif
+#ifdef OUT_SCREEN
+    v_screen = unit;
+#endif
+}

@@ -1,0 +1,33 @@
+#version 450 core
+// MUTANT (deliberate fault for glraster check --mutants): varyings sampled at the pixel corner (offset -0.5, -0.5), not the center.
+// Writes the requested barycentric targets. Window depth needs no output: the depth
+// attachment (32-bit float, test LESS) holds gl_FragCoord.z.
+//
+// Host defines: OUT_PERSP, OUT_SCREEN, OUT_TRI_ID and PERSP_LOCATION, SCREEN_LOCATION,
+// TRI_ID_LOCATION (the color attachment of each).
+
+#ifdef OUT_PERSP
+smooth in vec3 v_persp;
+layout(location = PERSP_LOCATION) out vec3 out_persp;
+#endif
+#ifdef OUT_SCREEN
+noperspective in vec3 v_screen;
+layout(location = SCREEN_LOCATION) out vec3 out_screen;
+#endif
+#ifdef OUT_TRI_ID
+// Triangle index + 1, so that the cleared value 0 means "empty"; exact for any count
+// below 2^31 because the target is a 32-bit integer texture.
+layout(location = TRI_ID_LOCATION) out int out_tri_id;
+#endif
+
+void main() {
+#ifdef OUT_PERSP
+    out_persp = interpolateAtOffset(v_persp, vec2(-0.5));
+#endif
+#ifdef OUT_SCREEN
+    out_screen = interpolateAtOffset(v_screen, vec2(-0.5));
+#endif
+#ifdef OUT_TRI_ID
+    out_tri_id = gl_PrimitiveID + 1;
+#endif
+}
