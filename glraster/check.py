@@ -1,0 +1,384 @@
+"""The conformance run behind ``glraster check``: every catalog scene on the current driver,
+compared with the reference (per-pixel error model) and with its golden EXR.
+
+Per scene:
+
+1. render on the GPU (:func:`glraster.rasterize`) with the scene's outputs;
+2. compute the float64 reference (:func:`glraster.golden.reference_for`);
+3. :func:`glraster.compare`: coverage (exact where llvmpipe's fill rule is modeled, edge
+   band elsewhere), triangle ids, and every value against its per-pixel tolerance from
+   :class:`glraster.tolerance.ErrorModel` for this context;
+4. non-finite GPU values on covered pixels are failures of their own;
+5. the golden EXR must equal the reference bit for bit (:func:`glraster.golden.check_scene`),
+   so the GPU is checked against the golden through the same tolerances; the largest
+   |GPU - golden| is reported as a figure.
+
+Known driver deviations (:data:`KNOWN_DEVIATIONS`) are counted separately ("xfail") instead
+of failing a scene; each names the driver, the output and the pixels it covers, and why.
+
+With ``mutants``, every mutant of :mod:`glraster.mutants` is rendered on the scenes that the
+real shaders passed (cheapest first) until one scene catches it; the real shaders go
+through the same mutant path as a control and must pass every one of those scenes.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import golden as _golden
+from . import mutants as _mutants
+from .compare import compare
+from .raster import rasterize
+from .scenes import Scene, list_scenes, load_scene
+from .tolerance import ErrorModel
+
+# References kept in memory for the mutant pass: scenes up to this many pixels.
+REFERENCE_CACHE_PIXELS = 1 << 20
+
+
+@dataclass(frozen=True)
+class KnownDeviation:
+    """A documented way a driver departs from the GL spec that the suite tolerates.
+
+    renderer : substring of GL_RENDERER the deviation applies to
+    output   : the output whose values are affected
+    pixels   : "clipped" = pixels whose reference triangle is not entirely inside the
+               viewport and the near/far planes (the driver's clipper makes new vertices)
+    reason   : what goes wrong and where it was measured
+    """
+
+    renderer: str
+    output: str
+    pixels: str
+    reason: str
+
+
+KNOWN_DEVIATIONS = (
+    KnownDeviation(
+        "llvmpipe", "screen", "clipped",
+        "Mesa llvmpipe 22.3: noperspective varyings of triangles that its clipper cuts "
+        "(vertices outside the guard band's reach or across the near plane) are "
+        "interpolated wrongly, up to 0.5 off and sometimes NaN; perspective-correct values "
+        "and depth are right. Minimal case: 64x64, clip vertices (-0.16, 0.048, 0, 0.8), "
+        "(-1.6, -0.9, 0, 1), (-0.3, -1.6, 0, 1) give NaN for every pixel."),
+)
+
+
+@dataclass
+class SceneResult:
+    """Outcome of one scene.
+
+    status  : "pass", "fail" or "error" (an exception; ``error`` holds the message)
+    report  : the :class:`glraster.compare.Report` (None on error)
+    golden  : :class:`glraster.golden.GoldenResult` (None when golden checking is off)
+    nonfinite : covered GPU pixels with NaN/Inf in some output
+    xfail   : output -> pixels over tolerance excused by a known deviation
+    golden_max_error : largest |GPU - golden| over pixels both cover with the same triangle
+    timings : seconds for "gpu", "reference", "compare", "golden"
+    """
+
+    name: str
+    description: str
+    resolution: tuple
+    triangles: int
+    status: str = "pass"
+    report: object = None
+    golden: object = None
+    nonfinite: int = 0
+    xfail: dict = field(default_factory=dict)
+    golden_max_error: float = 0.0
+    error: str = ""
+    failures: list = field(default_factory=list)
+    timings: dict = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "pass"
+
+    @property
+    def seconds(self) -> float:
+        return sum(self.timings.values())
+
+
+@dataclass
+class MutantResult:
+    """Outcome of one mutant: caught by ``caught_by`` (a scene name) or escaped."""
+
+    name: str
+    fault: str
+    caught_by: str | None = None
+    reason: str = ""
+    scenes_tried: int = 0
+    error: str = ""
+    seconds: float = 0.0
+
+    @property
+    def caught(self) -> bool:
+        return self.caught_by is not None
+
+
+@dataclass
+class CheckResult:
+    """A whole run: context description, per-scene results, and the mutant pass."""
+
+    backend: str
+    renderer: str
+    gl_version: str
+    scenes: list = field(default_factory=list)
+    mutants: list | None = None
+    control_failures: list = field(default_factory=list)  # scenes the control failed
+    seconds: float = 0.0
+
+    @property
+    def ok(self) -> bool:
+        scenes_ok = all(s.ok for s in self.scenes)
+        if self.mutants is None:
+            return scenes_ok
+        return scenes_ok and all(m.caught for m in self.mutants) and not self.control_failures
+
+
+def _deviation_pixels(dev: KnownDeviation, ref) -> np.ndarray:
+    if dev.pixels != "clipped":
+        raise ValueError(f"unknown deviation pixel class {dev.pixels!r}")
+    setup = getattr(ref, "setup", None)
+    if setup is None:
+        return np.zeros(ref.mask.shape, bool)
+    ids = ref.tri_id
+    out = np.zeros(ids.shape, bool)
+    covered = ids >= 0
+    out[covered] = ~setup.exact[ids[covered]]
+    return out
+
+
+def evaluate(gpu, ref, ctx, deviations=KNOWN_DEVIATIONS):
+    """Compare a GPU raster with the reference and apply the non-finite rule and the known
+    deviations. Returns (report, failures: list of str, nonfinite: int, xfail: dict)."""
+    rep = compare(gpu, ref, model=ErrorModel.for_context(ctx))
+    failures = []
+    xfail = {}
+    renderer = ctx.renderer if ctx is not None else ""
+    pix = np.flatnonzero(gpu.mask)               # work on covered pixels only
+    excused = {}
+    for dev in deviations:
+        if dev.renderer in renderer and dev.output in rep.values:
+            ex = _deviation_pixels(dev, ref).reshape(-1)[pix]
+            excused[dev.output] = excused[dev.output] | ex if dev.output in excused else ex
+    nonfinite = np.zeros(len(pix), bool)
+    for name in ("persp", "screen", "depth"):
+        a = getattr(gpu, name)
+        if a is None:
+            continue
+        fin = np.isfinite(a.reshape(a.shape[0] * a.shape[1], -1)[pix]).all(axis=1)
+        nf = ~fin
+        if name in excused:
+            xfail[name] = xfail.get(name, 0) + int((nf & excused[name]).sum())
+            nf &= ~excused[name]
+        nonfinite |= nf
+    n_nonfinite = int(nonfinite.sum())
+    if rep.coverage_mismatch:
+        failures.append(f"{rep.coverage_mismatch} coverage mismatches outside the edge band")
+    if rep.tri_id_mismatch:
+        failures.append(f"{rep.tri_id_mismatch} triangle id mismatches")
+    if n_nonfinite:
+        failures.append(f"{n_nonfinite} covered pixels with NaN/Inf values")
+    for name, stats in rep.values.items():
+        over = stats.over_tolerance
+        if over and name in excused:
+            over_px = rep.maps[f"{name}_ratio"].reshape(-1)[pix] > 1
+            n_ex = int((over_px & excused[name]).sum())
+            xfail[name] = xfail.get(name, 0) + n_ex
+            over -= n_ex
+        if over:
+            failures.append(f"{name}: {over} pixels over tolerance "
+                            f"(worst error/tolerance {stats.worst_ratio:.3g}, max error {stats.max:.3g})")
+    return rep, failures, n_nonfinite, xfail
+
+
+def _golden_max_error(gpu, g) -> float:
+    """Largest |GPU - golden| over the golden's window, where both hold the same id."""
+    y0, y1, x0, x1 = g.window
+    worst = 0.0
+    same = None
+    if g.tri_id is not None and gpu.tri_id is not None:
+        same = (gpu.tri_id[y0:y1, x0:x1] == g.tri_id) & (g.tri_id >= 0)
+    for name in ("persp", "screen", "depth"):
+        a, b = getattr(gpu, name), getattr(g, name)
+        if a is None or b is None:
+            continue
+        err = np.abs(a[y0:y1, x0:x1].astype(np.float64) - b)
+        if err.ndim == 3:
+            err = err.max(axis=2)
+        if same is not None:
+            err = err[same]
+        err = err[np.isfinite(err)]
+        if err.size:
+            worst = max(worst, float(err.max()))
+    return worst
+
+
+def run_scene(scene: Scene, ctx, *, golden_dir=None, check_golden=True, keep=False):
+    """Check one scene. Returns (SceneResult, artifacts) where artifacts is
+    {"gpu", "ref", "report"} when ``keep`` (for reports) else None."""
+    res = SceneResult(scene.name, scene.description, tuple(scene.resolution), len(scene.tri))
+    artifacts = None
+    try:
+        t = time.perf_counter()
+        gpu = rasterize(scene.pos, scene.tri, scene.resolution, ctx=ctx, outputs=scene.outputs)
+        res.timings["gpu"] = time.perf_counter() - t
+        t = time.perf_counter()
+        ref = _golden.reference_for(scene)
+        res.timings["reference"] = time.perf_counter() - t
+        t = time.perf_counter()
+        rep, failures, nonfinite, xfail = evaluate(gpu, ref, ctx)
+        res.report, res.nonfinite, res.xfail = rep, nonfinite, xfail
+        res.failures = failures
+        res.timings["compare"] = time.perf_counter() - t
+        if check_golden:
+            t = time.perf_counter()
+            res.golden = _golden.check_scene(scene, ref=ref, directory=golden_dir)
+            if res.golden.ok:
+                res.golden_max_error = _golden_max_error(gpu, res.golden.raster)
+            else:
+                res.failures.append(f"golden: {res.golden.message}")
+            res.golden.raster = None  # do not keep the arrays around
+            res.timings["golden"] = time.perf_counter() - t
+        res.status = "fail" if res.failures else "pass"
+        if keep:
+            artifacts = {"gpu": gpu, "ref": ref, "report": rep}
+    except Exception as exc:  # a scene that crashes must not stop the run
+        res.status = "error"
+        res.error = f"{type(exc).__name__}: {exc}"
+        res.failures.append(res.error)
+    return res, artifacts
+
+
+def _cost(scene: Scene) -> float:
+    h, w = scene.resolution
+    return h * w + 20.0 * len(scene.tri)
+
+
+def run_mutants(ctx, candidates, references, mutant_list=None, progress=None):
+    """Run the control and each mutant over ``candidates`` (scenes the real shaders
+    passed), cheapest first, using ``references`` (name -> reference raster).
+
+    Returns (list of MutantResult, list of scene names where the control failed)."""
+    order = sorted(candidates, key=_cost)
+    control_failures = []
+    for scene in order:
+        gpu = _mutants.render(None, scene.pos, scene.tri, scene.resolution, ctx=ctx,
+                              outputs=scene.outputs)
+        _, failures, _, _ = evaluate(gpu, references[scene.name], ctx)
+        if failures:
+            control_failures.append(scene.name)
+    results = []
+    for i, m in enumerate(mutant_list if mutant_list is not None else _mutants.MUTANTS):
+        if progress:
+            progress(i, m.name)
+        mr = MutantResult(m.name, m.fault)
+        t = time.perf_counter()
+        for scene in order:
+            mr.scenes_tried += 1
+            try:
+                gpu = _mutants.render(m, scene.pos, scene.tri, scene.resolution, ctx=ctx,
+                                      outputs=scene.outputs)
+            except Exception as exc:
+                mr.error = f"{type(exc).__name__}: {exc}"
+                break
+            _, failures, _, _ = evaluate(gpu, references[scene.name], ctx)
+            if failures:
+                mr.caught_by = scene.name
+                mr.reason = "; ".join(failures)
+                break
+        mr.seconds = time.perf_counter() - t
+        results.append(mr)
+    return results, control_failures
+
+
+def run(ctx, names=None, *, golden_dir=None, check_golden=True, mutants=False,
+        mutant_pattern=None, on_scene=None, progress=None) -> CheckResult:
+    """Check the scenes ``names`` (default: the whole catalog) on ``ctx``.
+
+    on_scene(result, artifacts): called after each scene with its SceneResult and
+    {"gpu", "ref", "report"} (e.g. to write report images); artifacts are dropped after.
+    progress(index, total, label): called before each step.
+    """
+    t0 = time.perf_counter()
+    names = list(names) if names is not None else list_scenes()
+    out = CheckResult(ctx.backend, ctx.renderer, ctx.gl_version)
+    references = {}
+    passed = []
+    mutant_list = _mutants.select(mutant_pattern) if mutants else []
+    total = len(names) + (len(mutant_list) if mutants else 0)
+    for i, name in enumerate(names):
+        if progress:
+            progress(i, total, name)
+        scene = load_scene(name)
+        res, art = run_scene(scene, ctx, golden_dir=golden_dir, check_golden=check_golden,
+                             keep=bool(on_scene) or mutants)
+        out.scenes.append(res)
+        if on_scene:
+            on_scene(res, art)
+        if mutants and res.ok and art is not None:
+            h, w = scene.resolution
+            if h * w <= REFERENCE_CACHE_PIXELS:
+                references[name] = art["ref"]
+                passed.append(scene)
+        del art
+    if mutants:
+        def mprog(j, label):
+            if progress:
+                progress(len(names) + j, total, f"mutant {label}")
+        out.mutants, out.control_failures = run_mutants(ctx, passed, references,
+                                                        mutant_list, mprog)
+    if progress:
+        progress(total, total, "done")
+    out.seconds = time.perf_counter() - t0
+    return out
+
+
+def format_table(result: CheckResult) -> str:
+    """The per-scene table (and the mutant table when present) as plain text."""
+    lines = [f"backend {result.backend} | {result.renderer} | GL {result.gl_version}", ""]
+    hdr = (f"{'scene':<28}{'size':>11}{'tris':>8}{'covered':>9}{'cov!':>6}{'id!':>5}"
+           f"{'persp e/tol':>12}{'screen e/tol':>13}{'depth e/tol':>12}{'golden':>8}"
+           f"{'secs':>7}  status")
+    lines.append(hdr)
+    lines.append("-" * len(hdr))
+    for s in result.scenes:
+        h, w = s.resolution
+        rep = s.report
+        def ratio(n):
+            if rep is None or n not in rep.values:
+                return "-"
+            return f"{rep.values[n].worst_ratio:.3f}"
+        gold = "-" if s.golden is None else ("exact" if s.golden.ok else "DIFF")
+        status = s.status.upper()
+        if s.ok and any(s.xfail.values()):
+            status += f" (xfail {sum(s.xfail.values())} px)"
+        lines.append(
+            f"{s.name:<28}{f'{w}x{h}':>11}{s.triangles:>8}"
+            f"{(rep.covered_gpu if rep else 0):>9}{(rep.coverage_mismatch if rep else 0):>6}"
+            f"{(rep.tri_id_mismatch if rep else 0):>5}{ratio('persp'):>12}{ratio('screen'):>13}"
+            f"{ratio('depth'):>12}{gold:>8}{s.seconds:>7.2f}  {status}")
+        for f in s.failures:
+            lines.append(f"    - {f}")
+    n_ok = sum(s.ok for s in result.scenes)
+    lines.append("")
+    lines.append(f"{n_ok}/{len(result.scenes)} scenes pass")
+    if result.mutants is not None:
+        lines.append("")
+        lines.append(f"{'mutant':<24}{'caught by':<28}{'tried':>6}{'secs':>7}  reason")
+        for m in result.mutants:
+            who = m.caught_by or ("ERROR" if m.error else "ESCAPED")
+            lines.append(f"{m.name:<24}{who:<28}{m.scenes_tried:>6}{m.seconds:>7.2f}  "
+                         f"{(m.reason or m.error)[:90]}")
+        caught = sum(m.caught for m in result.mutants)
+        lines.append(f"{caught}/{len(result.mutants)} mutants caught; control (real shaders "
+                     f"via the mutant path): "
+                     + ("no false alarm" if not result.control_failures
+                        else f"FAILED on {', '.join(result.control_failures)}"))
+    lines.append(f"total {result.seconds:.1f} s: " + ("PASS" if result.ok else "FAIL"))
+    return "\n".join(lines)
