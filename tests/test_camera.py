@@ -162,3 +162,30 @@ def test_shift_window_moves_every_point_by_the_shift():
                                        dtype=np.float64), (160, 200))
     # float64 rounding of window coordinates of size ~200 px
     np.testing.assert_allclose(b - a, np.tile([0.125, -0.375, 0.0], (30, 1)), atol=1e-10)
+
+
+def test_gpu_covers_the_opencv_pixel():
+    """A small triangle around the 3D point whose OpenCV projection is the center of pixel
+    (col, row) covers exactly glraster pixel (col, H - 1 - row) on the GPU."""
+    import glraster as gr
+
+    rng = np.random.default_rng(11)
+    for _ in range(12):
+        W, H = int(rng.integers(16, 200)), int(rng.integers(16, 200))
+        f = rng.uniform(0.5, 2.0) * max(W, H)
+        K = np.array([[f, 0.0, rng.uniform(0.3, 0.7) * W], [0.0, f * rng.uniform(0.9, 1.1),
+                      rng.uniform(0.3, 0.7) * H], [0.0, 0.0, 1.0]])
+        R, t = _random_rotation(rng), rng.normal(size=3)
+        col, row = int(rng.integers(0, W)), int(rng.integers(0, H))
+        Z = rng.uniform(0.5, 20.0)
+        center = Z * np.linalg.solve(K, [col, row, 1.0])
+        # corners 0.3 px from the center (at depth Z): the center's pixel is inside, every
+        # neighbouring pixel center (1 px away) is outside, so coverage is unambiguous.
+        s = 0.3 * Z / K[0, 0]
+        corners = center + s * np.array([[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [0.0, 1.0, 0.0]])
+        world = (corners - t) @ R
+        pos = cam.project(world, None, cam.view_from_opencv(R, t),
+                          cam.from_intrinsics(K, W, H, 0.1, 100.0))
+        r = gr.rasterize(pos, [[0, 1, 2]], (H, W), outputs=("tri_id",))
+        ys, xs = np.nonzero(r.mask)
+        assert list(zip(xs, ys)) == [(col, H - 1 - row)], (W, H, col, row)
