@@ -59,7 +59,7 @@ def _pool_max(a: np.ndarray, f: int) -> np.ndarray:
     return b.max(axis=(1, 3))
 
 
-def _write_png(path: Path, rgb: np.ndarray):
+def write_png(path: Path, rgb: np.ndarray):
     """Write an (H, W, 3) uint8 array, given with row 0 at the bottom, upright."""
     import OpenImageIO as oiio
 
@@ -144,7 +144,7 @@ class HtmlReport:
             if f > 1:
                 rgb = pooled if pooled is not None else rgb[::f, ::f]
             fname = f"{res.name}_{kind}.png"
-            _write_png(self.img / fname, rgb)
+            write_png(self.img / fname, rgb)
             names[kind] = fname
 
         gpu_b = gpu.persp if gpu.persp is not None else gpu.screen
