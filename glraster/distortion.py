@@ -33,7 +33,8 @@ from . import camera as cam
 from .interpolate import interpolate
 
 __all__ = ["SegmentExample", "segment_example", "segment_example_gpu", "Scene",
-           "builtin_scenes", "SceneResult", "render_comparison", "write_comparison"]
+           "builtin_scenes", "SceneResult", "checker", "render_scene_comparison",
+           "render_comparison", "write_comparison"]
 
 ORIENTATION = "upright: file row 0 is the top row (glraster array row H-1)"
 

@@ -113,6 +113,12 @@ def test_affine_error_vanishes_at_vertices_and_peaks_inside():
         checked += 1
     assert checked == 2
     assert res.stats["max_uv_error"] > 3.0
+    # The maximum lies on the seam from the nearest corner (0) to the farthest (2): the
+    # edge along which w varies most.  Within 1 px (pixel-center sampling of a ridge).
+    y, x = np.unravel_index(np.argmax(res.uv_error), res.uv_error.shape)
+    (ax, ay), (bx, by) = win[0, :2], win[2, :2]
+    dist = abs((bx - ax) * (y + 0.5 - ay) - (by - ay) * (x + 0.5 - ax)) / np.hypot(bx - ax, by - ay)
+    assert dist < 1.0, dist
 
 
 def test_written_files_are_upright_and_complete(tmp_path):
