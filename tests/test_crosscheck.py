@@ -71,3 +71,18 @@ def test_skewed_intrinsics_are_rejected():
     with pytest.raises(ValueError, match="K"):
         pyrender_depth(np.zeros((3, 3)), [[0, 1, 2]], [[10, 1, 5], [0, 10, 5], [0, 0, 1]],
                        (8, 8), np.eye(4), 0.1, 10)
+
+
+def test_cli_crosscheck_pyrender(tmp_path, capsys):
+    import argparse
+    import json
+
+    from glraster.commands import crosscheck as cmd
+
+    parser = argparse.ArgumentParser(prog="glraster")
+    cmd.register(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(["crosscheck", "pyrender", "--width", "64", "--height", "48",
+                              "--json", str(tmp_path / "r.json")])
+    assert args.func(args) == 0
+    assert "PASS" in capsys.readouterr().out
+    assert json.loads((tmp_path / "r.json").read_text())["median_rel"] <= 1e-4

@@ -8,7 +8,7 @@ import pytest
 
 from glraster import camera as cam
 from glraster.distortion import (builtin_scenes, render_scene_comparison, segment_example,
-                                 segment_example_gpu, write_comparison)
+                                 segment_example_gpu)
 
 
 def test_seed001_numbers_exactly():
@@ -121,12 +121,26 @@ def test_affine_error_vanishes_at_vertices_and_peaks_inside():
     assert dist < 1.0, dist
 
 
-def test_written_files_are_upright_and_complete(tmp_path):
-    oiio = pytest.importorskip("OpenImageIO")
-    import matplotlib.image as mpimg
+def test_cli_writes_upright_complete_files(tmp_path, capsys):
+    """`glraster distortion` (no required arguments) writes every file, upright."""
+    import argparse
+    import json
 
+    import matplotlib.image as mpimg
+    import OpenImageIO as oiio
+
+    from glraster.commands import distortion as cmd
+
+    parser = argparse.ArgumentParser(prog="glraster")
+    cmd.register(parser.add_subparsers(dest="command", required=True))
+    assert parser.parse_args(["distortion"]).out == "out/distortion"
     H, W = 60, 80
-    s = write_comparison(tmp_path, (H, W), supersample=1)
+    args = parser.parse_args(["distortion", "--out", str(tmp_path), "--width", str(W),
+                              "--height", str(H), "--supersample", "1"])
+    assert args.func(args) == 0
+    out = capsys.readouterr().out
+    assert "9/2 = 4.5" in out and "= 4\n" in out
+    s = json.loads((tmp_path / "summary.json").read_text())
     names = sorted(p.name for p in tmp_path.iterdir())
     assert names == sorted(["plane_affine.png", "plane_correct.png", "plane_diff.png",
                             "cube_affine.png", "cube_correct.png", "cube_diff.png",

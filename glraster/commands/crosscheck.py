@@ -29,14 +29,18 @@ def register(subparsers) -> None:
     q.add_argument("--max-median", type=float, default=1e-4,
                    help="fail if the median relative difference exceeds this (1e-4)")
     q.add_argument("--json", metavar="PATH", help="also write the report as JSON")
+    q.add_argument("--backend", default=None, choices=("auto", "egl", "osmesa"),
+                   help="OpenGL backend for glraster (default: $GLRASTER_BACKEND or auto)")
     q.set_defaults(func=_pyrender)
 
 
 def _pyrender(args) -> int:
+    from ..context import Context
     from ..crosscheck import crosscheck_pyrender
 
     rep = crosscheck_pyrender(args.mesh, resolution=(args.height, args.width),
-                              platform=args.platform, sample=args.sample, margin=args.margin)
+                              ctx=Context(backend=args.backend), platform=args.platform,
+                              sample=args.sample, margin=args.margin)
     print(rep.summary())
     if args.json:
         with open(args.json, "w") as fh:

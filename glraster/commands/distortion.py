@@ -16,13 +16,17 @@ def register(subparsers) -> None:
     p.add_argument("--height", type=int, default=360, help="image height per panel (360)")
     p.add_argument("--supersample", type=int, default=3,
                    help="samples per pixel along each axis (3)")
+    p.add_argument("--backend", default=None, choices=("auto", "egl", "osmesa"),
+                   help="OpenGL backend for glraster (default: $GLRASTER_BACKEND or auto)")
     p.set_defaults(func=_run)
 
 
 def _run(args) -> int:
+    from ..context import Context
     from ..distortion import write_comparison
 
-    summary = write_comparison(args.out, (args.height, args.width), args.supersample)
+    ctx = Context(backend=args.backend)
+    summary = write_comparison(args.out, (args.height, args.width), args.supersample, ctx=ctx)
     print("\n".join(summary["text"]))
     for name, st in summary["scenes"].items():
         print(f"{name}: affine uv error max {st['max_uv_error']:.3f}, mean "
