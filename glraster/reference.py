@@ -72,6 +72,8 @@ class TriangleSetup:
     fixed  : (T, 3, 3) int64 or None   llvmpipe edges (dcdx, dcdy, c) when usable
     fixed_ok : (T,) bool  ``fixed`` holds a valid edge setup (not culled as zero area)
     bbox   : (T, 4) int64 x0, x1, y0, y1 inclusive pixel range (x1 < x0: no pixels)
+    planes_crossed : (T,) int  how many of the six clip planes (x, y, z = +-w) some vertex
+             is outside of: 0 means the driver draws the triangle unclipped
     """
 
     clip: np.ndarray
@@ -81,6 +83,7 @@ class TriangleSetup:
     fixed: np.ndarray
     fixed_ok: np.ndarray
     bbox: np.ndarray
+    planes_crossed: np.ndarray
 
 
 def window_float32(clip: np.ndarray, resolution) -> np.ndarray:
@@ -157,7 +160,12 @@ def setup(pos: np.ndarray, tri: np.ndarray, resolution, fill_rule: str | None) -
     exact = inside if fill_rule == "llvmpipe" else np.zeros(len(tri), bool)
 
     bbox = _bounding_boxes(clip, resolution, w, z)
-    return TriangleSetup(clip, adj, det, exact, fixed if fill_rule else None, fixed_ok & modeled, bbox)
+    x, y = clip[..., 0], clip[..., 1]
+    outside = np.stack([x > w, x < -w, y > w, y < -w, z > w, z < -w], -1).any(1)
+    return TriangleSetup(
+        clip, adj, det, exact, fixed if fill_rule else None, fixed_ok & modeled, bbox,
+        outside.sum(1),
+    )
 
 
 def _bounding_boxes(clip, resolution, w, z) -> np.ndarray:
@@ -192,13 +200,16 @@ def _bounding_boxes(clip, resolution, w, z) -> np.ndarray:
     return np.stack([lo_px[:, 0], hi_px[:, 0], lo_px[:, 1], hi_px[:, 1]], 1).astype(np.int64)
 
 
-def _clip_near_far(vertices: np.ndarray) -> np.ndarray:
-    """Sutherland-Hodgman clip of one triangle (3, 4) against -w <= z <= w. Returns (N, 4)."""
+def _clip_near_far(vertices: np.ndarray, axes=(2,)) -> np.ndarray:
+    """Sutherland-Hodgman clip of one triangle (3, 4) against -w <= c <= w for each
+    coordinate index c in ``axes`` (2: near/far; (0, 1, 2): the whole view volume).
+    Returns (N, 4)."""
     poly = list(vertices)
-    for sign in (1.0, -1.0):  # keep w + z >= 0, then w - z >= 0
+    planes = [(axis, sign) for axis in axes for sign in (1.0, -1.0)]
+    for axis, sign in planes:  # keep w + c >= 0, then w - c >= 0
         out = []
         for a, b in zip(poly, poly[1:] + poly[:1]):
-            da, db = a[3] + sign * a[2], b[3] + sign * b[2]
+            da, db = a[3] + sign * a[axis], b[3] + sign * b[axis]
             if da >= 0:
                 out.append(a)
             if (da >= 0) != (db >= 0):

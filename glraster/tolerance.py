@@ -27,6 +27,7 @@ The constant C absorbs the handful of roundings in each step; it was calibrated 
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -40,10 +41,17 @@ class ErrorModel:
 
     ulp_factor : C, the number of float32 roundings allowed per term
     position_error_px : delta, sample-position uncertainty in pixels
+    waive_noperspective_multiclip : do not judge ``screen`` on triangles that cross two or
+        more clip planes. Mesa's draw-module clipper (llvmpipe 22.3) computes the
+        window-space parameter of a new vertex from the first coordinate that differs *in
+        clip space*, and divides 0 by 0 when both endpoints already lie on a clip plane, so
+        noperspective values there break GL's rule (docs/llvmpipe.md). Waived pixels are
+        counted in the report, never hidden.
     """
 
     ulp_factor: float = 4.0
     position_error_px: float = 0.0
+    waive_noperspective_multiclip: bool = True
 
     @classmethod
     def for_context(cls, ctx) -> "ErrorModel":
@@ -51,14 +59,36 @@ class ErrorModel:
         subpixel precision (at least the 4 bits GL requires)."""
         if ctx is None or ctx.is_llvmpipe:
             return cls()
-        return cls(position_error_px=2.0 ** -max(4, min(ctx.subpixel_bits, 16)))
+        return cls(
+            position_error_px=2.0 ** -max(4, min(ctx.subpixel_bits, 16)),
+            waive_noperspective_multiclip=False,
+        )
 
 
-def triangle_conditioning(setup, resolution):
-    """Per-triangle (R, kappa, D), each (T,) float64, from the window-space vertices.
+@dataclass
+class Conditioning:
+    """Per-triangle error-model inputs, each (T,) float64 (see triangle_conditioning)."""
 
-    Triangles with a vertex behind the eye or outside the near/far planes use the
-    vertices of their near/far-clipped polygon (what the driver's clipper produces).
+    R: np.ndarray
+    kappa: np.ndarray
+    D: np.ndarray
+    S: np.ndarray
+    h: np.ndarray
+    wmin: np.ndarray
+
+
+def triangle_conditioning(setup, resolution) -> Conditioning:
+    """Per-triangle (R, kappa, D, S, h, wmin), each (T,) float64, from the window-space
+    vertices. h is the smallest altitude (px) of a triangle the driver may draw; wmin the
+    smallest w of its vertices.
+
+    S is 0 for unclipped triangles; for clipped ones it is max |clip coordinate| of the
+    original vertices over the smallest w of the clipped polygon: a new vertex is a float32
+    blend of the originals, so its NDC position and depth carry an error of about eps32 S.
+
+    Triangles that cross a clip plane use the vertices of their polygon clipped to the
+    view volume (what the driver's clipper produces; Mesa's clips at the viewport sides
+    too once it clips at all).
     """
     from .reference import _clip_near_far
 
@@ -68,35 +98,49 @@ def triangle_conditioning(setup, resolution):
     R = np.zeros(T)
     kappa = np.ones(T)
     D = np.zeros(T)
+    S = np.zeros(T)
+    h = np.zeros(T)
+    wmin = np.ones(T)
     scale = np.array([width / 2, height / 2])
     w = clip[..., 3]
-    simple = (w > 0).all(1) & (np.abs(clip[..., 2]) <= w).all(1)
+    simple = setup.planes_crossed == 0
 
-    def measure(v):  # v: (N, k, 2) window positions of N polygons with k vertices
+    def measure(v, triples):
+        """v: (N, k, 2) window positions of N polygons with k vertices; triples: the
+        vertex index triples of the triangles the driver may draw."""
         R_ = np.abs(v).sum(-1).max(-1)
         diff = v[:, :, None, :] - v[:, None, :, :]
         D_ = np.abs(diff).sum(-1).max((-1, -2))
-        d01 = v[:, :1] - v[:, 1:]                     # fan from vertex 0
-        a = d01[:, :-1]
-        b = d01[:, 1:]
+        i, j, k = np.asarray(triples).T
+        a = v[:, i] - v[:, j]
+        b = v[:, i] - v[:, k]
         cross = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
         mag = np.abs(a[..., 0] * b[..., 1]) + np.abs(a[..., 1] * b[..., 0])
+        c = v[:, j] - v[:, k]
+        longest = np.maximum(np.hypot(*np.moveaxis(a, -1, 0)), np.hypot(*np.moveaxis(b, -1, 0)))
+        longest = np.maximum(longest, np.hypot(*np.moveaxis(c, -1, 0)))
         with np.errstate(divide="ignore", invalid="ignore"):
-            k = np.where(np.abs(cross) > 0, mag / np.abs(cross), np.inf)
-        return R_, np.maximum(np.nan_to_num(k.max(-1), nan=np.inf), 1.0), D_
+            kap = np.where(np.abs(cross) > 0, mag / np.abs(cross), np.inf)
+            h_ = np.where(longest > 0, np.abs(cross) / longest, 0.0)
+        return R_, np.maximum(kap.max(-1), 1.0), D_, h_.min(-1)
 
     if simple.any():
         win = (clip[simple][..., :2] / w[simple][..., None] + 1) * scale
-        R[simple], kappa[simple], D[simple] = measure(win)
+        R[simple], kappa[simple], D[simple], h[simple] = measure(win, [(0, 1, 2)])
+        wmin[simple] = w[simple].min(1)
     for t in np.flatnonzero(~simple):
-        poly = _clip_near_far(clip[t])
+        poly = _clip_near_far(clip[t], axes=(0, 1, 2))
         if len(poly) < 3 or (poly[:, 3] <= 0).any():
-            R[t], kappa[t], D[t] = np.inf, np.inf, np.inf
+            R[t] = kappa[t] = D[t] = S[t] = np.inf
             continue
         win = (poly[:, :2] / poly[:, 3:4] + 1) * scale
-        r, k, d = measure(win[None])
-        R[t], kappa[t], D[t] = r[0], k[0], d[0]
-    return R, kappa, D
+        # The clipper's triangulation of the polygon is not known: take the worst
+        # conditioned triangle over every triple of its vertices.
+        r, k, d, hh = measure(win[None], list(itertools.combinations(range(len(win)), 3)))
+        S[t] = np.abs(clip[t]).max() / poly[:, 3].min()
+        R[t], kappa[t], D[t], h[t] = max(r[0], S[t] * max(width, height) / 2), k[0], d[0], hh[0]
+        wmin[t] = poly[:, 3].min()
+    return Conditioning(R, kappa, D, S, h, wmin)
 
 
 def value_tolerance(ref, model: ErrorModel = ErrorModel()) -> dict:
@@ -120,28 +164,33 @@ def value_tolerance(ref, model: ErrorModel = ErrorModel()) -> dict:
             out["depth"] = np.zeros((height, width))
         return out
 
-    R, kappa, D = triangle_conditioning(ts, ref.resolution)
+    cond = triangle_conditioning(ts, ref.resolution)
+    S = cond.S
     t = ref.tri_id.reshape(-1)[pix]
     s, adj = _edge_values(ts, t, pix % width, pix // width)
     det = ts.det[t][:, None]
     grad_s = (np.abs(adj[..., 0]) + np.abs(adj[..., 1])) / np.abs(det)   # |grad s_i|_1
-    reach = (R + kappa * D)[t][:, None]
+    reach = (cond.R + cond.kappa * cond.D)[t][:, None]
+    # The gradient's numerator (e.g. df01 dy20 - dy01 df20) rounds each vertex value f_v:
+    # an error of eps32 |f_v| / h per pixel of distance, over up to D pixels.
+    span = (cond.D / cond.h)[t][:, None]
     C, delta = model.ulp_factor, model.position_error_px
 
-    def bound(value, grad):
+    def bound(value, grad, vertex_value):
         with np.errstate(invalid="ignore"):
-            b = C * EPS32 * (np.abs(value) + grad * reach) + grad * delta
+            b = C * EPS32 * (np.abs(value) + grad * reach + vertex_value * span) + grad * delta
         return np.nan_to_num(b, nan=np.inf)
 
     w = ts.clip[t, :, 3]
     if ref.screen is not None:
         tol = np.zeros((height * width, 3))
-        tol[pix] = bound(s * w, grad_s * np.abs(w))
+        tol[pix] = bound(s * w, grad_s * np.abs(w), 1.0)
         out["screen"] = tol.reshape(height, width, 3)
     if ref.persp is not None:
         Q = s.sum(1, keepdims=True)
         persp = s / Q
-        dq = bound(s, grad_s)
+        # a clipped vertex's 1 / w carries a relative error of about eps32 S (see S)
+        dq = bound(np.abs(s) * (1 + S[t][:, None]), grad_s, 1.0 / cond.wmin[t][:, None])
         tol = np.zeros((height * width, 3))
         tol[pix] = (dq + np.abs(persp) * dq.sum(1, keepdims=True)) / Q + C * EPS32 * np.abs(persp)
         out["persp"] = tol.reshape(height, width, 3)
@@ -150,6 +199,7 @@ def value_tolerance(ref, model: ErrorModel = ErrorModel()) -> dict:
         zw = (s * z).sum(1) * 0.5 + 0.5
         grad_z = 0.5 * np.abs((adj[..., :2] * (z / det)[..., None]).sum(1)).sum(1)
         tol = np.zeros(height * width)
-        tol[pix] = bound(zw[:, None], grad_z[:, None])[:, 0]
+        # a clipped vertex's depth carries eps32 S / 2 from its float32 blend (see S)
+        tol[pix] = bound((np.abs(zw) + S[t] / 2)[:, None], grad_z[:, None], 1.0)[:, 0]
         out["depth"] = tol.reshape(height, width)
     return out
