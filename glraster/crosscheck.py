@@ -126,7 +126,8 @@ def pyrender_depth(vertices, faces, K, resolution, view, near: float, far: float
                               capture_output=True, text=True, timeout=timeout)
         if proc.returncode != 0:
             tail = "\n".join(proc.stderr.strip().splitlines()[-8:])
-            raise RuntimeError(f"pyrender subprocess failed (PYOPENGL_PLATFORM={platform}):\n{tail}")
+            raise RuntimeError(
+                f"pyrender subprocess failed (PYOPENGL_PLATFORM={platform}):\n{tail}")
         out = np.load(dst)
         depth = out["depth"][::-1].copy()   # pyrender row 0 is the top
         info = json.loads(str(out["info"]))

@@ -90,7 +90,8 @@ def segment_example(v0=(-4, 2), v1=(2, 5), screen_x=0) -> SegmentExample:
         x0, d0 = (Fraction(c) for c in v0)
         x1, d1 = (Fraction(c) for c in v1)
     except (TypeError, ValueError):
-        raise ValueError(f"v0 and v1 must be (x, depth) pairs of rationals, got {v0!r}, {v1!r}") from None
+        raise ValueError(f"v0 and v1 must be (x, depth) pairs of rationals, "
+                         f"got {v0!r}, {v1!r}") from None
     try:
         sx = Fraction(screen_x)
     except (TypeError, ValueError):

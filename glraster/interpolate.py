@@ -46,7 +46,8 @@ def interpolate(attr, raster, tri, space: str = "persp", *, normalize: bool = Tr
         raise ValueError(f"space must be 'persp' or 'screen', got {space!r}")
     bary = getattr(raster, _SPACES[space], None)
     if bary is None:
-        raise ValueError(f"raster has no {space!r} barycentrics; rasterize with '{space}' in outputs")
+        raise ValueError(f"raster has no {space!r} barycentrics; "
+                         f"rasterize with '{space}' in outputs")
     tri_id = getattr(raster, "tri_id", None)
     if tri_id is None:
         raise ValueError("raster has no 'tri_id'; rasterize with 'tri_id' in outputs")

@@ -19,7 +19,8 @@ import numpy as np
 
 from . import camera as cam
 
-__all__ = ["Mesh", "SceneGeometry", "load_mesh", "scene_geometry", "render_scene"]
+__all__ = ["Mesh", "SceneGeometry", "load_mesh", "scene_geometry", "render_scene",
+           "framing_camera"]
 
 GL_TRIANGLES = 4  # pyrender Primitive.mode for triangle lists
 

@@ -105,7 +105,8 @@ def test_affine_error_vanishes_at_vertices_and_peaks_inside():
         if not (1 <= x < W - 1 and 1 <= y < H - 1):
             continue              # the near corners are below the image
         xi, yi = int(x), int(y)
-        patch = res.uv_error[yi - 1:yi + 2, xi - 1:xi + 2][res.coverage[yi - 1:yi + 2, xi - 1:xi + 2] == 1]
+        box = (slice(yi - 1, yi + 2), slice(xi - 1, xi + 2))
+        patch = res.uv_error[box][res.coverage[box] == 1]
         # Covered pixels within 1.5 px of the vertex: the error there is at most 1.5 px
         # times its gradient, which at the far edge is ~0.1 squares/px at this resolution
         # (texture is compressed there); the interior reaches > 3 squares.

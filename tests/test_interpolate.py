@@ -153,7 +153,8 @@ def test_gpu_and_reference_view_depth_agree():
     # (2 eps32 of margin).
     tol = value_tolerance(ref)["persp"]
     w_corner = w[F[np.maximum(ref.tri_id, 0)]]
-    bound = (tol * np.abs(w_corner - d_ref[..., None])).sum(-1) + 2 * np.finfo(np.float32).eps * d_ref
+    bound = ((tol * np.abs(w_corner - d_ref[..., None])).sum(-1)
+             + 2 * np.finfo(np.float32).eps * d_ref)
     err = np.abs(interpolate(w, gpu, F) - d_ref)
     assert np.all(err[same] <= bound[same]), (err / np.maximum(bound, 1e-30))[same].max()
     # Measured here: median relative error 2.4e-8 normalized, 4.9e-7 raw.

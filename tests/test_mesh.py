@@ -59,8 +59,9 @@ def test_box_round_trips_through_format(tmp_path, ext):
 
 def test_trimesh_scene_applies_node_transforms(tmp_path):
     s = trimesh.Scene()
-    s.add_geometry(trimesh.creation.box(), transform=trimesh.transformations.translation_matrix([5, 0, 0]))
-    s.add_geometry(trimesh.creation.box(), transform=trimesh.transformations.translation_matrix([0, -3, 0]))
+    move = trimesh.transformations.translation_matrix
+    s.add_geometry(trimesh.creation.box(), transform=move([5, 0, 0]))
+    s.add_geometry(trimesh.creation.box(), transform=move([0, -3, 0]))
     for src in (s, tmp_path / "two.glb"):
         if not isinstance(src, trimesh.Scene):
             s.export(src)
