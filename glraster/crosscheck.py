@@ -150,8 +150,9 @@ def default_mesh() -> Mesh:
 
 
 def default_camera(mesh: Mesh, resolution=(240, 320)):
-    """(K, view, near, far): an OpenCV camera 1.2 px focal per pixel of width, looking at
-    the mesh's bounding sphere from +z so the object fills most of the image."""
+    """(K, view, near, far): an OpenCV camera with focal length 1.2 W pixels and the
+    principal point at the image center, looking at the mesh's bounding sphere from +z
+    from a distance where the sphere fills most of the shorter image side."""
     H, W = resolution
     f = 1.2 * W
     K = np.array([[f, 0.0, (W - 1) / 2], [0.0, f, (H - 1) / 2], [0.0, 0.0, 1.0]])
