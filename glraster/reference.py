@@ -70,10 +70,12 @@ class TriangleSetup:
     det    : (T,)       det(M); s = e / det
     exact  : (T,) bool  coverage modeled bit for bit (llvmpipe rule, no clipping)
     fixed  : (T, 3, 3) int64 or None   llvmpipe edges (dcdx, dcdy, c) when usable
-    fixed_ok : (T,) bool  ``fixed`` holds a valid edge setup (not culled as zero area)
+    fixed_ok : (T,) bool  ``fixed`` holds a valid edge setup, used for coverage
     bbox   : (T, 4) int64 x0, x1, y0, y1 inclusive pixel range (x1 < x0: no pixels)
     planes_crossed : (T,) int  how many of the six clip planes (x, y, z = +-w) some vertex
              is outside of: 0 means the driver draws the triangle unclipped
+    depth_plane : (T, 3)  window depth = a p_x + b p_y + c
+    culled : (T,) bool    produces no fragment (zero area)
     """
 
     clip: np.ndarray
@@ -84,6 +86,8 @@ class TriangleSetup:
     fixed_ok: np.ndarray
     bbox: np.ndarray
     planes_crossed: np.ndarray
+    depth_plane: np.ndarray
+    culled: np.ndarray
 
 
 def window_float32(clip: np.ndarray, resolution) -> np.ndarray:
@@ -159,12 +163,20 @@ def setup(pos: np.ndarray, tri: np.ndarray, resolution, fill_rule: str | None) -
         fixed[modeled], fixed_ok[modeled] = llvmpipe_edges(win[modeled])
     exact = inside if fill_rule == "llvmpipe" else np.zeros(len(tri), bool)
 
-    bbox = _bounding_boxes(clip, resolution, w, z)
     x, y = clip[..., 0], clip[..., 1]
     outside = np.stack([x > w, x < -w, y > w, y < -w, z > w, z < -w], -1).any(1)
+    # depth = z_ndc / 2 + 1/2 with z_ndc = sum_i z_i e_i(p) / det: a plane in window space
+    with np.errstate(divide="ignore", invalid="ignore"):
+        depth_plane = 0.5 * np.einsum("ti,tij->tj", z, adj) / det[:, None]
+    depth_plane[:, 2] += 0.5
+    # Nothing to rasterize: zero window area (det = 0), or llvmpipe culls the triangle
+    # because it snaps to zero area.
+    culled = (det == 0) | ~np.isfinite(depth_plane).all(1) | (exact & ~fixed_ok)
+    bbox = _bounding_boxes(clip, resolution, w, z)
+    bbox[culled] = (0, -1, 0, -1)
     return TriangleSetup(
-        clip, adj, det, exact, fixed if fill_rule else None, fixed_ok & modeled, bbox,
-        outside.sum(1),
+        clip, adj, det, exact, fixed, fixed_ok & modeled, bbox, outside.sum(1),
+        depth_plane, culled,
     )
 
 
@@ -255,31 +267,75 @@ def rasterize(
     tri = validate.triangles(tri, len(pos))
     height, width = validate.resolution(resolution)
 
-    best_depth = np.ones(height * width)       # the cleared depth buffer
-    second_depth = np.full(height * width, np.inf)
-    best_tri = np.full(height * width, -1, np.int64)
+    state = _DepthBuffer(height * width)
     band = np.zeros(height * width, bool)
+    ts = setup(pos, tri, (height, width), fill_rule) if len(tri) else None
+    if ts is not None:
+        for t, px, py in _candidates(ts):
+            covered = _coverage(ts, t, px, py)
+            if edge_band_px > 0:
+                _mark_edge_band(ts, t, px, py, band, width, edge_band_px)
+            t, pix = t[covered], (py * width + px)[covered]
+            depth = _plane(ts.depth_plane, t, pix % width, pix // width)
+            state.test(pix, t, depth)
 
-    if len(tri):
-        ts = setup(pos, tri, (height, width), fill_rule)
-        for cand in _candidates(ts):
-            _depth_test(ts, cand, best_depth, second_depth, best_tri, band, width,
-                        fill_rule, edge_band_px)
-
-    ts = ts if len(tri) else None
-    covered = best_tri >= 0
-    values = _values(ts, best_tri, covered, (height, width), names)
-    depth_tie = covered & (second_depth - best_depth <= DEPTH_TIE)
+    covered = state.tri >= 0
+    values = _values(ts, state.tri, covered, (height, width), names)
     shape = (height, width)
     return ReferenceRaster(
         resolution=shape,
         mask=covered.reshape(shape),
         edge_band=band.reshape(shape),
-        depth_tie=depth_tie.reshape(shape),
+        depth_tie=(state.tie & covered).reshape(shape),
         setup=ts,
         info={"backend": "reference", "renderer": f"numpy float64, fill rule {fill_rule}"},
         **values,
     )
+
+
+class _DepthBuffer:
+    """The per-pixel depth test state: GL's LESS test in draw order, ties keep the earlier
+    triangle. ``tie`` marks pixels where another triangle came within DEPTH_TIE of the
+    winner. Fed chunk by chunk in draw order."""
+
+    def __init__(self, n: int):
+        self.depth = np.ones(n)                 # the cleared depth buffer
+        self.tri = np.full(n, -1, np.int64)
+        self.tie = np.zeros(n, bool)
+        # scratch arrays, reset after each chunk (touching only the chunk's pixels)
+        self._min = np.full(n, np.inf)
+        self._first = np.full(n, np.iinfo(np.int64).max)
+        self._count = np.zeros(n, np.int32)
+
+    def test(self, pix, t, depth):
+        """Depth-test fragments (pix, t, depth) of one chunk; earlier chunks win ties."""
+        # GL stores float32 depth and tests LESS against the cleared 1.0.
+        keep = depth.astype(np.float32) < np.float32(1.0)
+        pix, t, depth = pix[keep], t[keep], depth[keep]
+        if not len(pix):
+            return
+        np.minimum.at(self._min, pix, depth)
+        chunk_min = self._min[pix]
+        at_min = depth == chunk_min
+        np.minimum.at(self._first, pix[at_min], t[at_min])
+        np.add.at(self._count, pix[depth <= chunk_min + DEPTH_TIE], 1)
+
+        touched = pix[at_min & (t == self._first[pix])]      # one entry per pixel
+        new_depth, new_tri = self._min[touched], self._first[touched]
+        new_tie = self._count[touched] >= 2
+        old = self.depth[touched]
+        wins = new_depth < old                                 # strict: LESS
+        close = np.abs(new_depth - old) <= DEPTH_TIE
+        had_fragment = self.tri[touched] >= 0
+        self.tie[touched] = np.where(
+            wins & ~close, new_tie, self.tie[touched] | (close & had_fragment) | (wins & new_tie)
+        )
+        self.depth[touched] = np.where(wins, new_depth, old)
+        self.tri[touched] = np.where(wins, new_tri, self.tri[touched])
+
+        self._min[pix] = np.inf
+        self._first[pix] = np.iinfo(np.int64).max
+        self._count[pix] = 0
 
 
 def _candidates(ts: TriangleSetup):
@@ -294,11 +350,17 @@ def _candidates(ts: TriangleSetup):
         g = np.arange(start, min(start + CHUNK_CANDIDATES, total), dtype=np.int64)
         t = np.searchsorted(ends, g, side="right")
         local = g - (ends[t] - count[t])
-        yield t, x0[t] + local % bw[t], y0[t] + local // bw[t]
+        row, col = np.divmod(local, bw[t])
+        yield t, x0[t] + col, y0[t] + row
+
+
+def _plane(plane, t, px, py):
+    """Evaluate per-triangle planes (T, 3) [a, b, c] at pixel centers: a p_x + b p_y + c."""
+    return plane[t, 0] * (px + 0.5) + plane[t, 1] * (py + 0.5) + plane[t, 2]
 
 
 def _edge_values(ts: TriangleSetup, t, px, py):
-    """s = M^-1 (p, 1) at pixel centers: (N, 3) float64, and the edge gradients (N, 3, 2)."""
+    """s = M^-1 (p, 1) at pixel centers: (N, 3) float64, and the edge rows adj (N, 3, 3)."""
     a = ts.adj[t]
     cx = px + 0.5
     cy = py + 0.5
@@ -308,75 +370,52 @@ def _edge_values(ts: TriangleSetup, t, px, py):
     return s, a
 
 
-def _depth_test(ts, cand, best_depth, second_depth, best_tri, band, width, fill_rule, band_px):
-    """Coverage, clipping and the LESS depth test of one chunk of candidates, merged into
-    the running per-pixel state (arrays of length H*W, updated in place)."""
-    t, px, py = cand
-    s, adj = _edge_values(ts, t, px, py)
-    z = ts.clip[t, :, 2]
-    with np.errstate(invalid="ignore"):
-        z_ndc = (s * z).sum(1)
-        inside_float = (s >= 0).all(1) & (s.sum(1) > 0)
-    in_depth_range = (z_ndc >= -1) & (z_ndc <= 1)
+def _coverage(ts: TriangleSetup, t, px, py) -> np.ndarray:
+    """(N,) bool: does triangle t produce a fragment at pixel (px, py)?
 
-    covered = inside_float & in_depth_range
-    if fill_rule == "llvmpipe":
-        use_fixed = ts.fixed_ok[t]
-        f = ts.fixed[t]
-        sx = (px * FIXED_ONE)[:, None]
-        sy = (py * FIXED_ONE)[:, None]
-        fixed_in = ((f[..., 2] - f[..., 0] * sx + f[..., 1] * sy) >= 1).all(1)
-        covered = np.where(use_fixed, fixed_in & in_depth_range, covered)
-        # llvmpipe culls triangles that snap to zero area: an exact triangle with
-        # fixed_ok False produces nothing.
-        covered &= ~(ts.exact[t] & ~use_fixed)
-        judge_band = ~ts.exact[t]
-    else:
-        judge_band = np.ones(len(t), bool)
+    Triangles with a usable llvmpipe edge setup take the fixed-point test; the others a
+    float64 test of the center against the edges and the near/far planes."""
+    covered = np.zeros(len(t), bool)
+    fixed = ts.fixed_ok[t]
+    if fixed.any():
+        idx = np.flatnonzero(fixed)
+        tt = t[idx]
+        sx, sy = px[idx] * FIXED_ONE, py[idx] * FIXED_ONE
+        inside = np.ones(len(idx), bool)
+        for k in range(3):
+            edge = ts.fixed[:, k]
+            inside &= edge[tt, 2] - edge[tt, 0] * sx + edge[tt, 1] * sy >= 1
+        covered[idx] = inside
+    rest = np.flatnonzero(~fixed & ~ts.culled[t])
+    if len(rest):
+        tt = t[rest]
+        s, _ = _edge_values(ts, tt, px[rest], py[rest])
+        with np.errstate(invalid="ignore"):
+            z_ndc = 2 * _plane(ts.depth_plane, tt, px[rest], py[rest]) - 1
+            covered[rest] = (s >= 0).all(1) & (s.sum(1) > 0) & (np.abs(z_ndc) <= 1)
+    return covered
 
-    if band_px > 0 and judge_band.any():
-        # Signed distance (px) of the center to each edge line and to the near/far lines.
-        grad = np.hypot(adj[..., 0], adj[..., 1])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            # s_i |det| / |grad e_i| is the distance, positive on the triangle's side.
-            dist = np.where(grad > 0, s * np.abs(ts.det[t])[:, None] / grad, np.inf)
-            zgrad = (adj[..., :2] * (z / ts.det[t][:, None])[..., None]).sum(1)
-            zg = np.hypot(zgrad[:, 0], zgrad[:, 1])
-            dnear = np.where(zg > 0, (z_ndc + 1) / zg, np.inf)
-            dfar = np.where(zg > 0, (1 - z_ndc) / zg, np.inf)
-        signed = np.concatenate([dist, dnear[:, None], dfar[:, None]], 1)
-        signed = np.nan_to_num(signed, nan=-np.inf)
-        near_edge = (signed >= -band_px).all(1) & (np.abs(signed) < band_px).any(1)
-        front = s.sum(1) > 0
-        band[(py * width + px)[judge_band & near_edge & front]] = True
 
-    # Depth: GL stores float32 and tests LESS against the cleared 1.0.
-    depth = z_ndc * 0.5 + 0.5
-    keep = covered & (depth.astype(np.float32) < np.float32(1.0))
-    if not keep.any():
+def _mark_edge_band(ts: TriangleSetup, t, px, py, band, width, band_px):
+    """Mark in ``band`` the pixel centers within ``band_px`` of an edge (or of the near/far
+    line) of a triangle whose coverage is not modeled exactly."""
+    idx = np.flatnonzero(~ts.exact[t] & ~ts.culled[t])
+    if not len(idx):
         return
-    pix = (py * width + px)[keep]
-    depth = depth[keep]
-    tk = t[keep]
-    order = np.lexsort((tk, depth, pix))
-    pix, depth, tk = pix[order], depth[order], tk[order]
-    first = np.ones(len(pix), bool)
-    first[1:] = pix[1:] != pix[:-1]
-    starts = np.flatnonzero(first)
-    win_pix, win_depth, win_tri = pix[starts], depth[starts], tk[starts]
-    runner = np.full(len(starts), np.inf)
-    has_second = np.append(starts[1:], len(pix)) - starts > 1
-    runner[has_second] = depth[starts[has_second] + 1]
-
-    old_best = best_depth[win_pix]
-    old_second = second_depth[win_pix]
-    wins = win_depth < old_best  # strict: earlier chunks (earlier triangles) keep ties
-    new_best = np.where(wins, win_depth, old_best)
-    loser = np.where(wins, old_best, win_depth)
-    new_second = np.minimum(np.minimum(old_second, runner), loser)
-    best_depth[win_pix] = new_best
-    second_depth[win_pix] = new_second
-    best_tri[win_pix] = np.where(wins, win_tri, best_tri[win_pix])
+    tt, qx, qy = t[idx], px[idx], py[idx]
+    s, adj = _edge_values(ts, tt, qx, qy)
+    det = np.abs(ts.det[tt])[:, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        # s_i |det| / |grad e_i| is the distance to edge i, positive on the triangle's side.
+        grad = np.hypot(adj[..., 0], adj[..., 1])
+        dist = np.where(grad > 0, s * det / grad, np.inf)
+        z_ndc = 2 * _plane(ts.depth_plane, tt, qx, qy) - 1
+        zg = 2 * np.hypot(ts.depth_plane[tt, 0], ts.depth_plane[tt, 1])
+        dnear = np.where(zg > 0, (z_ndc + 1) / zg, np.inf)
+        dfar = np.where(zg > 0, (1 - z_ndc) / zg, np.inf)
+    signed = np.nan_to_num(np.concatenate([dist, dnear[:, None], dfar[:, None]], 1), nan=-np.inf)
+    near_edge = (signed >= -band_px).all(1) & (np.abs(signed) < band_px).any(1)
+    band[(qy * width + qx)[near_edge & (s.sum(1) > 0)]] = True
 
 
 def _values(ts, best_tri, covered, resolution, names) -> dict:
