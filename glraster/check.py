@@ -13,8 +13,8 @@ Per scene:
    so the GPU is checked against the golden through the same tolerances; the largest
    |GPU - golden| is reported as a figure.
 
-Known driver deviations (:data:`KNOWN_DEVIATIONS`) are counted separately ("xfail") instead
-of failing a scene; each names the driver, the output and the pixels it covers, and why.
+Pixels the error model waives (documented driver deviations, see
+:class:`glraster.tolerance.ErrorModel`) are counted and shown ("waived"), never hidden.
 
 With ``mutants``, every mutant of :mod:`glraster.mutants` is rendered on the scenes that the
 real shaders passed (cheapest first) until one scene catches it; the real shaders go
@@ -39,34 +39,6 @@ from .tolerance import ErrorModel
 REFERENCE_CACHE_PIXELS = 1 << 20
 
 
-@dataclass(frozen=True)
-class KnownDeviation:
-    """A documented way a driver departs from the GL spec that the suite tolerates.
-
-    renderer : substring of GL_RENDERER the deviation applies to
-    output   : the output whose values are affected
-    pixels   : "clipped" = pixels whose reference triangle is not entirely inside the
-               viewport and the near/far planes (the driver's clipper makes new vertices)
-    reason   : what goes wrong and where it was measured
-    """
-
-    renderer: str
-    output: str
-    pixels: str
-    reason: str
-
-
-KNOWN_DEVIATIONS = (
-    KnownDeviation(
-        "llvmpipe", "screen", "clipped",
-        "Mesa llvmpipe 22.3: noperspective varyings of triangles that its clipper cuts "
-        "(vertices outside the guard band's reach or across the near plane) are "
-        "interpolated wrongly, up to 0.5 off and sometimes NaN; perspective-correct values "
-        "and depth are right. Minimal case: 64x64, clip vertices (-0.16, 0.048, 0, 0.8), "
-        "(-1.6, -0.9, 0, 1), (-0.3, -1.6, 0, 1) give NaN for every pixel."),
-)
-
-
 @dataclass
 class SceneResult:
     """Outcome of one scene.
@@ -74,8 +46,8 @@ class SceneResult:
     status  : "pass", "fail" or "error" (an exception; ``error`` holds the message)
     report  : the :class:`glraster.compare.Report` (None on error)
     golden  : :class:`glraster.golden.GoldenResult` (None when golden checking is off)
-    nonfinite : covered GPU pixels with NaN/Inf in some output
-    xfail   : output -> pixels over tolerance excused by a known deviation
+    nonfinite : covered GPU pixels with NaN/Inf in some (judged) output
+    waived  : output -> pixels the error model did not judge (documented deviation)
     golden_max_error : largest |GPU - golden| over pixels both cover with the same triangle
     timings : seconds for "gpu", "reference", "compare", "golden"
     """
@@ -88,7 +60,7 @@ class SceneResult:
     report: object = None
     golden: object = None
     nonfinite: int = 0
-    xfail: dict = field(default_factory=dict)
+    waived: dict = field(default_factory=dict)
     golden_max_error: float = 0.0
     error: str = ""
     failures: list = field(default_factory=list)
@@ -140,42 +112,34 @@ class CheckResult:
         return scenes_ok and all(m.caught for m in self.mutants) and not self.control_failures
 
 
-def _deviation_pixels(dev: KnownDeviation, ref) -> np.ndarray:
-    if dev.pixels != "clipped":
-        raise ValueError(f"unknown deviation pixel class {dev.pixels!r}")
+def _waived_pixels(ref, model) -> np.ndarray:
+    """(H, W) bool: pixels whose ``screen`` value the model waives (triangles crossing two
+    or more clip planes, when ``model.waive_noperspective_multiclip``)."""
+    out = np.zeros(ref.mask.shape, bool)
     setup = getattr(ref, "setup", None)
-    if setup is None:
-        return np.zeros(ref.mask.shape, bool)
-    ids = ref.tri_id
-    out = np.zeros(ids.shape, bool)
-    covered = ids >= 0
-    out[covered] = ~setup.exact[ids[covered]]
+    if not model.waive_noperspective_multiclip or setup is None:
+        return out
+    out[ref.mask] = setup.planes_crossed[ref.tri_id[ref.mask]] >= 2
     return out
 
 
-def evaluate(gpu, ref, ctx, deviations=KNOWN_DEVIATIONS):
-    """Compare a GPU raster with the reference and apply the non-finite rule and the known
-    deviations. Returns (report, failures: list of str, nonfinite: int, xfail: dict)."""
-    rep = compare(gpu, ref, model=ErrorModel.for_context(ctx))
+def evaluate(gpu, ref, ctx, model=None):
+    """Compare a GPU raster with the reference (:func:`glraster.compare` with the context's
+    error model) and add the non-finite rule: a NaN or Inf on a covered pixel fails, except
+    in values the model waives. Returns (report, failures: list of str, nonfinite: int,
+    waived: output -> pixels not judged)."""
+    model = model if model is not None else ErrorModel.for_context(ctx)
+    rep = compare(gpu, ref, model=model)
     failures = []
-    xfail = {}
-    renderer = ctx.renderer if ctx is not None else ""
     pix = np.flatnonzero(gpu.mask)               # work on covered pixels only
-    excused = {}
-    for dev in deviations:
-        if dev.renderer in renderer and dev.output in rep.values:
-            ex = _deviation_pixels(dev, ref).reshape(-1)[pix]
-            excused[dev.output] = excused[dev.output] | ex if dev.output in excused else ex
     nonfinite = np.zeros(len(pix), bool)
     for name in ("persp", "screen", "depth"):
         a = getattr(gpu, name)
         if a is None:
             continue
-        fin = np.isfinite(a.reshape(a.shape[0] * a.shape[1], -1)[pix]).all(axis=1)
-        nf = ~fin
-        if name in excused:
-            xfail[name] = xfail.get(name, 0) + int((nf & excused[name]).sum())
-            nf &= ~excused[name]
+        nf = ~np.isfinite(a.reshape(a.shape[0] * a.shape[1], -1)[pix]).all(axis=1)
+        if name == "screen" and nf.any():
+            nf &= ~_waived_pixels(ref, model).reshape(-1)[pix]
         nonfinite |= nf
     n_nonfinite = int(nonfinite.sum())
     if rep.coverage_mismatch:
@@ -185,16 +149,11 @@ def evaluate(gpu, ref, ctx, deviations=KNOWN_DEVIATIONS):
     if n_nonfinite:
         failures.append(f"{n_nonfinite} covered pixels with NaN/Inf values")
     for name, stats in rep.values.items():
-        over = stats.over_tolerance
-        if over and name in excused:
-            over_px = rep.maps[f"{name}_ratio"].reshape(-1)[pix] > 1
-            n_ex = int((over_px & excused[name]).sum())
-            xfail[name] = xfail.get(name, 0) + n_ex
-            over -= n_ex
-        if over:
-            failures.append(f"{name}: {over} pixels over tolerance "
-                            f"(worst error/tolerance {stats.worst_ratio:.3g}, max error {stats.max:.3g})")
-    return rep, failures, n_nonfinite, xfail
+        if stats.over_tolerance:
+            failures.append(f"{name}: {stats.over_tolerance} pixels over tolerance (worst "
+                            f"error/tolerance {stats.worst_ratio:.3g}, max error {stats.max:.3g})")
+    waived = {n: v.waived for n, v in rep.values.items() if getattr(v, "waived", 0)}
+    return rep, failures, n_nonfinite, waived
 
 
 def _golden_max_error(gpu, g) -> float:
@@ -219,9 +178,10 @@ def _golden_max_error(gpu, g) -> float:
     return worst
 
 
-def run_scene(scene: Scene, ctx, *, golden_dir=None, check_golden=True, keep=False):
+def run_scene(scene: Scene, ctx, *, golden_dir=None, check_golden=True, keep=False, ref=None):
     """Check one scene. Returns (SceneResult, artifacts) where artifacts is
-    {"gpu", "ref", "report"} when ``keep`` (for reports) else None."""
+    {"gpu", "ref", "report"} when ``keep`` (for reports) else None. ``ref``: the scene's
+    reference raster when already computed (from :func:`glraster.golden.reference_for`)."""
     res = SceneResult(scene.name, scene.description, tuple(scene.resolution), len(scene.tri))
     artifacts = None
     try:
@@ -229,11 +189,11 @@ def run_scene(scene: Scene, ctx, *, golden_dir=None, check_golden=True, keep=Fal
         gpu = rasterize(scene.pos, scene.tri, scene.resolution, ctx=ctx, outputs=scene.outputs)
         res.timings["gpu"] = time.perf_counter() - t
         t = time.perf_counter()
-        ref = _golden.reference_for(scene)
+        ref = ref if ref is not None else _golden.reference_for(scene)
         res.timings["reference"] = time.perf_counter() - t
         t = time.perf_counter()
-        rep, failures, nonfinite, xfail = evaluate(gpu, ref, ctx)
-        res.report, res.nonfinite, res.xfail = rep, nonfinite, xfail
+        rep, failures, nonfinite, waived = evaluate(gpu, ref, ctx)
+        res.report, res.nonfinite, res.waived = rep, nonfinite, waived
         res.failures = failures
         res.timings["compare"] = time.perf_counter() - t
         if check_golden:
@@ -298,8 +258,11 @@ def run_mutants(ctx, candidates, references, mutant_list=None, progress=None):
 
 
 def run(ctx, names=None, *, golden_dir=None, check_golden=True, mutants=False,
-        mutant_pattern=None, on_scene=None, progress=None) -> CheckResult:
+        mutant_pattern=None, on_scene=None, progress=None, references=None) -> CheckResult:
     """Check the scenes ``names`` (default: the whole catalog) on ``ctx``.
+
+    references: optional dict name -> reference raster, used and filled in (scenes up to
+    REFERENCE_CACHE_PIXELS), so that several runs (e.g. one per backend) share them.
 
     on_scene(result, artifacts): called after each scene with its SceneResult and
     {"gpu", "ref", "report"} (e.g. to write report images); artifacts are dropped after.
@@ -308,7 +271,7 @@ def run(ctx, names=None, *, golden_dir=None, check_golden=True, mutants=False,
     t0 = time.perf_counter()
     names = list(names) if names is not None else list_scenes()
     out = CheckResult(ctx.backend, ctx.renderer, ctx.gl_version)
-    references = {}
+    mutant_refs = {}
     passed = []
     mutant_list = _mutants.select(mutant_pattern) if mutants else []
     total = len(names) + (len(mutant_list) if mutants else 0)
@@ -316,22 +279,25 @@ def run(ctx, names=None, *, golden_dir=None, check_golden=True, mutants=False,
         if progress:
             progress(i, total, name)
         scene = load_scene(name)
+        cached = references.get(name) if references is not None else None
         res, art = run_scene(scene, ctx, golden_dir=golden_dir, check_golden=check_golden,
-                             keep=bool(on_scene) or mutants)
+                             keep=bool(on_scene) or mutants or references is not None,
+                             ref=cached)
+        h, w = scene.resolution
+        if references is not None and art is not None and h * w <= REFERENCE_CACHE_PIXELS:
+            references[name] = art["ref"]
         out.scenes.append(res)
         if on_scene:
             on_scene(res, art)
-        if mutants and res.ok and art is not None:
-            h, w = scene.resolution
-            if h * w <= REFERENCE_CACHE_PIXELS:
-                references[name] = art["ref"]
-                passed.append(scene)
+        if mutants and res.ok and art is not None and h * w <= REFERENCE_CACHE_PIXELS:
+            mutant_refs[name] = art["ref"]
+            passed.append(scene)
         del art
     if mutants:
         def mprog(j, label):
             if progress:
                 progress(len(names) + j, total, f"mutant {label}")
-        out.mutants, out.control_failures = run_mutants(ctx, passed, references,
+        out.mutants, out.control_failures = run_mutants(ctx, passed, mutant_refs,
                                                         mutant_list, mprog)
     if progress:
         progress(total, total, "done")
@@ -356,8 +322,8 @@ def format_table(result: CheckResult) -> str:
             return f"{rep.values[n].worst_ratio:.3f}"
         gold = "-" if s.golden is None else ("exact" if s.golden.ok else "DIFF")
         status = s.status.upper()
-        if s.ok and any(s.xfail.values()):
-            status += f" (xfail {sum(s.xfail.values())} px)"
+        if s.waived:
+            status += f" (waived {sum(s.waived.values())} px)"
         lines.append(
             f"{s.name:<28}{f'{w}x{h}':>11}{s.triangles:>8}"
             f"{(rep.covered_gpu if rep else 0):>9}{(rep.coverage_mismatch if rep else 0):>6}"

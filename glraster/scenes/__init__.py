@@ -129,7 +129,8 @@ def make_scene(name, pos, tri, resolution, description="", outputs=ALL_OUTPUTS, 
         raise ValueError(f"{source}: pos must have shape (V, 4), got {pos.shape}")
     if not np.issubdtype(pos.dtype, np.number) or np.issubdtype(pos.dtype, np.complexfloating):
         raise ValueError(f"{source}: pos must be real numbers, got dtype {pos.dtype}")
-    pos32 = np.ascontiguousarray(pos, dtype=np.float32)
+    with np.errstate(over="ignore"):
+        pos32 = np.ascontiguousarray(pos, dtype=np.float32)
     if not np.all(np.isfinite(pos32)):
         bad = int(np.argwhere(~np.isfinite(pos32))[0, 0])
         raise ValueError(f"{source}: pos must be finite in float32 (vertex {bad} is not)")
