@@ -58,13 +58,19 @@ def write_golden(scene: Scene, ref=None, directory=None) -> Path:
     )
 
 
-def update(names=None, directory=None, progress=None) -> list[Path]:
-    """Regenerate the goldens of ``names`` (default: every catalog scene)."""
+def update(names=None, directory=None, progress=None, force=False) -> list[Path]:
+    """Regenerate the goldens of ``names`` (default: every catalog scene). Without
+    ``force``, a golden the reference still reproduces bit for bit is left untouched (no
+    churn in version control). Returns the paths written."""
     paths = []
     for name in names or list_scenes():
         if progress:
             progress(name)
-        paths.append(write_golden(load_scene(name), directory=directory))
+        scene = load_scene(name)
+        ref = reference_for(scene)
+        if not force and check_scene(scene, ref=ref, directory=directory).ok:
+            continue
+        paths.append(write_golden(scene, ref=ref, directory=directory))
     return paths
 
 

@@ -66,6 +66,9 @@ def test_update_writes_requested_scenes_only(tmp_path):
     paths = golden.update(["tiny_viewport", "basic_triangle"], directory=tmp_path)
     assert sorted(p.name for p in paths) == ["basic_triangle.exr", "tiny_viewport.exr"]
     assert all(r.ok for r in golden.check(["tiny_viewport", "basic_triangle"], directory=tmp_path))
+    # Up-to-date goldens are not rewritten unless forced.
+    assert golden.update(["tiny_viewport"], directory=tmp_path) == []
+    assert len(golden.update(["tiny_viewport"], directory=tmp_path, force=True)) == 1
 
 
 def test_golden_cli_exit_codes(tmp_path, capsys):

@@ -23,6 +23,9 @@ def register(subparsers) -> None:
                        help="scene names or fnmatch patterns (default: all scenes)")
         q.add_argument("--dir", default=None, metavar="DIR",
                        help="golden folder (default: $GLRASTER_GOLDEN_DIR or golden/)")
+        if name == "update":
+            q.add_argument("--force", action="store_true",
+                           help="rewrite even goldens the reference still reproduces")
         q.set_defaults(func=_update if name == "update" else _check)
 
 
@@ -48,12 +51,16 @@ def _update(args) -> int:
         print(f"glraster golden update: {exc}", file=sys.stderr)
         return 2
     t0 = time.perf_counter()
+    written = 0
     for name in names:
         t = time.perf_counter()
-        path = golden.write_golden(golden.load_scene(name), directory=args.dir)
-        print(f"{name:<28} {path.stat().st_size / 1024:9.1f} KiB  {time.perf_counter() - t:6.2f} s")
+        paths = golden.update([name], directory=args.dir, force=args.force)
+        state = "written" if paths else "unchanged (reproduced bit for bit)"
+        written += len(paths)
+        size = golden.golden_path(name, args.dir).stat().st_size / 1024
+        print(f"{name:<28} {size:9.1f} KiB  {time.perf_counter() - t:6.2f} s  {state}")
     total = golden.folder_size(args.dir)
-    print(f"wrote {len(names)} golden file(s) to {golden.golden_dir(args.dir)} in "
+    print(f"wrote {written} of {len(names)} golden file(s) to {golden.golden_dir(args.dir)} in "
           f"{time.perf_counter() - t0:.1f} s; folder total {total / 1024 / 1024:.2f} MiB")
     if total > GOLDEN_BUDGET_BYTES:
         print(f"warning: golden folder exceeds the {GOLDEN_BUDGET_BYTES // 1024 // 1024} MiB "
