@@ -98,12 +98,13 @@ def rasterize(
     pos = validate.positions(pos)
     tri = validate.triangles(tri, len(pos))
     height, width = validate.resolution(resolution, ctx.max_texture_size)
-    for label, nbytes in (("pos", pos.nbytes), ("tri", tri.nbytes)):
-        if nbytes > ctx.max_storage_block_size:
-            raise ValueError(
-                f"{label} takes {nbytes} bytes, above the driver's shader storage block "
-                f"limit of {ctx.max_storage_block_size} bytes"
-            )
+    if pos.nbytes > ctx.max_storage_block_size:
+        raise ValueError(
+            f"pos takes {pos.nbytes} bytes, above the driver's shader storage block "
+            f"limit of {ctx.max_storage_block_size} bytes ({ctx.max_storage_block_size // 16} vertices)"
+        )
+    # Triangles go in batches that fit one storage block; ids stay exact (tri_base).
+    batch = ctx.max_storage_block_size // tri.itemsize // 3
 
     vert, frag = shader_files if shader_files is not None else METHODS[method]
     defines = {}
@@ -120,8 +121,12 @@ def rasterize(
         targets.fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
         if len(tri):
             ctx.storage_buffer("positions", pos).bind_to_storage_buffer(0)
-            ctx.storage_buffer("indices", tri).bind_to_storage_buffer(1)
-            vao.render(ctx.mgl.TRIANGLES, vertices=3 * len(tri))
+            for base in range(0, len(tri), batch):
+                part = tri[base:base + batch]
+                ctx.storage_buffer("indices", part).bind_to_storage_buffer(1)
+                if "tri_base" in program:
+                    program["tri_base"].value = base
+                vao.render(ctx.mgl.TRIANGLES, vertices=3 * len(part))
         for name, (components, dtype) in colors.items():
             shape = (height, width, components) if components > 1 else (height, width)
             out = np.empty(shape, np.float32 if dtype == "f4" else np.int32)
