@@ -147,9 +147,16 @@ def render(mutant: Mutant | None, pos, tri, resolution, *, ctx, outputs=validate
             mgl.disable(mgl.DEPTH_TEST)
         try:
             if len(tri):
+                # Same batching as glraster.rasterize: each draw's indices fit one storage
+                # block, ``tri_base`` keeps the ids global.
+                batch = ctx.max_storage_block_size // tri.itemsize // 3
                 ctx.storage_buffer("positions", pos).bind_to_storage_buffer(0)
-                ctx.storage_buffer("indices", tri).bind_to_storage_buffer(1)
-                vao.render(mgl.TRIANGLES, vertices=3 * len(tri))
+                for base in range(0, len(tri), batch):
+                    part = tri[base:base + batch]
+                    ctx.storage_buffer("indices", part).bind_to_storage_buffer(1)
+                    if "tri_base" in program:
+                        program["tri_base"].value = base
+                    vao.render(mgl.TRIANGLES, vertices=3 * len(part))
         finally:
             mgl.enable(mgl.DEPTH_TEST)
         for n, (comps, dtype) in colors.items():

@@ -48,7 +48,16 @@ def test_mutant_files_are_marked_copies_of_the_real_shaders(m):
         assert text.startswith("#version 450 core")
         if changed != real:
             assert "MUTANT" in text
-            assert text != (d / real).read_text()
+            real_text = (d / real).read_text()
+            assert text != real_text
+            # Derived from the current real shader: the fault replaces a few lines, the
+            # rest (interface, defines, uniforms) is unchanged.
+            kept = set(text.splitlines())
+            lost = [ln for ln in real_text.splitlines() if ln not in kept]
+            assert len(lost) <= 2, f"{changed} is stale against {real}: {lost}"
+            interface = [ln for ln in lost if ln.lstrip().startswith(
+                ("layout", "uniform", "#", "readonly", "buffer"))]
+            assert not interface, f"{changed} lost interface lines of {real}: {interface}"
 
 
 def test_every_mutant_is_caught_and_the_control_passes(ctx, references):

@@ -18,6 +18,7 @@ layout(location = SCREEN_LOCATION) out vec3 out_screen;
 // Triangle index + 1, so that the cleared value 0 means "empty"; exact for any count
 // below 2^31 because the target is a 32-bit integer texture.
 layout(location = TRI_ID_LOCATION) out int out_tri_id;
+uniform int tri_base;  // index of the draw's first triangle (large meshes draw in batches)
 #endif
 
 void main() {
@@ -28,6 +29,6 @@ void main() {
     out_screen = v_screen;
 #endif
 #ifdef OUT_TRI_ID
-    out_tri_id = gl_PrimitiveID + 2;
+    out_tri_id = tri_base + gl_PrimitiveID + 2;
 #endif
 }
