@@ -75,12 +75,17 @@ class Conditioning:
     S: np.ndarray
     h: np.ndarray
     wmin: np.ndarray
+    N: np.ndarray
 
 
 def triangle_conditioning(setup, resolution) -> Conditioning:
     """Per-triangle (R, kappa, D, S, h, wmin), each (T,) float64, from the window-space
     vertices. h is the smallest altitude (px) of a triangle the driver may draw; wmin the
-    smallest w of its vertices.
+    smallest w of its vertices. N (0 for unclipped triangles) bounds the relative error of the
+    window-space blend factor of a clipped vertex: Mesa's clipper takes it from the first
+    window coordinate (x, else y) whose clip-space values differ along the clipped edge,
+    t = (x_new - x_out) / (x_in - x_out), so it loses eps32 (|x_in| + |x_out|) / |x_in - x_out|
+    on nearly vertical edges; that error reaches noperspective values directly.
 
     S is 0 for unclipped triangles; for clipped ones it is max |clip coordinate| of the
     original vertices over the smallest w of the clipped polygon: a new vertex is a float32
@@ -101,6 +106,7 @@ def triangle_conditioning(setup, resolution) -> Conditioning:
     S = np.zeros(T)
     h = np.zeros(T)
     wmin = np.ones(T)
+    N = np.zeros(T)
     scale = np.array([width / 2, height / 2])
     w = clip[..., 3]
     simple = setup.planes_crossed == 0
@@ -131,7 +137,7 @@ def triangle_conditioning(setup, resolution) -> Conditioning:
     for t in np.flatnonzero(~simple):
         poly = _clip_near_far(clip[t], axes=(0, 1, 2))
         if len(poly) < 3 or (poly[:, 3] <= 0).any():
-            R[t] = kappa[t] = D[t] = S[t] = np.inf
+            R[t] = kappa[t] = D[t] = S[t] = N[t] = np.inf
             continue
         win = (poly[:, :2] / poly[:, 3:4] + 1) * scale
         # The clipper's triangulation of the polygon is not known: take the worst
@@ -140,7 +146,22 @@ def triangle_conditioning(setup, resolution) -> Conditioning:
         S[t] = np.abs(clip[t]).max() / poly[:, 3].min()
         R[t], kappa[t], D[t], h[t] = max(r[0], S[t] * max(width, height) / 2), k[0], d[0], hh[0]
         wmin[t] = poly[:, 3].min()
-    return Conditioning(R, kappa, D, S, h, wmin)
+        N[t] = _blend_conditioning(clip[t])
+    return Conditioning(R, kappa, D, S, h, wmin, N)
+
+
+def _blend_conditioning(vertices: np.ndarray) -> float:
+    """max over the triangle's edges of (|a| + |b|) / |a - b| for the NDC coordinate Mesa's
+    clipper uses for the window-space blend factor (x when the clip x differ, else y)."""
+    worst = 0.0
+    for i, j in ((0, 1), (1, 2), (2, 0)):
+        a, b = vertices[i], vertices[j]
+        k = 0 if a[0] != b[0] else 1
+        with np.errstate(divide="ignore", invalid="ignore"):
+            na, nb = a[k] / a[3], b[k] / b[3]
+            ratio = (abs(na) + abs(nb)) / abs(na - nb)
+        worst = max(worst, float(np.nan_to_num(ratio, nan=np.inf)))
+    return worst
 
 
 def value_tolerance(ref, model: ErrorModel = ErrorModel()) -> dict:
@@ -170,21 +191,24 @@ def value_tolerance(ref, model: ErrorModel = ErrorModel()) -> dict:
     s, adj = _edge_values(ts, t, pix % width, pix // width)
     det = ts.det[t][:, None]
     grad_s = (np.abs(adj[..., 0]) + np.abs(adj[..., 1])) / np.abs(det)   # |grad s_i|_1
-    reach = (cond.R + cond.kappa * cond.D)[t][:, None]
-    # The gradient's numerator (e.g. df01 dy20 - dy01 df20) rounds each vertex value f_v:
-    # an error of eps32 |f_v| / h per pixel of distance, over up to D pixels.
-    span = (cond.D / cond.h)[t][:, None]
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        # inf (an unmeasurable clipped polygon) times 0 must stay inf, not NaN
+        reach = np.nan_to_num(cond.R + cond.kappa * cond.D, nan=np.inf)[t][:, None]
+        # The gradient's numerator (e.g. df01 dy20 - dy01 df20) rounds each vertex value
+        # f_v: an error of eps32 |f_v| / h per pixel of distance, over up to D pixels.
+        span = np.nan_to_num(cond.D / cond.h, nan=np.inf)[t][:, None]
     C, delta = model.ulp_factor, model.position_error_px
 
     def bound(value, grad, vertex_value):
-        with np.errstate(invalid="ignore"):
+        with np.errstate(invalid="ignore", over="ignore"):
             b = C * EPS32 * (np.abs(value) + grad * reach + vertex_value * span) + grad * delta
         return np.nan_to_num(b, nan=np.inf)
 
     w = ts.clip[t, :, 3]
     if ref.screen is not None:
         tol = np.zeros((height * width, 3))
-        tol[pix] = bound(s * w, grad_s * np.abs(w), 1.0)
+        # a clipped vertex's window-space blend factor carries eps32 N (see N)
+        tol[pix] = bound(np.abs(s * w) + cond.N[t][:, None], grad_s * np.abs(w), 1.0)
         out["screen"] = tol.reshape(height, width, 3)
     if ref.persp is not None:
         Q = s.sum(1, keepdims=True)
