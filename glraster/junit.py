@@ -49,7 +49,8 @@ def to_xml(result) -> ET.ElementTree:
         if s.waived:
             summary += f"\nnot judged (documented driver deviation, see ErrorModel): {s.waived}"
         h, w = s.resolution
-        summary = f"{s.description}\n{w}x{h}, {s.triangles} triangles\n{summary}"
+        tris = f"{s.triangles} triangle" + ("" if s.triangles == 1 else "s")
+        summary = f"{s.description}\n{w}x{h}, {tris}\n{summary}"
         if s.status == "error":
             errors += 1
             _case(suite, cls, s.name, s.seconds, error=s.error, out=summary)
