@@ -125,9 +125,11 @@ def triangle_conditioning(setup, resolution) -> Conditioning:
         c = v[:, j] - v[:, k]
         longest = np.maximum(np.hypot(*np.moveaxis(a, -1, 0)), np.hypot(*np.moveaxis(b, -1, 0)))
         longest = np.maximum(longest, np.hypot(*np.moveaxis(c, -1, 0)))
+        # A triple with zero area (a repeated or collinear clipped vertex) draws nothing.
+        live = np.abs(cross) > 0
         with np.errstate(divide="ignore", invalid="ignore"):
-            kap = np.where(np.abs(cross) > 0, mag / np.abs(cross), np.inf)
-            h_ = np.where(longest > 0, np.abs(cross) / longest, 0.0)
+            kap = np.where(live, mag / np.abs(cross), 1.0)
+            h_ = np.where(live, np.abs(cross) / longest, np.inf)
         return R_, np.maximum(kap.max(-1), 1.0), D_, h_.min(-1)
 
     if simple.any():
