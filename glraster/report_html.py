@@ -217,7 +217,7 @@ h1 {{ margin-bottom: 4px; }} .meta {{ color: #555; margin-bottom: 16px; }}
 .PASS {{ background: #2a7d2a; }} .FAIL, .ERROR {{ background: #c62828; }}
 table {{ border-collapse: collapse; margin: 8px 0 16px; font-size: 13px; }}
 th, td {{ border: 1px solid #ccc; padding: 3px 8px; text-align: right; white-space: nowrap; }}
-td.wrap {{ white-space: normal; }}
+td.wrap {{ white-space: normal; min-width: 360px; }}
 th {{ background: #eee; }} td.l, th.l {{ text-align: left; }}
 tr.fail td {{ background: #fde0e0; }}
 section.scene {{ background: #fff; border: 1px solid #ddd; border-radius: 6px; padding: 12px 16px; margin: 16px 0; }}
@@ -274,7 +274,7 @@ Coverage: <span style="background:#6e6e6e"></span>both
             for m in result.mutants:
                 who = m.caught_by or ("error: " + m.error if m.error else "ESCAPED")
                 parts.append(f'<tr class="{"" if m.caught else "fail"}"><td class=l>'
-                             f'{e(m.name)}</td><td class=l>{e(m.fault)}</td><td class=l>'
+                             f'{e(m.name)}</td><td class="l wrap">{e(m.fault)}</td><td class=l>'
                              f'{e(who)}</td><td>{m.scenes_tried}</td><td class="l wrap">'
                              f'{e(m.reason[:160])}</td></tr>')
             ctrl = ("no false alarm" if not result.control_failures
