@@ -35,6 +35,13 @@ def golden_dir(directory=None) -> Path:
     return Path(__file__).resolve().parent.parent / "golden"
 
 
+def golden_available(directory=None) -> bool:
+    """Whether there is a golden folder to check against. Goldens live in the source tree
+    (they are not part of the wheel): an installed glraster without ``directory`` or
+    ``$GLRASTER_GOLDEN_DIR`` has none."""
+    return golden_dir(directory).is_dir()
+
+
 def golden_path(name: str, directory=None) -> Path:
     return golden_dir(directory) / f"{name}.exr"
 
