@@ -121,26 +121,30 @@ def compare(gpu, ref, model: ErrorModel | None = None) -> Report:
             multiclip[ref.mask] = ref.setup.planes_crossed[ref.tri_id[ref.mask]] >= 2
             judged = same & ~multiclip
             waived = int((same & multiclip).sum())
-        err = np.abs(g.astype(np.float64) - r)
-        tol = tolerances[name]
+        # Only the judged pixels are touched: big frames stay cheap.
+        idx = np.flatnonzero(judged)
+        n = judged.size
+        g_val = g.reshape(n, -1)[idx].astype(np.float64)
+        r_val = r.reshape(n, -1)[idx]
+        tol = tolerances[name].reshape(n, -1)[idx]
+        # NaN or Inf from the GPU is an infinite error, never "within tolerance".
+        err = np.where(np.isfinite(g_val), np.abs(g_val - r_val), np.inf)
         with np.errstate(divide="ignore", invalid="ignore"):
             ratio = np.where(err > 0, err / tol, 0.0)
-        if err.ndim == 3:
-            err_px, ratio_px = err.max(2), ratio.max(2)
-        else:
-            err_px, ratio_px = err, ratio
-        flat = err[judged].ravel()
+        err_px, ratio_px = err.max(1, initial=0.0), ratio.max(1, initial=0.0)
         values[name] = ValueStats(
-            pixels=int(judged.sum()),
-            max=float(flat.max()) if flat.size else 0.0,
-            p999=float(np.percentile(flat, 99.9)) if flat.size else 0.0,
-            mean=float(flat.mean()) if flat.size else 0.0,
-            over_tolerance=int((ratio_px[judged] > 1).sum()),
-            worst_ratio=float(ratio_px[judged].max()) if judged.any() else 0.0,
+            pixels=len(idx),
+            max=float(err.max()) if err.size else 0.0,
+            p999=float(np.percentile(err, 99.9)) if err.size else 0.0,
+            mean=float(err.mean()) if err.size else 0.0,
+            over_tolerance=int((ratio_px > 1).sum()),
+            worst_ratio=float(ratio_px.max()) if len(idx) else 0.0,
             waived=waived,
         )
-        maps[f"{name}_error"] = np.where(judged, err_px, 0.0)
-        maps[f"{name}_ratio"] = np.where(judged, ratio_px, 0.0)
+        for key, per_pixel in (("error", err_px), ("ratio", ratio_px)):
+            full = np.zeros(n)
+            full[idx] = per_pixel
+            maps[f"{name}_{key}"] = full.reshape(judged.shape)
     return Report(
         resolution=tuple(ref.resolution),
         covered_gpu=int(gpu.mask.sum()),

@@ -107,3 +107,13 @@ def test_generic_drivers_get_the_subpixel_term():
     model = ErrorModel.for_context(FakeContext())
     assert model.position_error_px == 2.0**-8
     assert not model.waive_noperspective_multiclip
+
+
+def test_nan_from_the_gpu_is_over_tolerance(scene):
+    _, _, ref = scene
+    gpu = as_gpu(ref)
+    ys, xs = np.nonzero(ref.mask & ~ref.depth_tie)
+    gpu.screen[ys[3], xs[3], 0] = np.nan
+    report = gr.compare(gpu, ref)
+    assert report.values["screen"].over_tolerance == 1
+    assert not report.ok()
