@@ -25,20 +25,20 @@ FILL_RULE = "llvmpipe"
 
 
 def golden_dir(directory=None) -> Path:
-    """The golden folder: ``directory``, else ``$GLRASTER_GOLDEN_DIR``, else ``golden/``
-    at the top of the source tree."""
+    """The golden folder: ``directory``, else ``$GLRASTER_GOLDEN_DIR``, else ``golden/`` at
+    the top of the source tree, else the copy the wheel ships as ``glraster/golden``."""
     if directory is not None:
         return Path(directory)
     env = os.environ.get("GLRASTER_GOLDEN_DIR")
     if env:
         return Path(env)
-    return Path(__file__).resolve().parent.parent / "golden"
+    package = Path(__file__).resolve().parent
+    source_tree = package.parent / "golden"
+    return source_tree if source_tree.is_dir() else package / "golden"
 
 
 def golden_available(directory=None) -> bool:
-    """Whether there is a golden folder to check against. Goldens live in the source tree
-    (they are not part of the wheel): an installed glraster without ``directory`` or
-    ``$GLRASTER_GOLDEN_DIR`` has none."""
+    """Whether there is a golden folder to check against (source tree or wheel)."""
     return golden_dir(directory).is_dir()
 
 
