@@ -1,0 +1,111 @@
+"""Deciding, before upload, which triangles cannot produce a fragment.
+
+Every test here is conservative: a triangle is dropped only when the GL pipeline is certain
+to drop it too, so the image with and without culling is the same (``tests/test_skip.py``).
+
+- outside the view volume: all three vertices strictly outside the same clip plane
+  (x > w, x < -w, y > w, y < -w, z > w or z < -w; GL 4.5 core section 13.7);
+- zero area: on Mesa llvmpipe, a triangle inside the viewport and in front of the eye
+  whose vertices snap to zero fixed-point area (llvmpipe culls those itself; see
+  glraster.reference.llvmpipe_edges); on other drivers only triangles that repeat a vertex
+  index;
+- back faces (only when asked): clockwise in window space (GL's default front face is
+  counter-clockwise) by a clear margin in both float and fixed point. The draw also enables
+  GL_CULL_FACE, so borderline triangles are left to the driver's own decision.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+# A back face is culled on the host only when its doubled window area is below this (px^2)
+# in float64 and negative after snapping: far from the driver's rounding.
+BACKFACE_MARGIN_PX2 = 1.0 / 64
+
+
+@dataclass
+class Culling:
+    """Result of :func:`cull`.
+
+    keep     : (T,) bool     triangle may produce a fragment
+    kept     : (K,) int32    indices of the kept triangles into the caller's ``tri``
+    reasons  : dict          name -> number of triangles dropped for that reason
+    """
+
+    keep: np.ndarray
+    kept: np.ndarray
+    reasons: dict
+
+    @property
+    def all_kept(self) -> bool:
+        return len(self.kept) == len(self.keep)
+
+
+def _area2(x, y, tri):
+    """Twice the signed window area (T,) of triangles ``tri`` (T, 3) over per-vertex x, y."""
+    x0, x1, x2 = x[tri[:, 0]], x[tri[:, 1]], x[tri[:, 2]]
+    y0, y1, y2 = y[tri[:, 0]], y[tri[:, 1]], y[tri[:, 2]]
+    return (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
+
+
+def cull(pos: np.ndarray, tri: np.ndarray, resolution, *, backfaces: bool = False,
+         llvmpipe: bool = True, subpixel_bits: int = 8) -> Culling:
+    """Which triangles to upload. Work is per vertex where possible (outcodes, window
+    positions), then gathered per triangle.
+
+    Parameters
+    ----------
+    pos : (V, 4) float32     clip-space positions
+    tri : (T, 3) int32       vertex indices
+    resolution : (height, width)
+    backfaces : bool         also drop clockwise (back-facing) triangles
+    llvmpipe : bool          the driver is Mesa llvmpipe, whose zero-area rule is modeled
+    subpixel_bits : int      the driver's GL_SUBPIXEL_BITS (llvmpipe: 8)
+    """
+    height, width = resolution
+    x, y, z, w = pos[:, 0], pos[:, 1], pos[:, 2], pos[:, 3]
+    # Cohen-Sutherland style outcodes per vertex; a triangle is outside when its three
+    # vertices share a bit (GL 4.5 core section 13.7: all outside one clip plane).
+    code = (
+        (x > w).view(np.uint8) | ((x < -w).view(np.uint8) << 1)
+        | ((y > w).view(np.uint8) << 2) | ((y < -w).view(np.uint8) << 3)
+        | ((z > w).view(np.uint8) << 4) | ((z < -w).view(np.uint8) << 5)
+    )
+    i0, i1, i2 = tri[:, 0], tri[:, 1], tri[:, 2]
+    outside = (code[i0] & code[i1] & code[i2]) != 0
+    keep = ~outside
+    reasons = {"outside": int(outside.sum()), "zero_area": 0, "backface": 0}
+    if not llvmpipe:
+        same = (i0 == i1) | (i1 == i2) | (i2 == i0)
+        reasons["zero_area"] = int((same & keep).sum())
+        keep &= ~same
+
+    if llvmpipe or backfaces:
+        with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
+            # as the driver: x_w = (x_c (1 / w_c)) W/2 + W/2 in float32
+            rcp = np.float32(1.0) / w
+            sx, sy = np.float32(width / 2), np.float32(height / 2)
+            wx = (x * rcp) * sx + sx
+            wy = (y * rcp) * sy + sy
+            front_v = (w > 0) & (np.abs(z) <= w)
+            bounded_v = front_v & (np.abs(wx) < float(1 << 22)) & (np.abs(wy) < float(1 << 22))
+            one = np.float32(1 << subpixel_bits)
+            half = np.float32(0.5)
+            fx = np.where(bounded_v, np.rint((wx - half) * one), 0).astype(np.int64)
+            fy = np.where(bounded_v, np.rint((wy - half) * one), 0).astype(np.int64)
+        bounded = bounded_v[i0] & bounded_v[i1] & bounded_v[i2]
+        area = _area2(fx, fy, tri)
+        if llvmpipe:
+            inside_v = bounded_v & (wx >= 0) & (wx <= width) & (wy >= 0) & (wy <= height)
+            flat = inside_v[i0] & inside_v[i1] & inside_v[i2] & (area == 0) & keep
+            reasons["zero_area"] = int(flat.sum())
+            keep &= ~flat
+        if backfaces:
+            area_f = _area2(wx.astype(np.float64), wy.astype(np.float64), tri)
+            back = bounded & (area < 0) & (area_f < -BACKFACE_MARGIN_PX2) & keep
+            reasons["backface"] = int(back.sum())
+            keep &= ~back
+    kept = np.flatnonzero(keep).astype(np.int32)
+    return Culling(keep, kept, reasons)
