@@ -5,6 +5,8 @@ from __future__ import annotations
 import sys
 import time
 
+from . import add_backend_argument
+
 EXIT_FAIL = 1
 EXIT_USAGE = 2
 EXIT_NO_BACKEND = 3
@@ -17,8 +19,7 @@ def register(subparsers) -> None:
                     "pixel by pixel with the float64 reference (per-pixel tolerances from "
                     "the error model, exact coverage where the fill rule is modeled) and "
                     "check the golden EXRs bit for bit. Exits 1 on any failure.")
-    p.add_argument("--backend", default=None, choices=("auto", "egl", "osmesa"),
-                   help="OpenGL backend (default: $GLRASTER_BACKEND or auto)")
+    add_backend_argument(p)
     p.add_argument("--scenes", default=None, metavar="PATTERN",
                    help="comma-separated fnmatch patterns of scene names (default: all)")
     p.add_argument("--junit", default=None, metavar="FILE", help="write JUnit XML here")

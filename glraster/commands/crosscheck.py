@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+from . import add_backend_argument
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -29,8 +31,7 @@ def register(subparsers) -> None:
     q.add_argument("--max-median", type=float, default=1e-4,
                    help="fail if the median relative difference exceeds this (1e-4)")
     q.add_argument("--json", metavar="PATH", help="also write the report as JSON")
-    q.add_argument("--backend", default=None, choices=("auto", "egl", "osmesa"),
-                   help="OpenGL backend for glraster (default: $GLRASTER_BACKEND or auto)")
+    add_backend_argument(q)
     q.set_defaults(func=_pyrender)
 
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+from . import add_backend_argument
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -12,8 +14,7 @@ def register(subparsers) -> None:
         description="Rasterize 500 random triangles and a shared-edge grid on the GPU and "
                     "with the float64 reference, print the comparison, then run the "
                     "conformance check (HTML report) and write the distortion figure.")
-    p.add_argument("--backend", default=None, choices=("auto", "egl", "osmesa"),
-                   help="OpenGL backend (default: $GLRASTER_BACKEND or auto)")
+    add_backend_argument(p)
     p.add_argument("--out", default="out", help="folder for reports and figures (default: out)")
     p.add_argument("--quick", action="store_true",
                    help="only the GPU-vs-reference comparison, no check or figure")

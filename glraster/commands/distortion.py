@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from . import add_backend_argument
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -16,8 +18,7 @@ def register(subparsers) -> None:
     p.add_argument("--height", type=int, default=360, help="image height per panel (360)")
     p.add_argument("--supersample", type=int, default=3,
                    help="samples per pixel along each axis (3)")
-    p.add_argument("--backend", default=None, choices=("auto", "egl", "osmesa"),
-                   help="OpenGL backend for glraster (default: $GLRASTER_BACKEND or auto)")
+    add_backend_argument(p)
     p.set_defaults(func=_run)
 
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 import sys
 
+from . import add_backend_argument
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -12,8 +14,7 @@ def register(subparsers) -> None:
         description="Create a headless context and print backend, renderer, vendor, GL "
                     "version, subpixel bits (GL_SUBPIXEL_BITS), maximum render size and "
                     "which backends work on this machine.")
-    p.add_argument("--backend", default=None, choices=("auto", "egl", "osmesa"),
-                   help="OpenGL backend (default: $GLRASTER_BACKEND or auto)")
+    add_backend_argument(p)
     p.add_argument("--json", action="store_true", help="print JSON instead of text")
     p.set_defaults(func=run)
 

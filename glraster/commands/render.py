@@ -5,6 +5,8 @@ from __future__ import annotations
 import sys
 import time
 
+from . import add_backend_argument
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -17,8 +19,7 @@ def register(subparsers) -> None:
     p.add_argument("scene", metavar="SCENE_OR_FILE",
                    help="catalog scene name (see 'glraster check --list') or scene file")
     p.add_argument("-o", "--output", required=True, metavar="OUT.exr", help="EXR to write")
-    p.add_argument("--backend", default=None, choices=("auto", "egl", "osmesa"),
-                   help="OpenGL backend (default: $GLRASTER_BACKEND or auto)")
+    add_backend_argument(p)
     p.add_argument("--outputs", default=None, metavar="LIST",
                    help="comma-separated subset of persp,screen,depth,tri_id "
                         "(default: the scene's outputs)")
