@@ -52,6 +52,11 @@ class ErrorModel:
     ulp_factor: float = 4.0
     position_error_px: float = 0.0
     waive_noperspective_multiclip: bool = True
+    # compensated: the barycentrics (not depth, which stays the driver's) are evaluated in
+    # about twice the working precision and rounded once ("homogeneous", "homogeneous64":
+    # glraster/homogeneous.py), so the position-dependent terms (|grad f| (R + kappa D)
+    # and the vertex-value term) shrink by a factor eps32. See for_method().
+    compensated: bool = False
 
     @classmethod
     def for_context(cls, ctx) -> "ErrorModel":
@@ -63,6 +68,28 @@ class ErrorModel:
             position_error_px=2.0 ** -max(4, min(ctx.subpixel_bits, 16)),
             waive_noperspective_multiclip=False,
         )
+
+    @classmethod
+    def for_method(cls, method: str, ctx=None) -> "ErrorModel":
+        """The model for one of :data:`glraster.raster.METHODS` on a context.
+
+        "hw", "divw" and "solve4" interpolate or solve in plain float32 from the same
+        float32 window-space data as the driver: the driver model (:meth:`for_context`)
+        bounds them (measured: worst error / tolerance <= 0.1 on random soups, see
+        docs/performance.md). "homogeneous" and "homogeneous64" evaluate compensated and
+        compute noperspective values from the unclipped triangle's formula, so no
+        clipper deviation is waived.
+        """
+        from dataclasses import replace
+
+        from .raster import METHODS
+
+        if method not in METHODS:
+            raise ValueError(f"method must be one of {sorted(METHODS)}, got {method!r}")
+        base = cls.for_context(ctx)
+        if method in ("homogeneous", "homogeneous64"):
+            return replace(base, compensated=True, waive_noperspective_multiclip=False)
+        return base
 
 
 @dataclass
@@ -200,10 +227,14 @@ def value_tolerance(ref, model: ErrorModel = ErrorModel()) -> dict:
         # f_v: an error of eps32 |f_v| / h per pixel of distance, over up to D pixels.
         span = np.nan_to_num(cond.D / cond.h, nan=np.inf)[t][:, None]
     C, delta = model.ulp_factor, model.position_error_px
+    # compensated evaluation (ErrorModel.compensated): position terms carry eps32^2
+    shrink = EPS32 if model.compensated else 1.0
 
-    def bound(value, grad, vertex_value):
+    def bound(value, grad, vertex_value, compensated=True):
+        k = shrink if compensated else 1.0
         with np.errstate(invalid="ignore", over="ignore"):
-            b = C * EPS32 * (np.abs(value) + grad * reach + vertex_value * span) + grad * delta
+            b = C * EPS32 * (np.abs(value) + k * (grad * reach + vertex_value * span)) \
+                + grad * delta
         return np.nan_to_num(b, nan=np.inf)
 
     w = ts.clip[t, :, 3]
@@ -226,6 +257,7 @@ def value_tolerance(ref, model: ErrorModel = ErrorModel()) -> dict:
         grad_z = 0.5 * np.abs((adj[..., :2] * (z / det)[..., None]).sum(1)).sum(1)
         tol = np.zeros(height * width)
         # a clipped vertex's depth carries eps32 S / 2 from its float32 blend (see S)
-        tol[pix] = bound((np.abs(zw) + S[t] / 2)[:, None], grad_z[:, None], 1.0)[:, 0]
+        tol[pix] = bound((np.abs(zw) + S[t] / 2)[:, None], grad_z[:, None], 1.0,
+                         compensated=False)[:, 0]
         out["depth"] = tol.reshape(height, width)
     return out
