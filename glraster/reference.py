@@ -25,6 +25,7 @@ their edges in ``edge_band``, where either answer is accepted.
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -271,12 +272,7 @@ def rasterize(
     band = np.zeros(height * width, bool)
     ts = setup(pos, tri, (height, width), fill_rule) if len(tri) else None
     if ts is not None:
-        for t, px, py in _candidates(ts):
-            covered = _coverage(ts, t, px, py)
-            if edge_band_px > 0:
-                _mark_edge_band(ts, t, px, py, band, width, edge_band_px)
-            t, pix = t[covered], (py * width + px)[covered]
-            depth = _plane(ts.depth_plane, t, pix % width, pix // width)
+        for pix, t, depth in _prefetch(_depth_fragments(ts, band, width, edge_band_px)):
             state.test(pix, t, depth)
 
     covered = state.tri >= 0
@@ -307,22 +303,8 @@ class _DepthBuffer:
         self._first = np.full(n, np.iinfo(np.int64).max)
         self._count = np.zeros(n, np.int32)
 
-    def test(self, pix, t, depth):
-        """Depth-test fragments (pix, t, depth) of one chunk; earlier chunks win ties."""
-        # GL stores float32 depth and tests LESS against the cleared 1.0.
-        keep = depth.astype(np.float32) < np.float32(1.0)
-        pix, t, depth = pix[keep], t[keep], depth[keep]
-        if not len(pix):
-            return
-        np.minimum.at(self._min, pix, depth)
-        chunk_min = self._min[pix]
-        at_min = depth == chunk_min
-        np.minimum.at(self._first, pix[at_min], t[at_min])
-        np.add.at(self._count, pix[depth <= chunk_min + DEPTH_TIE], 1)
-
-        touched = pix[at_min & (t == self._first[pix])]      # one entry per pixel
-        new_depth, new_tri = self._min[touched], self._first[touched]
-        new_tie = self._count[touched] >= 2
+    def _update(self, touched, new_depth, new_tri, new_tie):
+        """Merge one chunk's winners (one entry per pixel) into the buffer."""
         old = self.depth[touched]
         wins = new_depth < old                                 # strict: LESS
         close = np.abs(new_depth - old) <= DEPTH_TIE
@@ -333,6 +315,28 @@ class _DepthBuffer:
         self.depth[touched] = np.where(wins, new_depth, old)
         self.tri[touched] = np.where(wins, new_tri, self.tri[touched])
 
+    def test(self, pix, t, depth):
+        """Depth-test fragments (pix, t, depth) of one chunk; earlier chunks win ties."""
+        # GL stores float32 depth and tests LESS against the cleared 1.0.
+        keep = depth.astype(np.float32) < np.float32(1.0)
+        pix, t, depth = pix[keep], t[keep], depth[keep]
+        if not len(pix):
+            return
+        multi = np.bincount(pix, minlength=len(self._min))[pix] > 1
+        if not multi.any():
+            # One fragment per pixel (the common case for a mesh): the chunk minimum is the
+            # fragment itself, no scratch state needed. Same update as below.
+            self._update(pix, depth, t, np.zeros(len(pix), bool))
+            return
+        np.minimum.at(self._min, pix, depth)
+        chunk_min = self._min[pix]
+        at_min = depth == chunk_min
+        np.minimum.at(self._first, pix[at_min], t[at_min])
+        np.add.at(self._count, pix[depth <= chunk_min + DEPTH_TIE], 1)
+
+        touched = pix[at_min & (t == self._first[pix])]      # one entry per pixel
+        self._update(touched, self._min[touched], self._first[touched],
+                     self._count[touched] >= 2)
         self._min[pix] = np.inf
         self._first[pix] = np.iinfo(np.int64).max
         self._count[pix] = 0
@@ -354,9 +358,139 @@ def _candidates(ts: TriangleSetup):
         yield t, x0[t] + col, y0[t] + row
 
 
+def _depth_fragments(ts, band, width, band_px):
+    """(pixel index, triangle, window depth) of the covered fragments, chunk by chunk."""
+    for t, px, py in _fragments(ts, band, width, band_px):
+        yield py * width + px, t, _plane(ts.depth_plane, t, px, py)
+
+
+def _prefetch(chunks):
+    """Iterate ``chunks`` while a worker thread already computes the next one (the depth
+    test of chunk k overlaps the fragment generation of chunk k + 1)."""
+    iterator = iter(chunks)
+    with ThreadPoolExecutor(1) as pool:
+        future = pool.submit(next, iterator, None)
+        while True:
+            item = future.result()
+            if item is None:
+                return
+            future = pool.submit(next, iterator, None)
+            yield item
+
+
+def _chunk_ranges(ts: TriangleSetup):
+    """The candidate numbering of :func:`_candidates`: per triangle its first candidate
+    (T,), bbox width and height (T,), and the total. Chunk k holds candidates
+    [k CHUNK_CANDIDATES, (k + 1) CHUNK_CANDIDATES)."""
+    x0, x1, y0, y1 = ts.bbox.T
+    bw = np.maximum(x1 - x0 + 1, 0)
+    bh = np.maximum(y1 - y0 + 1, 0)
+    count = bw * bh
+    ends = np.cumsum(count)
+    return ends - count, ends, bw, bh
+
+
+def _runs(lengths):
+    """For N non-negative lengths: (owner, offset) of every element of the concatenated
+    runs, owner in [0, N) and offset in [0, lengths[owner])."""
+    total = int(lengths.sum())
+    owner = np.repeat(np.arange(len(lengths)), lengths)
+    first = np.cumsum(lengths) - lengths
+    return owner, np.arange(total, dtype=np.int64) - first[owner]
+
+
+def _fragments(ts: TriangleSetup, band, width, band_px):
+    """Yield (tri, px, py) int64 arrays of the covered (triangle, pixel) pairs, chunk by
+    chunk in draw order, with the same chunks as :func:`_candidates` (so the depth test,
+    which is order independent within a chunk, gives bit-identical results).
+
+    Triangles with an llvmpipe edge setup get their covered pixels row by row as exact
+    integer spans of the fixed-point edge inequalities (no per-candidate test, empty parts
+    of the bounding box cost nothing); the others are tested candidate by candidate in
+    float64 (:func:`_coverage`). Pixels near the edges of triangles whose coverage is not
+    exact are marked in ``band`` on the way.
+    """
+    starts, ends, bw, bh = _chunk_ranges(ts)
+    total = int(ends[-1]) if len(ends) else 0
+    x0, y0 = ts.bbox[:, 0], ts.bbox[:, 2]
+    x1 = ts.bbox[:, 1]
+    for lo in range(0, total, CHUNK_CANDIDATES):
+        hi = min(lo + CHUNK_CANDIDATES, total)
+        ta = int(np.searchsorted(ends, lo, side="right"))
+        tb = int(np.searchsorted(ends, hi - 1, side="right"))
+        tris = np.arange(ta, tb + 1)
+        tris = tris[bw[tris] * bh[tris] > 0]
+        # local candidate range [a, b) of each triangle inside this chunk
+        a = np.maximum(lo - starts[tris], 0)
+        b = np.minimum(hi - starts[tris], bw[tris] * bh[tris])
+        out_t, out_x, out_y = [], [], []
+
+        fixed = ts.fixed_ok[tris]
+        if fixed.any():
+            t, px, py = _spans(ts, tris[fixed], a[fixed], b[fixed], bw, x0, x1, y0)
+            out_t.append(t), out_x.append(px), out_y.append(py)
+        loose = ~fixed | ~ts.exact[tris]
+        if loose.any():
+            sel = tris[loose]
+            owner, offset = _runs(b[loose] - a[loose])
+            t = sel[owner]
+            row, col = np.divmod(a[loose][owner] + offset, bw[t])
+            px, py = x0[t] + col, y0[t] + row
+            if band_px > 0:
+                _mark_edge_band(ts, t, px, py, band, width, band_px)
+            test = ~ts.fixed_ok[t]
+            if test.any():
+                t, px, py = t[test], px[test], py[test]
+                covered = _coverage(ts, t, px, py)
+                out_t.append(t[covered]), out_x.append(px[covered]), out_y.append(py[covered])
+        if out_t:
+            yield np.concatenate(out_t), np.concatenate(out_x), np.concatenate(out_y)
+
+
+def _spans(ts: TriangleSetup, tris, a, b, bw, x0, x1, y0):
+    """Covered pixels of triangles with an llvmpipe edge setup, restricted to their local
+    candidate ranges [a, b) (row-major inside the bounding box). Returns (tri, px, py).
+
+    Edge k covers pixel x of row y when c - dcdx (256 x) + dcdy (256 y) >= 1, i.e. with
+    K = c + dcdy 256 y and s = 256 dcdx:  s x <= K - 1. So x <= floor((K - 1) / s) when
+    s > 0, x >= -floor((K - 1) / -s) when s < 0, and every x or none when s == 0: exact
+    integer arithmetic, the same inequalities as :func:`_coverage`.
+    """
+    r0 = a // bw[tris]
+    r1 = (b - 1) // bw[tris]
+    owner, offset = _runs(r1 - r0 + 1)
+    t = tris[owner]
+    row = r0[owner] + offset
+    py = y0[t] + row
+    # the chunk boundary cuts the first and last rows of a triangle
+    left = x0[t] + np.where(row == r0[owner], a[owner] - row * bw[t], 0)
+    right = x0[t] + np.where(row == r1[owner], b[owner] - 1 - row * bw[t], bw[t] - 1)
+    right = np.minimum(right, x1[t])
+    sy = py * FIXED_ONE
+    for k in range(3):
+        edge = ts.fixed[t, k]
+        slope = edge[:, 0] * FIXED_ONE
+        rhs = edge[:, 2] + edge[:, 1] * sy - 1
+        pos = slope > 0
+        neg = slope < 0
+        with np.errstate(divide="ignore"):
+            safe = np.where(slope == 0, 1, np.abs(slope))
+            q = rhs // safe
+        right = np.where(pos, np.minimum(right, q), right)
+        left = np.where(neg, np.maximum(left, -q), left)
+        # slope == 0: the whole row or nothing
+        right = np.where(~pos & ~neg & (rhs < 0), left - 1, right)
+    length = np.maximum(right - left + 1, 0)
+    keep = length > 0
+    t, py, left, length = t[keep], py[keep], left[keep], length[keep]
+    owner, offset = _runs(length)
+    return t[owner], left[owner] + offset, py[owner]
+
+
 def _plane(plane, t, px, py):
     """Evaluate per-triangle planes (T, 3) [a, b, c] at pixel centers: a p_x + b p_y + c."""
-    return plane[t, 0] * (px + 0.5) + plane[t, 1] * (py + 0.5) + plane[t, 2]
+    col = [np.ascontiguousarray(plane[:, k]) for k in range(3)]
+    return np.take(col[0], t) * (px + 0.5) + np.take(col[1], t) * (py + 0.5) + np.take(col[2], t)
 
 
 def _edge_values(ts: TriangleSetup, t, px, py):
@@ -418,30 +552,88 @@ def _mark_edge_band(ts: TriangleSetup, t, px, py, band, width, band_px):
     band[(qy * width + qx)[near_edge & (s.sum(1) > 0)]] = True
 
 
+def _scatter_rows(dst: np.ndarray, rows: np.ndarray, src: np.ndarray):
+    """``dst[rows] = src`` for C-contiguous (n, 3) and (N, 3) float64 arrays, as a 1-D
+    assignment of 24-byte items (much faster than numpy's row-wise fancy assignment)."""
+    item = np.dtype((np.void, dst.itemsize * dst.shape[1]))
+    dst.view(item)[:, 0][rows] = np.ascontiguousarray(src).view(item)[:, 0]
+
+
+def _column(ts: TriangleSetup, name: str, k: int) -> np.ndarray:
+    """``getattr(ts, name)[:, :, k]`` as a contiguous (T, 3) array (cheaper to gather)."""
+    return np.ascontiguousarray(getattr(ts, name)[:, :, k])
+
+
+VALUE_THREADS = 2
+PARALLEL_PIXELS = 1 << 17
+
+
+def _values_part(ts, cols, best_tri, pix, width, persp, screen, depth):
+    """Fill the rows ``pix`` of the (n, 3) / (n,) outputs that are not None."""
+    t = best_tri[pix]
+    py, px = np.divmod(pix, width)
+    cx, cy = px + 0.5, py + 0.5
+    det = np.take(ts.det, t)
+    s = []
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for k in range(3):
+            a, b, c = cols["adj"][k]
+            e = np.take(a, t) * cx
+            e += np.take(b, t) * cy
+            e += np.take(c, t)
+            s.append(e / det)
+        total = s[0] + s[1]
+        total += s[2]
+        rows = np.empty((len(pix), 3))
+        if persp is not None:
+            for k in range(3):
+                np.divide(s[k], total, out=rows[:, k])
+            _scatter_rows(persp, pix, rows)
+        if screen is not None:
+            for k in range(3):
+                np.multiply(s[k], np.take(cols["w"][k], t), out=rows[:, k])
+            _scatter_rows(screen, pix, rows)
+        if depth is not None:
+            acc = s[0] * np.take(cols["z"][0], t)
+            acc += s[1] * np.take(cols["z"][1], t)
+            acc += s[2] * np.take(cols["z"][2], t)
+            depth[pix] = acc * 0.5 + 0.5
+
+
 def _values(ts, best_tri, covered, resolution, names) -> dict:
-    """The requested outputs at every pixel from the winning triangle (float64)."""
+    """The requested outputs at every pixel from the winning triangle (float64).
+
+    Computed per barycentric channel on 1-D arrays (np.take gathers, no reductions over a
+    short axis): the same operations in the same order as :func:`_edge_values`,
+    s = (A p_x + B p_y + C) / det, persp = s / ((s_0 + s_1) + s_2), so the values are
+    bit-identical to evaluating those formulas row by row. Large images are split in
+    halves evaluated by two threads (numpy releases the GIL in these loops).
+    """
     height, width = resolution
     n = height * width
     out = {}
     pix = np.flatnonzero(covered)
+    persp = np.zeros((n, 3)) if "persp" in names else None
+    screen = np.zeros((n, 3)) if "screen" in names else None
+    depth = np.ones(n) if "depth" in names else None
     if ts is not None and len(pix):
-        t = best_tri[pix]
-        s, _ = _edge_values(ts, t, pix % width, pix // width)
-        total = s.sum(1, keepdims=True)
-    if "persp" in names:
-        persp = np.zeros((n, 3))
-        if len(pix):
-            persp[pix] = s / total
+        cols = {
+            "adj": [[np.ascontiguousarray(ts.adj[:, k, j]) for j in range(3)] for k in range(3)],
+            "w": [np.ascontiguousarray(ts.clip[:, k, 3]) for k in range(3)],
+            "z": [np.ascontiguousarray(ts.clip[:, k, 2]) for k in range(3)],
+        }
+        parts = np.array_split(pix, VALUE_THREADS if len(pix) >= PARALLEL_PIXELS else 1)
+        if len(parts) > 1:
+            with ThreadPoolExecutor(len(parts)) as pool:
+                list(pool.map(lambda part: _values_part(ts, cols, best_tri, part, width,
+                                                        persp, screen, depth), parts))
+        else:
+            _values_part(ts, cols, best_tri, pix, width, persp, screen, depth)
+    if persp is not None:
         out["persp"] = persp.reshape(height, width, 3)
-    if "screen" in names:
-        screen = np.zeros((n, 3))
-        if len(pix):
-            screen[pix] = s * ts.clip[t, :, 3]
+    if screen is not None:
         out["screen"] = screen.reshape(height, width, 3)
-    if "depth" in names:
-        depth = np.ones(n)
-        if len(pix):
-            depth[pix] = (s * ts.clip[t, :, 2]).sum(1) * 0.5 + 0.5
+    if depth is not None:
         out["depth"] = depth.reshape(height, width)
     if "tri_id" in names:
         out["tri_id"] = best_tri.astype(np.int32).reshape(height, width)
