@@ -1,8 +1,7 @@
 """Small float64 view and projection matrices for building catalog scenes.
 
 These follow OpenGL conventions (right-handed eye space looking down -z, clip space with
-w = -z_eye for perspective). They exist so the scene catalog is self-contained; the
-general-purpose camera module lives elsewhere in glraster.
+w = -z_eye for perspective). perspective, orthographic and look_at are glraster.camera's.
 
 All matrices are (4, 4) float64 and act on column vectors: ``clip = P @ V @ [x, y, z, 1]``.
 """
@@ -11,66 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-
-def perspective(fovy_deg: float, aspect: float, near: float, far: float) -> np.ndarray:
-    """OpenGL perspective projection (gluPerspective).
-
-    fovy_deg: vertical field of view in degrees; aspect: width / height;
-    near, far: positive distances to the clipping planes (near < far).
-    """
-    if not 0.0 < fovy_deg < 180.0:
-        raise ValueError(f"fovy_deg must be in (0, 180), got {fovy_deg}")
-    if aspect <= 0:
-        raise ValueError(f"aspect must be positive, got {aspect}")
-    if not 0.0 < near < far:
-        raise ValueError(f"need 0 < near < far, got near={near}, far={far}")
-    f = 1.0 / np.tan(np.radians(fovy_deg) / 2.0)
-    m = np.zeros((4, 4))
-    m[0, 0] = f / aspect
-    m[1, 1] = f
-    m[2, 2] = (far + near) / (near - far)
-    m[2, 3] = 2.0 * far * near / (near - far)
-    m[3, 2] = -1.0
-    return m
-
-
-def orthographic(left: float, right: float, bottom: float, top: float,
-                 near: float, far: float) -> np.ndarray:
-    """OpenGL orthographic projection (glOrtho); every clip w is 1."""
-    if right == left or top == bottom or far == near:
-        raise ValueError("orthographic: left/right, bottom/top and near/far must differ")
-    m = np.eye(4)
-    m[0, 0] = 2.0 / (right - left)
-    m[1, 1] = 2.0 / (top - bottom)
-    m[2, 2] = -2.0 / (far - near)
-    m[0, 3] = -(right + left) / (right - left)
-    m[1, 3] = -(top + bottom) / (top - bottom)
-    m[2, 3] = -(far + near) / (far - near)
-    return m
-
-
-def look_at(eye, target, up=(0.0, 1.0, 0.0)) -> np.ndarray:
-    """World-to-eye matrix (gluLookAt). eye, target, up: 3-vectors in world units."""
-    eye = np.asarray(eye, dtype=np.float64)
-    target = np.asarray(target, dtype=np.float64)
-    up = np.asarray(up, dtype=np.float64)
-    fwd = target - eye
-    n = np.linalg.norm(fwd)
-    if n == 0:
-        raise ValueError("look_at: eye and target coincide")
-    fwd /= n
-    side = np.cross(fwd, up)
-    ns = np.linalg.norm(side)
-    if ns == 0:
-        raise ValueError("look_at: up is parallel to the viewing direction")
-    side /= ns
-    upv = np.cross(side, fwd)
-    m = np.eye(4)
-    m[0, :3] = side
-    m[1, :3] = upv
-    m[2, :3] = -fwd
-    m[:3, 3] = -m[:3, :3] @ eye
-    return m
+from ..camera import look_at, orthographic, perspective  # noqa: F401 (re-exported)
 
 
 def rotation(axis, angle_deg: float) -> np.ndarray:
