@@ -8,28 +8,9 @@ import pytest
 
 import glraster as gr
 from glraster import check, golden, junit
-from glraster.errors import BackendUnavailable
 from glraster.scenes import list_scenes, load_scene
 
-BACKENDS = ("egl", "osmesa")
 REFERENCES = {}          # name -> reference raster, shared by both backends' runs
-
-
-@pytest.fixture(scope="module", params=BACKENDS)
-def module_ctx(request):
-    try:
-        ctx = gr.Context(backend=request.param)
-    except BackendUnavailable as exc:
-        pytest.skip(f"{request.param} unavailable: {exc}")
-    yield ctx
-    ctx.release()
-
-
-@pytest.fixture
-def ctx(module_ctx):
-    """The backend's context; fails the test if it leaves a GL error behind."""
-    yield module_ctx
-    assert module_ctx.gl_error() == "GL_NO_ERROR"
 
 
 def test_every_catalog_scene_passes(ctx):
@@ -97,18 +78,18 @@ def _parser():
     return parser
 
 
-def test_cli_exit_codes(tmp_path, capsys, module_ctx):
+def test_cli_exit_codes(tmp_path, capsys, ctx):
     p = _parser()
     args = p.parse_args(["check", "--scenes", "nothing_like_this"])
     assert args.func(args) == 2
     args = p.parse_args(["check", "--scenes", "grid_*", "--list"])
     assert args.func(args) == 0
     assert "grid_pixel_corners" in capsys.readouterr().out
-    args = p.parse_args(["check", "--backend", module_ctx.backend, "--scenes", "basic_triangle",
+    args = p.parse_args(["check", "--backend", ctx.backend, "--scenes", "basic_triangle",
                          "--junit", str(tmp_path / "j.xml")])
     assert args.func(args) == 0
     assert (tmp_path / "j.xml").is_file()
-    args = p.parse_args(["check", "--backend", module_ctx.backend, "--scenes", "basic_triangle",
+    args = p.parse_args(["check", "--backend", ctx.backend, "--scenes", "basic_triangle",
                          "--golden-dir", str(tmp_path / "none")])
     assert args.func(args) == 1
     out = capsys.readouterr()

@@ -6,7 +6,6 @@ import pytest
 
 import glraster as gr
 from glraster import check, golden, mutants
-from glraster.errors import BackendUnavailable
 from glraster.scenes import list_scenes, load_scene
 from glraster.shaders import shader_dir
 
@@ -20,17 +19,6 @@ SCENES = ("tiny_viewport", "basic_triangle", "basic_perspective_triangle",
 @pytest.fixture(scope="module")
 def references():
     return {n: golden.reference_for(load_scene(n)) for n in SCENES}
-
-
-@pytest.fixture(scope="module", params=("egl", "osmesa"))
-def ctx(request):
-    try:
-        c = gr.Context(backend=request.param)
-    except BackendUnavailable as exc:
-        pytest.skip(f"{request.param} unavailable: {exc}")
-    yield c
-    assert c.gl_error() == "GL_NO_ERROR"
-    c.release()
 
 
 def test_at_least_eight_mutants_with_distinct_faults():
