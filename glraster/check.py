@@ -34,6 +34,7 @@ from . import mutants as _mutants
 from .compare import compare
 from .raster import rasterize
 from .scenes import Scene, list_scenes, load_scene
+from .tolerance import mesa_noperspective_clip_bug
 from .tolerance import ErrorModel
 
 # References kept in memory for the mutant pass: scenes up to this many pixels.
@@ -115,13 +116,14 @@ class CheckResult:
 
 
 def _waived_pixels(ref, model) -> np.ndarray:
-    """(H, W) bool: pixels whose ``screen`` value the model waives (triangles crossing two
-    or more clip planes, when ``model.waive_noperspective_multiclip``)."""
+    """(H, W) bool: pixels whose ``screen`` value the model waives (the triangles of
+    :func:`~glraster.tolerance.mesa_noperspective_clip_bug`, when
+    ``model.waive_noperspective_multiclip``)."""
     out = np.zeros(ref.mask.shape, bool)
     setup = getattr(ref, "setup", None)
     if not model.waive_noperspective_multiclip or setup is None:
         return out
-    out[ref.mask] = setup.planes_crossed[ref.tri_id[ref.mask]] >= 2
+    out[ref.mask] = mesa_noperspective_clip_bug(setup)[ref.tri_id[ref.mask]]
     return out
 
 

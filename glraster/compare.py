@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .tolerance import ErrorModel, value_tolerance
+from .tolerance import ErrorModel, mesa_noperspective_clip_bug, value_tolerance
 
 VALUE_OUTPUTS = ("persp", "screen", "depth")
 
@@ -119,7 +119,7 @@ def compare(gpu, ref, model: ErrorModel | None = None) -> Report:
         waived = 0
         if name == "screen" and model.waive_noperspective_multiclip and ref.setup is not None:
             multiclip = np.zeros(ref.tri_id.shape, bool)
-            multiclip[ref.mask] = ref.setup.planes_crossed[ref.tri_id[ref.mask]] >= 2
+            multiclip[ref.mask] = mesa_noperspective_clip_bug(ref.setup)[ref.tri_id[ref.mask]]
             judged = same & ~multiclip
             waived = int((same & multiclip).sum())
         # Only the judged pixels are touched: big frames stay cheap.

@@ -75,6 +75,7 @@ class TriangleSetup:
     bbox   : (T, 4) int64 x0, x1, y0, y1 inclusive pixel range (x1 < x0: no pixels)
     planes_crossed : (T,) int  how many of the six clip planes (x, y, z = +-w) some vertex
              is outside of: 0 means the driver draws the triangle unclipped
+    x_plane_crossed : (T,) bool  some vertex is outside x = -w or x = +w
     depth_plane : (T, 3)  window depth = a p_x + b p_y + c
     culled : (T,) bool    produces no fragment (zero area)
     """
@@ -87,6 +88,7 @@ class TriangleSetup:
     fixed_ok: np.ndarray
     bbox: np.ndarray
     planes_crossed: np.ndarray
+    x_plane_crossed: np.ndarray
     depth_plane: np.ndarray
     culled: np.ndarray
 
@@ -177,6 +179,7 @@ def setup(pos: np.ndarray, tri: np.ndarray, resolution, fill_rule: str | None) -
     bbox[culled] = (0, -1, 0, -1)
     return TriangleSetup(
         clip, adj, det, exact, fixed, fixed_ok & modeled, bbox, outside.sum(1),
+        outside[:, :2].any(1),
         depth_plane, culled,
     )
 

@@ -41,12 +41,10 @@ class ErrorModel:
 
     ulp_factor : C, the number of float32 roundings allowed per term
     position_error_px : delta, sample-position uncertainty in pixels
-    waive_noperspective_multiclip : do not judge ``screen`` on triangles that cross two or
-        more clip planes. Mesa's draw-module clipper (llvmpipe 22.3) computes the
-        window-space parameter of a new vertex from the first coordinate that differs *in
-        clip space*, and divides 0 by 0 when both endpoints already lie on a clip plane, so
-        noperspective values there break GL's rule (docs/llvmpipe.md). Waived pixels are
-        counted in the report, never hidden.
+    waive_noperspective_multiclip : do not judge ``screen`` on the triangles
+        :func:`mesa_noperspective_clip_bug` selects, where Mesa's draw-module clipper
+        (llvmpipe 22.3) breaks GL's rule for noperspective values (docs/llvmpipe.md).
+        Waived pixels are counted in the report, never hidden.
     """
 
     ulp_factor: float = 4.0
@@ -90,6 +88,19 @@ class ErrorModel:
         if method in ("homogeneous", "homogeneous64"):
             return replace(base, compensated=True, waive_noperspective_multiclip=False)
         return base
+
+
+def mesa_noperspective_clip_bug(setup) -> np.ndarray:
+    """(T,) bool: triangles whose noperspective values llvmpipe 22.3 gets wrong.
+
+    Mesa's clipper clips against x = -w, x = +w first, then y, then z. It takes the
+    window-space blend factor of a new vertex from the first coordinate whose *clip-space*
+    values differ along the edge, x before y. After an x plane, the edge that lies on it
+    has equal NDC x but different clip x, so a later plane divides 0 by 0 there. Measured:
+    every wrong noperspective pixel on random clipped soups belongs to a triangle that
+    crosses an x plane and at least one other plane, and only those.
+    """
+    return setup.x_plane_crossed & (setup.planes_crossed >= 2)
 
 
 @dataclass
