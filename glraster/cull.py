@@ -93,8 +93,11 @@ def cull(pos: np.ndarray, tri: np.ndarray, resolution, *, backfaces: bool = Fals
             bounded_v = front_v & (np.abs(wx) < float(1 << 22)) & (np.abs(wy) < float(1 << 22))
             one = np.float32(1 << subpixel_bits)
             half = np.float32(0.5)
-            fx = np.where(bounded_v, np.rint((wx - half) * one), 0).astype(np.int64)
-            fy = np.where(bounded_v, np.rint((wy - half) * one), 0).astype(np.int64)
+            # Snapped coordinates are integers below 2^30, held exactly in float64; for
+            # triangles inside the viewport (|X| < 2^22) the area products stay below 2^46
+            # and are exact, which is where the zero test is used.
+            fx = np.where(bounded_v, np.rint((wx - half) * one), 0).astype(np.float64)
+            fy = np.where(bounded_v, np.rint((wy - half) * one), 0).astype(np.float64)
         bounded = bounded_v[i0] & bounded_v[i1] & bounded_v[i2]
         area = _area2(fx, fy, tri)
         if llvmpipe:

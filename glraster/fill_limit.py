@@ -58,6 +58,7 @@ class FillLimit:
         """Clear, draw, read back all four targets; returns the arrays."""
         height, width = self.shape
         with self.ctx:
+            previous = self.ctx.mgl.fbo
             self.fbo.use()
             self.fbo.clear(0, 0, 0, 0, depth=1.0)
             self.vao.render(self.ctx.mgl.TRIANGLES)
@@ -69,6 +70,9 @@ class FillLimit:
             self.fbo.read_into(screen, components=3, attachment=1, dtype="f4")
             self.fbo.read_into(tri_id, components=1, attachment=2, dtype="i4")
             self.fbo.read_into(depth, components=1, attachment=-1, dtype="f4")
+            # Leave the previous framebuffer bound: moderngl re-binds "the bound framebuffer"
+            # after creating new ones, which fails once this one is released.
+            previous.use()
         return persp, screen, tri_id, depth
 
     def release(self):

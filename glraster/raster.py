@@ -166,13 +166,11 @@ def rasterize(
         if not culling.all_kept:
             kept = culling.kept
             tri = tri[kept]
-    # checked after culling: only the kept triangles are uploaded
-    for label, nbytes in (("pos", pos.nbytes), ("tri", tri.nbytes)):
-        if nbytes > ctx.max_storage_block_size:
-            raise ValueError(
-                f"{label} takes {nbytes} bytes, above the driver's shader storage block "
-                f"limit of {ctx.max_storage_block_size} bytes"
-            )
+    if pos.nbytes > ctx.max_storage_block_size:
+        raise ValueError(
+            f"pos takes {pos.nbytes} bytes, above the driver's shader storage block "
+            f"limit of {ctx.max_storage_block_size} bytes ({ctx.max_storage_block_size // 16} vertices)"
+        )
     is_affine = affine is None and len(tri) > 0 and _same_w(pos, tri)
     info["affine"] = is_affine
 
@@ -190,10 +188,11 @@ def rasterize(
     for location, name in enumerate(colors):
         defines[f"OUT_{name.upper()}"] = 1
         defines[f"{name.upper()}_LOCATION"] = location
+    # hw (raster.frag, shared with the fault-injection copies) remaps on the host
     remap_in_shader = method != "hw" and kept is not None and "tri_id" in colors
+    if remap_in_shader:
+        defines["REMAP"] = 1
     if method != "hw":
-        if remap_in_shader:
-            defines["REMAP"] = 1
         if is_affine:
             defines["AFFINE"] = 1
         if method == "divw" and ("persp" in colors or "screen" in colors):
@@ -216,15 +215,30 @@ def rasterize(
         targets.fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
         if len(tri):
             ctx.storage_buffer("positions", pos).bind_to_storage_buffer(0)
-            ctx.storage_buffer("indices", tri).bind_to_storage_buffer(1)
+            # Triangles go in batches whose index, setup and id arrays each fit one storage
+            # block; ids stay exact (tri_base, or the global ids of REMAP).
+            batch = ctx.max_storage_block_size // (3 * tri.itemsize)
             if records is not None:
-                ctx.storage_buffer("setup", records).bind_to_storage_buffer(2)
-            if remap_in_shader:
-                ctx.storage_buffer("ids", kept).bind_to_storage_buffer(3)
+                batch = min(batch, ctx.max_storage_block_size // records[0].nbytes)
             if cull_backfaces:
                 mgl.enable(mgl.CULL_FACE)
             try:
-                vao.render(mgl.TRIANGLES, vertices=3 * len(tri))
+                for number, base in enumerate(range(0, len(tri), batch)):
+                    # One buffer per batch: llvmpipe shades fragments when the binned
+                    # draw is flushed, after a later batch would have overwritten a
+                    # shared buffer that the fragment shader reads (measured).
+                    suffix = f"/{number}" if number else ""
+                    part = tri[base:base + batch]
+                    ctx.storage_buffer("indices" + suffix, part).bind_to_storage_buffer(1)
+                    if records is not None:
+                        ctx.storage_buffer("setup" + suffix, records[base:base + batch]) \
+                            .bind_to_storage_buffer(2)
+                    if remap_in_shader:
+                        ctx.storage_buffer("ids" + suffix, kept[base:base + batch]) \
+                            .bind_to_storage_buffer(3)
+                    if "tri_base" in program:
+                        program["tri_base"].value = base
+                    vao.render(mgl.TRIANGLES, vertices=3 * len(part))
             finally:
                 if cull_backfaces:
                     mgl.disable(mgl.CULL_FACE)
@@ -246,8 +260,7 @@ def rasterize(
         ids = values["tri_id"]
         ids -= 1  # stored as index + 1 so that the clear value 0 means empty
         if kept is not None and not remap_in_shader:
-            covered = ids >= 0
-            ids[covered] = kept[ids[covered]]
+            ids[...] = np.concatenate([[-1], kept]).astype(np.int32)[ids + 1]
     if is_affine and "persp" in names:
         screen = values["screen"]
         values["persp"] = screen if "screen" not in names else screen.copy()

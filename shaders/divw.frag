@@ -22,6 +22,7 @@ layout(location = SCREEN_LOCATION) out vec3 out_screen;
 #endif
 #ifdef OUT_TRI_ID
 layout(location = TRI_ID_LOCATION) out int out_tri_id;
+uniform int tri_base;  // index of the draw's first triangle (large meshes draw in batches)
 #endif
 
 void main() {
@@ -43,7 +44,7 @@ void main() {
 #ifdef REMAP
     out_tri_id = ids[gl_PrimitiveID] + 1;
 #else
-    out_tri_id = gl_PrimitiveID + 1;
+    out_tri_id = tri_base + gl_PrimitiveID + 1;
 #endif
 #endif
 }

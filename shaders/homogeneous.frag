@@ -45,6 +45,7 @@ layout(location = SCREEN_LOCATION) out vec3 out_screen;
 #endif
 #ifdef OUT_TRI_ID
 layout(location = TRI_ID_LOCATION) out int out_tri_id;
+uniform int tri_base;  // index of the draw's first triangle (large meshes draw in batches)
 #endif
 
 // hi + lo = a exactly, each with half the mantissa bits (Veltkamp's split).
@@ -122,7 +123,7 @@ void main() {
 #ifdef REMAP
     out_tri_id = ids[gl_PrimitiveID] + 1;
 #else
-    out_tri_id = gl_PrimitiveID + 1;
+    out_tri_id = tri_base + gl_PrimitiveID + 1;
 #endif
 #endif
 }

@@ -143,3 +143,20 @@ def test_invalid_method_arguments_name_the_argument():
         gr.rasterize(pos, tri, (8, 8), affine=True)
     with pytest.raises(ValueError, match="method must be one of"):
         ErrorModel.for_method("exact")
+
+
+@pytest.mark.parametrize("method", sorted(METHODS))
+def test_batched_draws_give_the_same_image(method):
+    """With a storage block limit small enough to split the draw (index, setup and id
+    arrays per batch), every output equals the single-draw image: ids stay global."""
+    pos, tri = synthetic.grid(8, 6, seed=12, w_range=(0.5, 3.0))   # 63 vertices, 96 triangles
+    ctx = gr.Context("auto")
+    try:
+        whole = gr.rasterize(pos, tri, (40, 56), ctx=ctx, method=method, cull=False)
+        ctx.max_storage_block_size = 1024   # 1008-byte pos fits; 85 triangles per index batch
+        split = gr.rasterize(pos, tri, (40, 56), ctx=ctx, method=method, cull=False)
+        for name in ("persp", "screen", "depth", "tri_id"):
+            assert np.array_equal(getattr(whole, name), getattr(split, name)), name
+        assert ctx.gl_error() == "GL_NO_ERROR"
+    finally:
+        ctx.release()
