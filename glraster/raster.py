@@ -104,7 +104,7 @@ def rasterize(
     method: str = "hw",
     shader_files: tuple | None = None,
     cull_backfaces: bool = False,
-    cull: bool = True,
+    cull: bool | str = "auto",
     affine: bool | None = None,
 ) -> Raster:
     """Rasterize triangles on the GPU and read back barycentric targets.
@@ -128,10 +128,13 @@ def rasterize(
         (used by fault injection); only with ``method="hw"``.
     cull_backfaces : bool
         Drop clockwise triangles (window space, GL's default front face is CCW).
-    cull : bool
+    cull : True, False or "auto"
         Drop before upload the triangles that cannot produce a fragment (outside the view
-        volume, zero area; see :mod:`glraster.cull`). The image is the same either way;
-        False exists to measure the saving.
+        volume, zero area; see :mod:`glraster.cull`). The image is the same either way.
+        "auto" culls for the methods that do per-triangle work on the host (homogeneous,
+        homogeneous64) and whenever back faces are culled; for the others llvmpipe's own
+        trivial reject is cheaper than the host test plus the id remapping (measured in
+        docs/performance.md).
     affine : bool or None
         None: take the affine path when every used vertex has the same w (persp equals
         screen, so one interpolation and one readback serve both). False: never.
@@ -159,6 +162,10 @@ def rasterize(
     kept = None
     info = {"backend": ctx.backend, "renderer": ctx.renderer, "method": method,
             "culled": {}, "affine": False}
+    if cull not in (True, False, "auto"):
+        raise ValueError(f"cull must be True, False or 'auto', got {cull!r}")
+    if cull == "auto":
+        cull = method.startswith("homogeneous") or cull_backfaces
     if len(tri) >= CULL_MIN_TRIANGLES and (cull or cull_backfaces):
         culling = _cull.cull(pos, tri, (height, width), backfaces=cull_backfaces,
                              llvmpipe=ctx.is_llvmpipe, subpixel_bits=ctx.subpixel_bits)

@@ -41,7 +41,7 @@ def test_culling_leaves_the_image_unchanged(ctx, method):
     """Bit for bit: the dropped triangles could not produce a fragment."""
     pos, tri = _mixed_scene()
     assert len(tri) >= CULL_MIN_TRIANGLES
-    a = gr.rasterize(pos, tri, RES, ctx=ctx, method=method)
+    a = gr.rasterize(pos, tri, RES, ctx=ctx, method=method, cull=True)
     b = gr.rasterize(pos, tri, RES, ctx=ctx, method=method, cull=False)
     culled = a.info["culled"]
     assert culled["outside"] > 0 and culled["zero_area"] > 0
@@ -53,8 +53,9 @@ def test_tri_id_indexes_the_callers_triangles_after_culling(ctx):
     """Every covered pixel's id is a triangle that survived culling, in the caller's
     numbering (the shader or the host maps the uploaded index back)."""
     pos, tri = _mixed_scene(seed=1)
-    r = gr.rasterize(pos, tri, RES, ctx=ctx, outputs=("tri_id",))
+    r = gr.rasterize(pos, tri, RES, ctx=ctx, outputs=("tri_id",), cull=True)
     c = cull(pos, tri, RES)
+    assert r.info["culled"]["outside"] > 0
     ids = np.unique(r.tri_id[r.mask])
     assert len(ids) > 10
     assert c.keep[ids].all()
@@ -82,6 +83,14 @@ def test_backface_culling_equals_drawing_the_front_faces(ctx, count):
     again = gr.rasterize(pos, tri, RES, ctx=ctx)
     assert again.mask.sum() >= culled.mask.sum()
     assert np.isin(np.setdiff1d(np.arange(count), front), again.tri_id).any()
+
+
+def test_auto_culling_runs_for_the_host_setup_methods_only(ctx):
+    pos, tri = _mixed_scene(seed=4)
+    assert gr.rasterize(pos, tri, (16, 16), ctx=ctx, method="homogeneous").info["culled"]
+    assert not gr.rasterize(pos, tri, (16, 16), ctx=ctx, method="hw").info["culled"]
+    with pytest.raises(ValueError, match="cull must be"):
+        gr.rasterize(pos, tri, (16, 16), ctx=ctx, cull="yes")
 
 
 def test_cull_reports_reasons_and_keeps_indices_sorted():
