@@ -106,6 +106,7 @@ def rasterize(
     cull_backfaces: bool = False,
     cull: bool | str = "auto",
     affine: bool | None = None,
+    extra_defines: dict | None = None,
 ) -> Raster:
     """Rasterize triangles on the GPU and read back barycentric targets.
 
@@ -138,6 +139,10 @@ def rasterize(
     affine : bool or None
         None: take the affine path when every used vertex has the same w (persp equals
         screen, so one interpolation and one readback serve both). False: never.
+
+    extra_defines : dict, optional
+        More ``#define``s for the method's shaders, for diagnostics (glraster.stress uses
+        SPLIT64 of homogeneous.frag to read float64 results as two float32 parts).
 
     Returns
     -------
@@ -206,6 +211,8 @@ def rasterize(
             defines["VARY_SCREEN"] = 1
         if method == "homogeneous64":
             defines["FP64"] = 1
+    if extra_defines:
+        defines.update(extra_defines)
     needs_bary = "persp" in colors or "screen" in colors
     records = None
     if method.startswith("homogeneous") and needs_bary and len(tri):

@@ -21,6 +21,8 @@
 //   [20, 23) w_i / k  (s is stored scaled by k = max |w_i|, so screen_i = (k s_i)(w_i / k))
 //
 // Host defines: FP64 (evaluate in double precision: GL 4.0 / ARB_gpu_shader_fp64);
+// SPLIT64 = 1 or 2 (with FP64, persp and screen requested: write persp (1) or screen (2)
+// as float32 high part in the persp target and low part in the screen target);
 // OUT_PERSP, OUT_SCREEN, OUT_TRI_ID, *_LOCATION; AFFINE; REMAP (see divw.frag).
 
 #ifdef FP64
@@ -108,6 +110,19 @@ void main() {
     vec3 screen = vec3(s0 * w0, s1 * w1, s2 * w2);
 #endif
 #endif
+#if defined(FP64) && defined(SPLIT64)
+    // Diagnostics (glraster/stress.py): the float64 result of one quantity as float32
+    // high part (persp target) + low part (screen target), 48 significant bits.
+#if SPLIT64 == 1
+    REAL total = s0 + s1 + s2;
+    dvec3 full = dvec3(s0 / total, s1 / total, s2 / total);
+#else
+    dvec3 full = dvec3(s0 * w0, s1 * w1, s2 * w2);
+#endif
+    vec3 high = vec3(full);
+    out_persp = high;
+    out_screen = vec3(full - dvec3(high));
+#else
 #ifdef OUT_SCREEN
     out_screen = screen;
 #endif
@@ -117,6 +132,7 @@ void main() {
 #else
     REAL total = s0 + s1 + s2;  // k / w_p
     out_persp = vec3(s0 / total, s1 / total, s2 / total);
+#endif
 #endif
 #endif
 #ifdef OUT_TRI_ID
