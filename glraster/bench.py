@@ -398,8 +398,9 @@ def skips(*, backend="egl", repeats=5, resolution=(1024, 1024), count=20000) -> 
 
 
 def pareto_plot(result: dict, path: str) -> None:
-    """Log-log scatter of warm time against max persp error, one color per method, with
-    each method's Pareto front. Written with matplotlib's Agg backend."""
+    """Log-log scatter of warm time against max persp error (the time/error trade-off:
+    the lower-left points are Pareto-optimal), one color per method, each point labelled
+    with its resolution and triangle count. Written with matplotlib's Agg backend."""
     import matplotlib
 
     matplotlib.use("Agg")
