@@ -331,11 +331,20 @@ class _DepthBuffer:
             # fragment itself, no scratch state needed. Same update as below.
             self._update(pix, depth, t, np.zeros(len(pix), bool))
             return
-        np.minimum.at(self._min, pix, depth)
+        # pixels hit once in this chunk: plain stores (the minimum of one value); the
+        # unbuffered ufunc.at only where fragments collide
+        one = ~multi
+        self._min[pix[one]] = depth[one]
+        self._first[pix[one]] = t[one]
+        self._count[pix[one]] = 1
+        pm, tm, dm = pix[multi], t[multi], depth[multi]
+        np.minimum.at(self._min, pm, dm)
+        chunk_min = self._min[pm]
+        at_min = dm == chunk_min
+        np.minimum.at(self._first, pm[at_min], tm[at_min])
+        np.add.at(self._count, pm[dm <= chunk_min + DEPTH_TIE], 1)
         chunk_min = self._min[pix]
         at_min = depth == chunk_min
-        np.minimum.at(self._first, pix[at_min], t[at_min])
-        np.add.at(self._count, pix[depth <= chunk_min + DEPTH_TIE], 1)
 
         touched = pix[at_min & (t == self._first[pix])]      # one entry per pixel
         self._update(touched, self._min[touched], self._first[touched],
