@@ -322,6 +322,9 @@ class _DepthBuffer:
         """Depth-test fragments (pix, t, depth) of one chunk; earlier chunks win ties."""
         # GL stores float32 depth and tests LESS against the cleared 1.0.
         keep = depth.astype(np.float32) < np.float32(1.0)
+        # A fragment deeper than the stored depth by more than DEPTH_TIE can neither win
+        # nor mark a tie (see _update), so occluded fragments are dropped here (exact).
+        keep &= depth <= self.depth[pix] + 2 * DEPTH_TIE
         pix, t, depth = pix[keep], t[keep], depth[keep]
         if not len(pix):
             return
