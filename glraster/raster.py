@@ -183,7 +183,8 @@ def rasterize(
             f"pos takes {pos.nbytes} bytes, above the driver's shader storage block "
             f"limit of {ctx.max_storage_block_size} bytes ({ctx.max_storage_block_size // 16} vertices)"
         )
-    is_affine = affine is None and len(tri) > 0 and _same_w(pos, tri)
+    # (never with custom shader files: fault injection must exercise the persp path)
+    is_affine = affine is None and shader_files is None and len(tri) > 0 and _same_w(pos, tri)
     info["affine"] = is_affine
 
     # the color targets: on the affine path persp and screen are the same values
