@@ -239,12 +239,12 @@ PRESETS = {
 
 
 def run(preset="quick", *, backend="egl", max_reference_pixels=1 << 20, progress=None,
-        with_pyrender=True, **overrides) -> dict:
+        with_pyrender=True, summaries=True, **overrides) -> dict:
     """Run a preset (see PRESETS; keyword arguments override its fields).
 
     Returns {"cases": [CaseResult as dict, ...], "headline": ..., "skips": ...,
     "reference": [...], "settings": ...}. ``progress(i, n, label)`` is called before each
-    step.
+    step. ``summaries=False`` skips :func:`headline` and :func:`skips` (empty dicts).
     """
     if preset not in PRESETS:
         raise ValueError(f"preset must be one of {sorted(PRESETS)}, got {preset!r}")
@@ -254,7 +254,7 @@ def run(preset="quick", *, backend="egl", max_reference_pixels=1 << 20, progress
         raise ValueError(f"methods has unknown names {sorted(unknown)}; choose from {sorted(METHODS)}")
     grid = [(s, r, c) for s in settings["scenes"] for r in settings["resolutions"]
             for c in settings["counts"]]
-    steps = len(grid) * (1 + len(settings["methods"])) + 2
+    steps = len(grid) * (1 + len(settings["methods"])) + (2 if summaries else 0)
     step = 0
 
     def tick(label):
@@ -280,10 +280,12 @@ def run(preset="quick", *, backend="egl", max_reference_pixels=1 << 20, progress
                 method, scene, resolution, backend=backend, repeats=settings["repeats"],
                 ref=ref, with_pyrender=with_pyrender and method == "hw")))
         del ref
-    tick("headline figures")
-    head = headline(backend=backend, repeats=max(settings["repeats"], 9))
-    tick("skip switches")
-    skip = skips(backend=backend, repeats=settings["repeats"])
+    head, skip = {}, {}
+    if summaries:
+        tick("headline figures")
+        head = headline(backend=backend, repeats=max(settings["repeats"], 9))
+        tick("skip switches")
+        skip = skips(backend=backend, repeats=settings["repeats"])
     return {"settings": {"preset": preset, **{k: list(v) if isinstance(v, tuple) else v
                                                for k, v in settings.items()}},
             "cases": cases, "reference": refs, "headline": head, "skips": skip}
