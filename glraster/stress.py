@@ -6,7 +6,8 @@ Each sweep varies one parameter of a small scene and renders it with every metho
 origin         a well-shaped triangle (every altitude >= 8 px, w 1 .. 2.5) at x = 0 .. 16k px
                from the framebuffer origin, in a 16384 x 64 strip (the viewport is the
                whole strip: the triangle really sits 16k px from where llvmpipe anchors
-               its plane equations; only x is far, y stays below 64 px)
+               its plane equations)
+origin_y      the same along y, in a 64 x 16384 strip
 origin_w1      the same with every w = 1 (the affine path: persp = screen)
 w_ratio        w of the vertices in ratio 1 .. 1e6 (same window-space triangle)
 aspect         a sliver of length ~16k px and aspect 1 .. 1e6, in a 16384 x 64 strip
@@ -76,6 +77,14 @@ def sweep_points(name: str):
         for d in values:
             win = _well_shaped((d + 40.3, 31.7), 28.0, 0.3)
             pts.append(Point(_from_window(win, w3, z3, STRIP), np.array([[0, 1, 2]]), STRIP))
+        return values, pts
+    if name == "origin_y":
+        values = np.array([0, 1024, 8192, 16000])
+        res = (STRIP[1], STRIP[0])
+        pts = []
+        for d in values:
+            win = _well_shaped((31.7, d + 40.3), 28.0, 1.1)
+            pts.append(Point(_from_window(win, w3, z3, res), np.array([[0, 1, 2]]), res))
         return values, pts
     if name == "origin_w1":
         values = np.array([0, 64, 256, 1024, 4096, 8192, 12288, 16000])
@@ -150,7 +159,7 @@ def sweep_points(name: str):
     raise ValueError(f"sweep must be one of {SWEEPS}, got {name!r}")
 
 
-SWEEPS = ("origin", "origin_w1", "w_ratio", "aspect", "size", "near", "extent", "scale")
+SWEEPS = ("origin", "origin_y", "origin_w1", "w_ratio", "aspect", "size", "near", "extent", "scale")
 
 
 def truth(pos, tri, tri_id, resolution):

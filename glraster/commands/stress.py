@@ -18,7 +18,7 @@ def register(subparsers) -> None:
                     "as JSON and PNG. About 20 s.")
     add_backend_argument(p)
     p.add_argument("--sweeps", default=None, metavar="LIST",
-                   help="comma-separated sweeps (default: all of origin, origin_w1, w_ratio, aspect, "
+                   help="comma-separated sweeps (default: all of origin, origin_y, origin_w1, w_ratio, aspect, "
                         "size, near, extent, scale)")
     p.add_argument("--methods", default=None, metavar="LIST", help="comma-separated methods")
     p.add_argument("--json", default=None, metavar="FILE", help="write the curves as JSON")
