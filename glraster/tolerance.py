@@ -73,8 +73,9 @@ class ErrorModel:
 
         "hw", "divw" and "solve4" interpolate or solve in plain float32 from the same
         float32 window-space data as the driver: the driver model (:meth:`for_context`)
-        bounds them (measured: worst error / tolerance <= 0.1 on random soups, see
-        docs/performance.md). "homogeneous" and "homogeneous64" evaluate compensated and
+        bounds them (measured: worst error / tolerance <= 0.62 on the benchmark scenes,
+        docs/performance.md; divw inherits llvmpipe's noperspective clipping defect on
+        triangles crossing two clip planes, docs/stability.md). "homogeneous" and "homogeneous64" evaluate compensated and
         compute noperspective values from the unclipped triangle's formula, so no
         clipper deviation is waived.
         """
