@@ -14,7 +14,7 @@ def register(subparsers) -> None:
                     "fill limit (a bare moderngl draw of the same targets), peak host "
                     "memory, and pyrender (depth only) as the peer; then the README headline "
                     "figures and each skip switch on/off. The quick preset takes ~1-2 "
-                    "minutes, the full one ~30-40 minutes on 2 cores (docs/performance.md).")
+                    "minutes, the full one ~50 minutes on 2 cores (docs/performance.md).")
     p.add_argument("--preset", choices=("quick", "full"), default="quick",
                    help="case grid (default: quick)")
     p.add_argument("--quick", dest="preset", action="store_const", const="quick",
