@@ -191,3 +191,17 @@ def test_triangle_ids_are_exact_past_2_pow_24(ctx):
     tri[-1] = (1, 2, 3)
     r = gr.rasterize(pos, tri, (16, 16), ctx=ctx, outputs=("tri_id",))
     assert r.tri_id[8, 8] == count - 1 == 16777217
+
+
+@pytest.mark.parametrize("w_range", [(1.0, 1.0), (0.5, 5.0)])
+def test_large_jittered_grid_matches_fill_rule_exactly(ctx, w_range):
+    """Thousands of vertices far from the origin: the snapped fixed-point vertices depend
+    on the last float32 bit of the window position (llvmpipe fuses the viewport transform),
+    so this catches a reference that rounds differently."""
+    pos, tri = synthetic.grid(120, 90, seed=1, w_range=w_range)
+    res = (600, 900)
+    gpu = gr.rasterize(pos, tri, res, ctx=ctx, outputs=("tri_id",))
+    ref = gr.reference.rasterize(pos, tri, res, outputs=("tri_id",),
+                                 fill_rule="llvmpipe" if ctx.is_llvmpipe else None)
+    differ = (gpu.tri_id != ref.tri_id) & ~ref.ambiguous
+    assert differ.sum() == 0
