@@ -10,9 +10,9 @@ one number:
     |df| <= C eps32 ( |f(p)|  +  |grad f|_1 (R + kappa D) )  +  |grad f|_1 delta
 
 - eps32 |f(p)|: rounding of the evaluation and of the stored float32;
-- eps32 |grad f|_1 R: R = max_i |v_i|_1, how far the vertices (and so the pixel and the
-  anchor a0 at the origin) are from the origin, in pixels: rounding of the window positions
-  and of a0 = f(v_0) - grad f . v_0 grows with it;
+- eps32 |grad f|_1 R: R = max_i (|v_i|_1 + |v_i - c|_1), how far the vertices are from
+  the origin and from the viewport center c, in pixels: the anchor a0 = f(v_0) - grad f . v_0
+  at the origin grows with the first, the rounding of x_w = x_ndc W/2 + W/2 with both;
 - eps32 |grad f|_1 kappa D: the gradient's relative error is about eps32 kappa, with
   kappa = (|dx01 dy20| + |dx20 dy01|) / |dx01 dy20 - dx20 dy01| the cancellation in the
   triangle's area, carried over D = the triangle's L1 diameter from where it is anchored;
@@ -147,13 +147,16 @@ def triangle_conditioning(setup, resolution) -> Conditioning:
     wmin = np.ones(T)
     N = np.zeros(T)
     scale = np.array([width / 2, height / 2])
+    center = scale
     w = clip[..., 3]
     simple = setup.planes_crossed == 0
 
     def measure(v, triples):
         """v: (N, k, 2) window positions of N polygons with k vertices; triples: the
         vertex index triples of the triangles the driver may draw."""
-        R_ = np.abs(v).sum(-1).max(-1)
+        # Window positions come from x_ndc W/2 + W/2 after a float32 divide: their rounding
+        # grows with the distance from the viewport center as well as from the origin.
+        R_ = (np.abs(v).sum(-1) + np.abs(v - center).sum(-1)).max(-1)
         diff = v[:, :, None, :] - v[:, None, :, :]
         D_ = np.abs(diff).sum(-1).max((-1, -2))
         i, j, k = np.asarray(triples).T

@@ -77,9 +77,10 @@ def test_mismatch_inside_the_edge_band_is_accepted(scene):
     assert report.coverage_mismatch == 0 and report.coverage_mismatch_in_band == 1
 
 
-def test_tolerance_grows_with_distance_from_the_origin():
-    # The same 6-px triangle near the origin and 3000 px away in a 4096-px viewport:
-    # plane equations anchored at the origin lose about eps32 |grad b| R.
+def test_tolerance_grows_with_distance_from_the_origin_and_the_center():
+    # The same 6-px triangle at several places along a 4096-px viewport: plane equations
+    # anchored at the origin lose eps32 |grad b| |v|, window positions x_ndc W/2 + W/2
+    # lose eps32 |grad b| |v - center| (see glraster.tolerance).
     def tol_at(offset_px):
         res = (16, 4096)
         x = (np.array([offset_px + 2.3, offset_px + 8.1, offset_px + 3.7]) / 4096) * 2 - 1
@@ -87,7 +88,10 @@ def test_tolerance_grows_with_distance_from_the_origin():
         pos = np.stack([x, y, np.zeros(3), np.ones(3)], 1).astype(np.float32)
         ref = gr.reference.rasterize(pos, [[0, 1, 2]], res)
         return value_tolerance(ref)["screen"][ref.mask].max()
-    assert tol_at(3000) > 50 * tol_at(0)
+    center, far = tol_at(2045), tol_at(4000)
+    assert far > 1.5 * center
+    assert tol_at(0) > 0.9 * center     # the window-position term keeps the origin honest
+    assert tol_at(3000) < far
 
 
 def test_resolution_and_missing_ids_are_rejected(scene):
