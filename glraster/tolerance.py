@@ -75,9 +75,9 @@ class ErrorModel:
         float32 window-space data as the driver: the driver model (:meth:`for_context`)
         bounds them (measured: worst error / tolerance <= 0.62 on the benchmark scenes,
         docs/performance.md; divw inherits llvmpipe's noperspective clipping defect on
-        triangles crossing two clip planes, docs/stability.md). "homogeneous" and "homogeneous64" evaluate compensated and
-        compute noperspective values from the unclipped triangle's formula, so no
-        clipper deviation is waived.
+        the triangles of :func:`mesa_noperspective_clip_bug`, docs/stability.md).
+        "homogeneous" and "homogeneous64" evaluate compensated and compute noperspective
+        values from the unclipped triangle's formula, so no clipper deviation is waived.
         """
         from dataclasses import replace
 
