@@ -4,7 +4,8 @@
 #   Mesa's DRI drivers (llvmpipe), Chromium (headless screenshots of the HTML report in tests).
 set -euo pipefail
 
-have_lib() { ldconfig -p | grep -q "$1"; }
+# grep without -q reads all of ldconfig's output, so pipefail never sees a SIGPIPE
+have_lib() { ldconfig -p | grep "$1" >/dev/null; }
 
 missing=()
 have_lib 'libEGL.so.1 '       || missing+=(libegl1)
