@@ -31,10 +31,9 @@ import numpy as np
 
 from . import golden as _golden
 from . import mutants as _mutants
-from .compare import compare
+from .compare import compare, waived_pixels
 from .raster import rasterize
 from .scenes import Scene, list_scenes, load_scene
-from .tolerance import mesa_noperspective_clip_bug
 from .tolerance import ErrorModel
 
 # References kept in memory for the mutant pass: scenes up to this many pixels.
@@ -115,18 +114,6 @@ class CheckResult:
         return scenes_ok and all(m.caught for m in self.mutants) and not self.control_failures
 
 
-def _waived_pixels(ref, model) -> np.ndarray:
-    """(H, W) bool: pixels whose ``screen`` value the model waives (the triangles of
-    :func:`~glraster.tolerance.mesa_noperspective_clip_bug`, when
-    ``model.waive_noperspective_multiclip``)."""
-    out = np.zeros(ref.mask.shape, bool)
-    setup = getattr(ref, "setup", None)
-    if not model.waive_noperspective_multiclip or setup is None:
-        return out
-    out[ref.mask] = mesa_noperspective_clip_bug(setup)[ref.tri_id[ref.mask]]
-    return out
-
-
 def evaluate(gpu, ref, ctx, model=None):
     """Compare a GPU raster with the reference (:func:`glraster.compare` with the context's
     error model) and add the non-finite rule: a NaN or Inf on a covered pixel fails, except
@@ -143,7 +130,7 @@ def evaluate(gpu, ref, ctx, model=None):
             continue
         nf = ~np.isfinite(a.reshape(a.shape[0] * a.shape[1], -1)[pix]).all(axis=1)
         if name == "screen" and nf.any():
-            nf &= ~_waived_pixels(ref, model).reshape(-1)[pix]
+            nf &= ~waived_pixels(ref, model).reshape(-1)[pix]
         nonfinite |= nf
     n_nonfinite = int(nonfinite.sum())
     if rep.coverage_mismatch:

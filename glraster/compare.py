@@ -82,6 +82,16 @@ class Report:
         return "\n".join(lines)
 
 
+def waived_pixels(ref, model: ErrorModel) -> np.ndarray:
+    """(H, W) bool: pixels whose ``screen`` value ``model`` does not judge (the triangles of
+    :func:`~glraster.tolerance.mesa_noperspective_clip_bug`, when
+    ``model.waive_noperspective_multiclip``)."""
+    out = np.zeros(ref.mask.shape, bool)
+    if model.waive_noperspective_multiclip and ref.setup is not None:
+        out[ref.mask] = mesa_noperspective_clip_bug(ref.setup)[ref.tri_id[ref.mask]]
+    return out
+
+
 def compare(gpu, ref, model: ErrorModel | None = None) -> Report:
     """Compare a GPU :class:`~glraster.Raster` with a :class:`~glraster.reference.ReferenceRaster`.
 
@@ -117,11 +127,10 @@ def compare(gpu, ref, model: ErrorModel | None = None) -> Report:
             continue
         judged = same
         waived = 0
-        if name == "screen" and model.waive_noperspective_multiclip and ref.setup is not None:
-            multiclip = np.zeros(ref.tri_id.shape, bool)
-            multiclip[ref.mask] = mesa_noperspective_clip_bug(ref.setup)[ref.tri_id[ref.mask]]
-            judged = same & ~multiclip
-            waived = int((same & multiclip).sum())
+        if name == "screen":
+            not_judged = waived_pixels(ref, model)
+            judged = same & ~not_judged
+            waived = int((same & not_judged).sum())
         # Only the judged pixels are touched: big frames stay cheap.
         idx = np.flatnonzero(judged)
         n = judged.size

@@ -205,7 +205,7 @@ def _bounding_boxes(clip, resolution, w, z) -> np.ndarray:
         lo[simple] = ndc.min(1)
         hi[simple] = ndc.max(1)
     for t in np.flatnonzero(~simple):
-        poly = _clip_near_far(clip[t])
+        poly = clip_polygon(clip[t])
         if len(poly) and (poly[:, 3] > 1e-12 * np.abs(poly[:, :3]).max(initial=1.0)).all():
             ndc = poly[:, :2] / poly[:, 3:4]
             lo[t], hi[t] = ndc.min(0), ndc.max(0)
@@ -222,7 +222,7 @@ def _bounding_boxes(clip, resolution, w, z) -> np.ndarray:
     return np.stack([lo_px[:, 0], hi_px[:, 0], lo_px[:, 1], hi_px[:, 1]], 1).astype(np.int64)
 
 
-def _clip_near_far(vertices: np.ndarray, axes=(2,)) -> np.ndarray:
+def clip_polygon(vertices: np.ndarray, axes=(2,)) -> np.ndarray:
     """Sutherland-Hodgman clip of one triangle (3, 4) against -w <= c <= w for each
     coordinate index c in ``axes`` (2: near/far; (0, 1, 2): the whole view volume).
     Returns (N, 4)."""
@@ -366,16 +366,13 @@ class _DepthBuffer:
 def _candidates(ts: TriangleSetup):
     """Yield (tri, px, py) int64 arrays of (triangle, pixel) pairs inside the bounding
     boxes, in draw order, at most CHUNK_CANDIDATES at a time (a big triangle is split)."""
-    x0, x1, y0, y1 = ts.bbox.T
-    bw = np.maximum(x1 - x0 + 1, 0)
-    count = bw * np.maximum(y1 - y0 + 1, 0)
-    ends = np.cumsum(count)
+    starts, ends, bw, _ = _chunk_ranges(ts)
+    x0, y0 = ts.bbox[:, 0], ts.bbox[:, 2]
     total = int(ends[-1]) if len(ends) else 0
     for start in range(0, total, CHUNK_CANDIDATES):
         g = np.arange(start, min(start + CHUNK_CANDIDATES, total), dtype=np.int64)
         t = np.searchsorted(ends, g, side="right")
-        local = g - (ends[t] - count[t])
-        row, col = np.divmod(local, bw[t])
+        row, col = np.divmod(g - starts[t], bw[t])
         yield t, x0[t] + col, y0[t] + row
 
 
@@ -514,7 +511,7 @@ def _plane(plane, t, px, py):
     return np.take(col[0], t) * (px + 0.5) + np.take(col[1], t) * (py + 0.5) + np.take(col[2], t)
 
 
-def _edge_values(ts: TriangleSetup, t, px, py):
+def edge_values(ts: TriangleSetup, t, px, py):
     """s = M^-1 (p, 1) at pixel centers: (N, 3) float64, and the edge rows adj (N, 3, 3)."""
     a = ts.adj[t]
     cx = px + 0.5
@@ -544,7 +541,7 @@ def _coverage(ts: TriangleSetup, t, px, py) -> np.ndarray:
     rest = np.flatnonzero(~fixed & ~ts.culled[t])
     if len(rest):
         tt = t[rest]
-        s, _ = _edge_values(ts, tt, px[rest], py[rest])
+        s, _ = edge_values(ts, tt, px[rest], py[rest])
         with np.errstate(invalid="ignore"):
             z_ndc = 2 * _plane(ts.depth_plane, tt, px[rest], py[rest]) - 1
             covered[rest] = (s >= 0).all(1) & (s.sum(1) > 0) & (np.abs(z_ndc) <= 1)
@@ -558,7 +555,7 @@ def _mark_edge_band(ts: TriangleSetup, t, px, py, band, width, band_px):
     if not len(idx):
         return
     tt, qx, qy = t[idx], px[idx], py[idx]
-    s, adj = _edge_values(ts, tt, qx, qy)
+    s, adj = edge_values(ts, tt, qx, qy)
     det = np.abs(ts.det[tt])[:, None]
     with np.errstate(divide="ignore", invalid="ignore"):
         # s_i |det| / |grad e_i| is the distance to edge i, positive on the triangle's side.
@@ -578,11 +575,6 @@ def _scatter_rows(dst: np.ndarray, rows: np.ndarray, src: np.ndarray):
     assignment of 24-byte items (much faster than numpy's row-wise fancy assignment)."""
     item = np.dtype((np.void, dst.itemsize * dst.shape[1]))
     dst.view(item)[:, 0][rows] = np.ascontiguousarray(src).view(item)[:, 0]
-
-
-def _column(ts: TriangleSetup, name: str, k: int) -> np.ndarray:
-    """``getattr(ts, name)[:, :, k]`` as a contiguous (T, 3) array (cheaper to gather)."""
-    return np.ascontiguousarray(getattr(ts, name)[:, :, k])
 
 
 VALUE_THREADS = 2
@@ -625,7 +617,7 @@ def _values(ts, best_tri, covered, resolution, names) -> dict:
     """The requested outputs at every pixel from the winning triangle (float64).
 
     Computed per barycentric channel on 1-D arrays (np.take gathers, no reductions over a
-    short axis): the same operations in the same order as :func:`_edge_values`,
+    short axis): the same operations in the same order as :func:`edge_values`,
     s = (A p_x + B p_y + C) / det, persp = s / ((s_0 + s_1) + s_2), so the values are
     bit-identical to evaluating those formulas row by row. Large images are split in
     halves evaluated by two threads (numpy releases the GIL in these loops).

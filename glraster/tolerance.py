@@ -134,7 +134,7 @@ def triangle_conditioning(setup, resolution) -> Conditioning:
     view volume (what the driver's clipper produces; Mesa's clips at the viewport sides
     too once it clips at all).
     """
-    from .reference import _clip_near_far
+    from .reference import clip_polygon
 
     height, width = resolution
     clip = setup.clip
@@ -179,7 +179,7 @@ def triangle_conditioning(setup, resolution) -> Conditioning:
         R[simple], kappa[simple], D[simple], h[simple] = measure(win, [(0, 1, 2)])
         wmin[simple] = w[simple].min(1)
     for t in np.flatnonzero(~simple):
-        poly = _clip_near_far(clip[t], axes=(0, 1, 2))
+        poly = clip_polygon(clip[t], axes=(0, 1, 2))
         if len(poly) < 3 or (poly[:, 3] <= 0).any():
             R[t] = kappa[t] = D[t] = S[t] = N[t] = np.inf
             continue
@@ -215,7 +215,7 @@ def value_tolerance(ref, model: ErrorModel = ErrorModel()) -> dict:
     "persp" and "screen" to (H, W, 3) float64 and "depth" to (H, W) float64 bounds on
     |GPU - reference|, for the outputs the reference holds; 0 at empty pixels.
     """
-    from .reference import _edge_values
+    from .reference import edge_values
 
     height, width = ref.resolution
     ts = ref.setup
@@ -232,7 +232,7 @@ def value_tolerance(ref, model: ErrorModel = ErrorModel()) -> dict:
     cond = triangle_conditioning(ts, ref.resolution)
     S = cond.S
     t = ref.tri_id.reshape(-1)[pix]
-    s, adj = _edge_values(ts, t, pix % width, pix // width)
+    s, adj = edge_values(ts, t, pix % width, pix // width)
     det = ts.det[t][:, None]
     grad_s = (np.abs(adj[..., 0]) + np.abs(adj[..., 1])) / np.abs(det)   # |grad s_i|_1
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):

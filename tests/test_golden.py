@@ -3,7 +3,6 @@
 import shutil
 
 import numpy as np
-import pytest
 
 from glraster import exr, golden
 from glraster.scenes import list_scenes, load_scene

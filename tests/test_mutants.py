@@ -4,7 +4,6 @@ import re
 
 import pytest
 
-import glraster as gr
 from glraster import check, golden, mutants
 from glraster.scenes import list_scenes, load_scene
 from glraster.shaders import shader_dir

@@ -6,7 +6,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import glraster as gr
 from glraster import reference, stress, synthetic
 
 EPS32 = 2.0**-23

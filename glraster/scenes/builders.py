@@ -13,7 +13,8 @@ from typing import Callable
 import numpy as np
 
 from . import meshes
-from .projection import look_at, orthographic, perspective, rotation, to_clip, window_to_clip
+from ..camera import look_at, orthographic, perspective
+from .projection import rotation, to_clip, window_to_clip
 
 BUILDERS: dict[str, Callable] = {}
 

@@ -1,7 +1,7 @@
 """Small float64 view and projection matrices for building catalog scenes.
 
 These follow OpenGL conventions (right-handed eye space looking down -z, clip space with
-w = -z_eye for perspective). perspective, orthographic and look_at are glraster.camera's.
+w = -z_eye for perspective); the projection matrices themselves are glraster.camera's.
 
 All matrices are (4, 4) float64 and act on column vectors: ``clip = P @ V @ [x, y, z, 1]``.
 """
@@ -9,8 +9,6 @@ All matrices are (4, 4) float64 and act on column vectors: ``clip = P @ V @ [x, 
 from __future__ import annotations
 
 import numpy as np
-
-from ..camera import look_at, orthographic, perspective  # noqa: F401 (re-exported)
 
 
 def rotation(axis, angle_deg: float) -> np.ndarray:
