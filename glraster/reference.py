@@ -1,4 +1,5 @@
-"""The analytic reference rasterizer: float64 NumPy, vectorized, no per-pixel Python loop.
+"""The analytic reference rasterizer, in float64: per-triangle setup in NumPy, the loops over
+pixels compiled (:mod:`glraster.reference_kernels`).
 
 Formulation (2D homogeneous rasterization, Olano & Greer 1997). With homogeneous window
 coordinates X_i = (x_i + w_i) W/2, Y_i = (y_i + w_i) H/2 of the three clip-space vertices, the
@@ -21,26 +22,30 @@ rule exactly (:func:`llvmpipe_edges`); other triangles (clipped by the near/far 
 reaching outside the viewport, where the driver's clipper makes new float vertices) and
 every triangle when ``fill_rule=None`` mark the pixel centers within ``edge_band_px`` of
 their edges in ``edge_band``, where either answer is accepted.
+
+Pixels: triangles with a fixed-point edge setup are walked row by row as exact integer
+spans; the others test every candidate of their bounding box (clipped to the viewport) in
+float64. Every fragment is depth-tested (GL's LESS in draw order); the depth of the best
+other fragment is kept too, and where it is within DEPTH_TIE of the winner the pixel is a
+depth tie, where either triangle is accepted.
 """
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import reference_kernels as kernels
 from . import validate
 from .raster import Raster
+from .reference_kernels import FIXED_ONE, SUBPIXEL_BITS  # noqa: F401 (part of this API)
 
-SUBPIXEL_BITS = 8  # llvmpipe: FIXED_ORDER = 8, so positions snap to 1/256 px
-FIXED_ONE = 1 << SUBPIXEL_BITS
 DEFAULT_EDGE_BAND_PX = 4.0 / FIXED_ONE
-# Two candidates whose window depths differ by less than this are a depth tie: the GPU's
-# float32 plane equations may order them either way. ~2^-17, above the depth error the
+# Two fragments at a pixel whose window depths differ by at most this are a depth tie: the
+# GPU's float32 plane equations may order them either way. ~2^-17, above the depth error the
 # tolerance model allows for well-shaped triangles (docs/tolerance.md).
 DEPTH_TIE = 2.0**-17
-CHUNK_CANDIDATES = 1 << 21
 
 
 @dataclass
@@ -276,239 +281,39 @@ def rasterize(
     pos = validate.positions(pos)
     tri = validate.triangles(tri, len(pos))
     height, width = validate.resolution(resolution)
+    n = height * width
 
-    state = _DepthBuffer(height * width)
-    band = np.zeros(height * width, bool)
+    # the depth test state of reference_kernels: winner, its depth, the runner-up's depth
+    best_depth = np.full(n, np.inf)
+    best_tri = np.full(n, -1, np.int64)
+    second = np.full(n, np.inf)
+    band = np.zeros(n, bool)
     ts = setup(pos, tri, (height, width), fill_rule) if len(tri) else None
     if ts is not None:
-        for pix, t, depth in _prefetch(_depth_fragments(ts, band, width, edge_band_px)):
-            state.test(pix, t, depth)
+        # Covered pixels as row spans: exact integer spans for the triangles with a
+        # fixed-point setup; every bbox candidate tested in float64 for the others, which
+        # also mark the edge band where coverage is not modeled exactly. The depth test's
+        # result does not depend on the order of its fragments.
+        fixed = np.flatnonzero(ts.fixed_ok)
+        loose = np.flatnonzero(~ts.exact | ~ts.fixed_ok)
+        for spans in (
+            kernels.fixed_point_spans(fixed, ts.fixed, ts.bbox),
+            kernels.float_spans(loose, ts.adj, ts.det, ts.depth_plane, ts.bbox, ~ts.fixed_ok,
+                                ~ts.exact & ~ts.culled, edge_band_px, width, band),
+        ):
+            kernels.depth_test(*spans, ts.depth_plane, width, best_depth, best_tri, second)
 
-    covered = state.tri >= 0
-    values = _values(ts, state.tri, covered, (height, width), names)
+    covered = best_tri >= 0
     shape = (height, width)
     return ReferenceRaster(
         resolution=shape,
         mask=covered.reshape(shape),
         edge_band=band.reshape(shape),
-        depth_tie=(state.tie & covered).reshape(shape),
+        depth_tie=(covered & (second <= best_depth + DEPTH_TIE)).reshape(shape),
         setup=ts,
-        info={"backend": "reference", "renderer": f"numpy float64, fill rule {fill_rule}"},
-        **values,
+        info={"backend": "reference", "renderer": f"float64 (numba), fill rule {fill_rule}"},
+        **_values(ts, best_tri, shape, names),
     )
-
-
-class _DepthBuffer:
-    """The per-pixel depth test state: GL's LESS test in draw order, ties keep the earlier
-    triangle. ``tie`` marks pixels where another triangle came within DEPTH_TIE of the
-    winner. Fed chunk by chunk in draw order."""
-
-    def __init__(self, n: int):
-        self.depth = np.ones(n)                 # the cleared depth buffer
-        self.tri = np.full(n, -1, np.int64)
-        self.tie = np.zeros(n, bool)
-        # scratch arrays, reset after each chunk (touching only the chunk's pixels)
-        self._min = np.full(n, np.inf)
-        self._first = np.full(n, np.iinfo(np.int64).max)
-        self._count = np.zeros(n, np.int32)
-
-    def _update(self, touched, new_depth, new_tri, new_tie):
-        """Merge one chunk's winners (one entry per pixel) into the buffer."""
-        old = self.depth[touched]
-        wins = new_depth < old                                 # strict: LESS
-        close = np.abs(new_depth - old) <= DEPTH_TIE
-        had_fragment = self.tri[touched] >= 0
-        self.tie[touched] = np.where(
-            wins & ~close, new_tie, self.tie[touched] | (close & had_fragment) | (wins & new_tie)
-        )
-        self.depth[touched] = np.where(wins, new_depth, old)
-        self.tri[touched] = np.where(wins, new_tri, self.tri[touched])
-
-    def test(self, pix, t, depth):
-        """Depth-test fragments (pix, t, depth) of one chunk; earlier chunks win ties."""
-        # GL stores float32 depth and tests LESS against the cleared 1.0.
-        keep = depth.astype(np.float32) < np.float32(1.0)
-        # A fragment deeper than the stored depth by more than DEPTH_TIE can neither win
-        # nor mark a tie (see _update), so occluded fragments are dropped here (exact).
-        keep &= depth <= self.depth[pix] + 2 * DEPTH_TIE
-        pix, t, depth = pix[keep], t[keep], depth[keep]
-        if not len(pix):
-            return
-        multi = np.bincount(pix, minlength=len(self._min))[pix] > 1
-        if not multi.any():
-            # One fragment per pixel (the common case for a mesh): the chunk minimum is the
-            # fragment itself, no scratch state needed. Same update as below.
-            self._update(pix, depth, t, np.zeros(len(pix), bool))
-            return
-        # pixels hit once in this chunk: plain stores (the minimum of one value); the
-        # unbuffered ufunc.at only where fragments collide
-        one = ~multi
-        self._min[pix[one]] = depth[one]
-        self._first[pix[one]] = t[one]
-        self._count[pix[one]] = 1
-        pm, tm, dm = pix[multi], t[multi], depth[multi]
-        np.minimum.at(self._min, pm, dm)
-        chunk_min = self._min[pm]
-        at_min = dm == chunk_min
-        np.minimum.at(self._first, pm[at_min], tm[at_min])
-        np.add.at(self._count, pm[dm <= chunk_min + DEPTH_TIE], 1)
-        chunk_min = self._min[pix]
-        at_min = depth == chunk_min
-
-        touched = pix[at_min & (t == self._first[pix])]      # one entry per pixel
-        self._update(touched, self._min[touched], self._first[touched],
-                     self._count[touched] >= 2)
-        self._min[pix] = np.inf
-        self._first[pix] = np.iinfo(np.int64).max
-        self._count[pix] = 0
-
-
-def _candidates(ts: TriangleSetup):
-    """Yield (tri, px, py) int64 arrays of (triangle, pixel) pairs inside the bounding
-    boxes, in draw order, at most CHUNK_CANDIDATES at a time (a big triangle is split)."""
-    starts, ends, bw, _ = _chunk_ranges(ts)
-    x0, y0 = ts.bbox[:, 0], ts.bbox[:, 2]
-    total = int(ends[-1]) if len(ends) else 0
-    for start in range(0, total, CHUNK_CANDIDATES):
-        g = np.arange(start, min(start + CHUNK_CANDIDATES, total), dtype=np.int64)
-        t = np.searchsorted(ends, g, side="right")
-        row, col = np.divmod(g - starts[t], bw[t])
-        yield t, x0[t] + col, y0[t] + row
-
-
-def _depth_fragments(ts, band, width, band_px):
-    """(pixel index, triangle, window depth) of the covered fragments, chunk by chunk."""
-    for t, px, py in _fragments(ts, band, width, band_px):
-        yield py * width + px, t, _plane(ts.depth_plane, t, px, py)
-
-
-def _prefetch(chunks):
-    """Iterate ``chunks`` while a worker thread already computes the next one (the depth
-    test of chunk k overlaps the fragment generation of chunk k + 1)."""
-    iterator = iter(chunks)
-    with ThreadPoolExecutor(1) as pool:
-        future = pool.submit(next, iterator, None)
-        while True:
-            item = future.result()
-            if item is None:
-                return
-            future = pool.submit(next, iterator, None)
-            yield item
-
-
-def _chunk_ranges(ts: TriangleSetup):
-    """The candidate numbering of :func:`_candidates`: per triangle its first candidate
-    (T,), bbox width and height (T,), and the total. Chunk k holds candidates
-    [k CHUNK_CANDIDATES, (k + 1) CHUNK_CANDIDATES)."""
-    x0, x1, y0, y1 = ts.bbox.T
-    bw = np.maximum(x1 - x0 + 1, 0)
-    bh = np.maximum(y1 - y0 + 1, 0)
-    count = bw * bh
-    ends = np.cumsum(count)
-    return ends - count, ends, bw, bh
-
-
-def _runs(lengths):
-    """For N non-negative lengths: (owner, offset) of every element of the concatenated
-    runs, owner in [0, N) and offset in [0, lengths[owner])."""
-    total = int(lengths.sum())
-    owner = np.repeat(np.arange(len(lengths)), lengths)
-    first = np.cumsum(lengths) - lengths
-    return owner, np.arange(total, dtype=np.int64) - first[owner]
-
-
-def _fragments(ts: TriangleSetup, band, width, band_px):
-    """Yield (tri, px, py) int64 arrays of the covered (triangle, pixel) pairs, chunk by
-    chunk in draw order, with the same chunks as :func:`_candidates` (so the depth test,
-    which is order independent within a chunk, gives bit-identical results).
-
-    Triangles with an llvmpipe edge setup get their covered pixels row by row as exact
-    integer spans of the fixed-point edge inequalities (no per-candidate test, empty parts
-    of the bounding box cost nothing); the others are tested candidate by candidate in
-    float64 (:func:`_coverage`). Pixels near the edges of triangles whose coverage is not
-    exact are marked in ``band`` on the way.
-    """
-    starts, ends, bw, bh = _chunk_ranges(ts)
-    total = int(ends[-1]) if len(ends) else 0
-    x0, y0 = ts.bbox[:, 0], ts.bbox[:, 2]
-    x1 = ts.bbox[:, 1]
-    for lo in range(0, total, CHUNK_CANDIDATES):
-        hi = min(lo + CHUNK_CANDIDATES, total)
-        ta = int(np.searchsorted(ends, lo, side="right"))
-        tb = int(np.searchsorted(ends, hi - 1, side="right"))
-        tris = np.arange(ta, tb + 1)
-        tris = tris[bw[tris] * bh[tris] > 0]
-        # local candidate range [a, b) of each triangle inside this chunk
-        a = np.maximum(lo - starts[tris], 0)
-        b = np.minimum(hi - starts[tris], bw[tris] * bh[tris])
-        out_t, out_x, out_y = [], [], []
-
-        fixed = ts.fixed_ok[tris]
-        if fixed.any():
-            t, px, py = _spans(ts, tris[fixed], a[fixed], b[fixed], bw, x0, x1, y0)
-            out_t.append(t), out_x.append(px), out_y.append(py)
-        loose = ~fixed | ~ts.exact[tris]
-        if loose.any():
-            sel = tris[loose]
-            owner, offset = _runs(b[loose] - a[loose])
-            t = sel[owner]
-            row, col = np.divmod(a[loose][owner] + offset, bw[t])
-            px, py = x0[t] + col, y0[t] + row
-            if band_px > 0:
-                _mark_edge_band(ts, t, px, py, band, width, band_px)
-            test = ~ts.fixed_ok[t]
-            if test.any():
-                t, px, py = t[test], px[test], py[test]
-                covered = _coverage(ts, t, px, py)
-                out_t.append(t[covered]), out_x.append(px[covered]), out_y.append(py[covered])
-        if out_t:
-            yield np.concatenate(out_t), np.concatenate(out_x), np.concatenate(out_y)
-
-
-def _spans(ts: TriangleSetup, tris, a, b, bw, x0, x1, y0):
-    """Covered pixels of triangles with an llvmpipe edge setup, restricted to their local
-    candidate ranges [a, b) (row-major inside the bounding box). Returns (tri, px, py).
-
-    Edge k covers pixel x of row y when c - dcdx (256 x) + dcdy (256 y) >= 1, i.e. with
-    K = c + dcdy 256 y and s = 256 dcdx:  s x <= K - 1. So x <= floor((K - 1) / s) when
-    s > 0, x >= -floor((K - 1) / -s) when s < 0, and every x or none when s == 0: exact
-    integer arithmetic, the same inequalities as :func:`_coverage`.
-    """
-    r0 = a // bw[tris]
-    r1 = (b - 1) // bw[tris]
-    owner, offset = _runs(r1 - r0 + 1)
-    t = tris[owner]
-    row = r0[owner] + offset
-    py = y0[t] + row
-    # the chunk boundary cuts the first and last rows of a triangle
-    left = x0[t] + np.where(row == r0[owner], a[owner] - row * bw[t], 0)
-    right = x0[t] + np.where(row == r1[owner], b[owner] - 1 - row * bw[t], bw[t] - 1)
-    right = np.minimum(right, x1[t])
-    sy = py * FIXED_ONE
-    for k in range(3):
-        edge = ts.fixed[t, k]
-        slope = edge[:, 0] * FIXED_ONE
-        rhs = edge[:, 2] + edge[:, 1] * sy - 1
-        pos = slope > 0
-        neg = slope < 0
-        with np.errstate(divide="ignore"):
-            safe = np.where(slope == 0, 1, np.abs(slope))
-            q = rhs // safe
-        right = np.where(pos, np.minimum(right, q), right)
-        left = np.where(neg, np.maximum(left, -q), left)
-        # slope == 0: the whole row or nothing
-        right = np.where(~pos & ~neg & (rhs < 0), left - 1, right)
-    length = np.maximum(right - left + 1, 0)
-    keep = length > 0
-    t, py, left, length = t[keep], py[keep], left[keep], length[keep]
-    owner, offset = _runs(length)
-    return t[owner], left[owner] + offset, py[owner]
-
-
-def _plane(plane, t, px, py):
-    """Evaluate per-triangle planes (T, 3) [a, b, c] at pixel centers: a p_x + b p_y + c."""
-    col = [np.ascontiguousarray(plane[:, k]) for k in range(3)]
-    return np.take(col[0], t) * (px + 0.5) + np.take(col[1], t) * (py + 0.5) + np.take(col[2], t)
 
 
 def edge_values(ts: TriangleSetup, t, px, py):
@@ -522,131 +327,23 @@ def edge_values(ts: TriangleSetup, t, px, py):
     return s, a
 
 
-def _coverage(ts: TriangleSetup, t, px, py) -> np.ndarray:
-    """(N,) bool: does triangle t produce a fragment at pixel (px, py)?
-
-    Triangles with a usable llvmpipe edge setup take the fixed-point test; the others a
-    float64 test of the center against the edges and the near/far planes."""
-    covered = np.zeros(len(t), bool)
-    fixed = ts.fixed_ok[t]
-    if fixed.any():
-        idx = np.flatnonzero(fixed)
-        tt = t[idx]
-        sx, sy = px[idx] * FIXED_ONE, py[idx] * FIXED_ONE
-        inside = np.ones(len(idx), bool)
-        for k in range(3):
-            edge = ts.fixed[:, k]
-            inside &= edge[tt, 2] - edge[tt, 0] * sx + edge[tt, 1] * sy >= 1
-        covered[idx] = inside
-    rest = np.flatnonzero(~fixed & ~ts.culled[t])
-    if len(rest):
-        tt = t[rest]
-        s, _ = edge_values(ts, tt, px[rest], py[rest])
-        with np.errstate(invalid="ignore"):
-            z_ndc = 2 * _plane(ts.depth_plane, tt, px[rest], py[rest]) - 1
-            covered[rest] = (s >= 0).all(1) & (s.sum(1) > 0) & (np.abs(z_ndc) <= 1)
-    return covered
-
-
-def _mark_edge_band(ts: TriangleSetup, t, px, py, band, width, band_px):
-    """Mark in ``band`` the pixel centers within ``band_px`` of an edge (or of the near/far
-    line) of a triangle whose coverage is not modeled exactly."""
-    idx = np.flatnonzero(~ts.exact[t] & ~ts.culled[t])
-    if not len(idx):
-        return
-    tt, qx, qy = t[idx], px[idx], py[idx]
-    s, adj = edge_values(ts, tt, qx, qy)
-    det = np.abs(ts.det[tt])[:, None]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        # s_i |det| / |grad e_i| is the distance to edge i, positive on the triangle's side.
-        grad = np.hypot(adj[..., 0], adj[..., 1])
-        dist = np.where(grad > 0, s * det / grad, np.inf)
-        z_ndc = 2 * _plane(ts.depth_plane, tt, qx, qy) - 1
-        zg = 2 * np.hypot(ts.depth_plane[tt, 0], ts.depth_plane[tt, 1])
-        dnear = np.where(zg > 0, (z_ndc + 1) / zg, np.inf)
-        dfar = np.where(zg > 0, (1 - z_ndc) / zg, np.inf)
-    signed = np.nan_to_num(np.concatenate([dist, dnear[:, None], dfar[:, None]], 1), nan=-np.inf)
-    near_edge = (signed >= -band_px).all(1) & (np.abs(signed) < band_px).any(1)
-    band[(qy * width + qx)[near_edge & (s.sum(1) > 0)]] = True
-
-
-def _scatter_rows(dst: np.ndarray, rows: np.ndarray, src: np.ndarray):
-    """``dst[rows] = src`` for C-contiguous (n, 3) and (N, 3) float64 arrays, as a 1-D
-    assignment of 24-byte items (much faster than numpy's row-wise fancy assignment)."""
-    item = np.dtype((np.void, dst.itemsize * dst.shape[1]))
-    dst.view(item)[:, 0][rows] = np.ascontiguousarray(src).view(item)[:, 0]
-
-
-VALUE_THREADS = 2
-PARALLEL_PIXELS = 1 << 17
-
-
-def _values_part(ts, cols, best_tri, pix, width, persp, screen, depth):
-    """Fill the rows ``pix`` of the (n, 3) / (n,) outputs that are not None."""
-    t = best_tri[pix]
-    py, px = np.divmod(pix, width)
-    cx, cy = px + 0.5, py + 0.5
-    det = np.take(ts.det, t)
-    s = []
-    with np.errstate(divide="ignore", invalid="ignore"):
-        for k in range(3):
-            a, b, c = cols["adj"][k]
-            e = np.take(a, t) * cx
-            e += np.take(b, t) * cy
-            e += np.take(c, t)
-            s.append(e / det)
-        total = s[0] + s[1]
-        total += s[2]
-        rows = np.empty((len(pix), 3))
-        if persp is not None:
-            for k in range(3):
-                np.divide(s[k], total, out=rows[:, k])
-            _scatter_rows(persp, pix, rows)
-        if screen is not None:
-            for k in range(3):
-                np.multiply(s[k], np.take(cols["w"][k], t), out=rows[:, k])
-            _scatter_rows(screen, pix, rows)
-        if depth is not None:
-            acc = s[0] * np.take(cols["z"][0], t)
-            acc += s[1] * np.take(cols["z"][1], t)
-            acc += s[2] * np.take(cols["z"][2], t)
-            depth[pix] = acc * 0.5 + 0.5
-
-
-def _values(ts, best_tri, covered, resolution, names) -> dict:
-    """The requested outputs at every pixel from the winning triangle (float64).
-
-    Computed per barycentric channel on 1-D arrays (np.take gathers, no reductions over a
-    short axis): the same operations in the same order as :func:`edge_values`,
-    s = (A p_x + B p_y + C) / det, persp = s / ((s_0 + s_1) + s_2), so the values are
-    bit-identical to evaluating those formulas row by row. Large images are split in
-    halves evaluated by two threads (numpy releases the GIL in these loops).
-    """
-    height, width = resolution
+def _values(ts, best_tri, shape, names) -> dict:
+    """The requested outputs (float64, and int32 ``tri_id``) at every pixel from the
+    winning triangle ``best_tri`` (N,), computed by :func:`reference_kernels.values`."""
+    height, width = shape
     n = height * width
+    persp = np.zeros((n, 3) if "persp" in names else (0, 3))
+    screen = np.zeros((n, 3) if "screen" in names else (0, 3))
+    depth = np.ones(n if "depth" in names else 0)
+    if ts is not None:
+        kernels.values(best_tri, width, ts.adj, ts.det, np.ascontiguousarray(ts.clip[..., 3]),
+                       np.ascontiguousarray(ts.clip[..., 2]), persp, screen, depth)
     out = {}
-    pix = np.flatnonzero(covered)
-    persp = np.zeros((n, 3)) if "persp" in names else None
-    screen = np.zeros((n, 3)) if "screen" in names else None
-    depth = np.ones(n) if "depth" in names else None
-    if ts is not None and len(pix):
-        cols = {
-            "adj": [[np.ascontiguousarray(ts.adj[:, k, j]) for j in range(3)] for k in range(3)],
-            "w": [np.ascontiguousarray(ts.clip[:, k, 3]) for k in range(3)],
-            "z": [np.ascontiguousarray(ts.clip[:, k, 2]) for k in range(3)],
-        }
-        parts = np.array_split(pix, VALUE_THREADS if len(pix) >= PARALLEL_PIXELS else 1)
-        if len(parts) > 1:
-            with ThreadPoolExecutor(len(parts)) as pool:
-                list(pool.map(lambda part: _values_part(ts, cols, best_tri, part, width,
-                                                        persp, screen, depth), parts))
-        else:
-            _values_part(ts, cols, best_tri, pix, width, persp, screen, depth)
-    if persp is not None:
+    if "persp" in names:
         out["persp"] = persp.reshape(height, width, 3)
-    if screen is not None:
+    if "screen" in names:
         out["screen"] = screen.reshape(height, width, 3)
-    if depth is not None:
+    if "depth" in names:
         out["depth"] = depth.reshape(height, width)
     if "tri_id" in names:
         out["tri_id"] = best_tri.astype(np.int32).reshape(height, width)

@@ -123,12 +123,65 @@ def test_coplanar_duplicates_are_a_depth_tie_won_by_the_first():
     assert ref.depth_tie[ref.mask].all()
 
 
-def test_large_triangles_are_processed_in_chunks(monkeypatch):
-    import glraster.reference as reference
-    pos = np.array([[-1, -1, 0, 1], [3, -1, 0, 1], [-1, 3, 0, 1]], np.float32)
-    whole = reference.rasterize(pos, [[0, 1, 2]], (128, 128))
-    monkeypatch.setattr(reference, "CHUNK_CANDIDATES", 1000)
-    chunked = reference.rasterize(pos, [[0, 1, 2]], (128, 128))
-    assert whole.mask.all()
-    for name in ("persp", "screen", "depth", "tri_id"):
-        np.testing.assert_array_equal(getattr(whole, name), getattr(chunked, name))
+def random_soup(seed, count, spread=1.5, w_range=(-0.3, 3.0)):
+    """Triangles that overlap, cross the viewport border, the near/far planes and w = 0."""
+    rng = np.random.default_rng(seed)
+    pos = rng.normal(0, spread, (3 * count, 4)).astype(np.float32)
+    pos[:, 3] = rng.uniform(*w_range, 3 * count)
+    return pos, np.arange(3 * count, dtype=np.int32).reshape(count, 3)
+
+
+def brute_force(pos, tri, res, fill_rule):
+    """Coverage and winners by testing every pixel of the viewport against every triangle
+    with NumPy formulas (llvmpipe's edge inequalities in int64, or the float64 center test),
+    keeping the first triangle of least depth: GL's LESS test in draw order."""
+    h, w = res
+    ts = setup(pos, tri, res, fill_rule)
+    py, px = np.mgrid[0:h, 0:w].reshape(2, -1)
+    best = np.full(h * w, np.inf)
+    best_tri = np.full(h * w, -1)
+    for t in range(len(tri)):
+        if ts.culled[t]:
+            continue
+        depth = (ts.depth_plane[t, 0] * (px + 0.5) + ts.depth_plane[t, 1] * (py + 0.5)
+                 + ts.depth_plane[t, 2])
+        if ts.fixed_ok[t]:
+            e = ts.fixed[t]
+            covered = np.all([e[k, 2] - e[k, 0] * px * 256 + e[k, 1] * py * 256 >= 1
+                              for k in range(3)], axis=0)
+        else:
+            s, _ = gr.reference.edge_values(ts, np.full(len(px), t), px, py)
+            with np.errstate(invalid="ignore"):
+                covered = (s >= 0).all(1) & (s.sum(1) > 0) & (np.abs(2 * depth - 1) <= 1)
+        with np.errstate(invalid="ignore"):
+            wins = covered & (depth.astype(np.float32) < 1) & (depth < best)
+        best[wins] = depth[wins]
+        best_tri[wins] = t
+    return best_tri.reshape(res)
+
+
+@pytest.mark.parametrize("fill_rule", ["llvmpipe", None])
+def test_compiled_pixel_loops_match_brute_force_numpy(fill_rule):
+    # Exact: both sides evaluate the same IEEE float64 formulas (no fast-math, no FMA) and
+    # the same integer inequalities, so ids must agree on every pixel.
+    pos, tri = random_soup(3, 150)
+    res = (48, 64)
+    ref = gr.reference.rasterize(pos, tri, res, fill_rule=fill_rule)
+    expected = brute_force(pos, tri, res, fill_rule)
+    assert (expected >= 0).sum() > 1000
+    np.testing.assert_array_equal(ref.tri_id, expected)
+
+
+def test_depth_test_does_not_depend_on_fragment_order():
+    from glraster import reference_kernels as kernels
+    pos, tri = random_soup(4, 300, w_range=(0.5, 3.0))
+    res = (64, 64)
+    ts = setup(pos, tri, res, "llvmpipe")
+    spans = kernels.fixed_point_spans(np.flatnonzero(ts.fixed_ok), ts.fixed, ts.bbox)
+    results = []
+    for order in (np.arange(len(spans[0])), np.random.default_rng(0).permutation(len(spans[0]))):
+        state = np.full(64 * 64, np.inf), np.full(64 * 64, -1), np.full(64 * 64, np.inf)
+        kernels.depth_test(*(a[order] for a in spans), ts.depth_plane, 64, *state)
+        results.append(state)
+    for a, b in zip(*results):
+        np.testing.assert_array_equal(a, b)
