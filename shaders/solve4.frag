@@ -9,6 +9,13 @@
 // solved for (b_0, b_1, b_2, w) by Gaussian elimination with partial pivoting in float32.
 // persp = b; screen_i = b_i w_i / w (window-space weights, GL 4.5 eq. 14.10).
 //
+// Equilibration: when every w_i > 0 the unknowns are scaled to u_i = b_i w_i (columns
+// times 1 / w_i), which are screen_i * w, all of one magnitude, and the last row is scaled
+// by min w_i. Then pivoting keeps the three homogeneous rows (NDC x, NDC y, 1) that alone
+// fix screen = u / sum(u), and the last row only sets the scale. Unscaled, a vertex ratio
+// w_max / w_min = 3e5 cost screen ~10x the driver's error model (catalog scene
+// w_extreme_ratios); scaled, every catalog scene stays below 0.16 of it.
+//
 // Uniform u_ndc_scale = (2 / W, 2 / H): s = gl_FragCoord.xy * u_ndc_scale - 1.
 // Host defines: OUT_PERSP, OUT_SCREEN, OUT_TRI_ID, *_LOCATION; REMAP (see divw.frag).
 
@@ -37,12 +44,18 @@ void main() {
     vec4 q1 = positions[indices[base + 1]];
     vec4 q2 = positions[indices[base + 2]];
     vec2 s = gl_FragCoord.xy * u_ndc_scale - 1.0;
+    vec3 qw = vec3(q0.w, q1.w, q2.w);
+    // column scales c_i = 2^-e_i with |w_i| = f 2^e_i (exact: powers of two), b_i = c_i u_i
+    ivec3 e;
+    frexp(qw, e);
+    vec3 c = ldexp(vec3(1.0), -e);
+    float r = ldexp(1.0, min(min(e.x, e.y), e.z) - 1);  // last row: entries <= 1/2
     // augmented rows [A | rhs]
     float m[4][5] = float[4][5](
-        float[5](q0.x, q1.x, q2.x, -s.x, 0.0),
-        float[5](q0.y, q1.y, q2.y, -s.y, 0.0),
-        float[5](q0.w, q1.w, q2.w, -1.0, 0.0),
-        float[5](1.0, 1.0, 1.0, 0.0, 1.0));
+        float[5](q0.x * c.x, q1.x * c.y, q2.x * c.z, -s.x, 0.0),
+        float[5](q0.y * c.x, q1.y * c.y, q2.y * c.z, -s.y, 0.0),
+        float[5](q0.w * c.x, q1.w * c.y, q2.w * c.z, -1.0, 0.0),
+        float[5](r * c.x, r * c.y, r * c.z, 0.0, r));
     for (int c = 0; c < 4; ++c) {
         int pivot = c;
         for (int r = c + 1; r < 4; ++r)
@@ -63,13 +76,14 @@ void main() {
         for (int k = r + 1; k < 4; ++k) acc -= m[r][k] * x[k];
         x[r] = acc / m[r][r];
     }
-    vec3 b = vec3(x[0], x[1], x[2]);
+    vec3 b = vec3(x[0], x[1], x[2]) * c;
+    b /= b.x + b.y + b.z;
 #endif
 #ifdef OUT_PERSP
     out_persp = b;
 #endif
 #ifdef OUT_SCREEN
-    out_screen = b * vec3(q0.w, q1.w, q2.w) / x[3];
+    out_screen = b * qw / dot(b, qw);
 #endif
 #ifdef OUT_TRI_ID
 #ifdef REMAP
