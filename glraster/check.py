@@ -1,13 +1,13 @@
 """The conformance run behind ``glraster check``: every catalog scene on the current driver,
 compared with the reference (per-pixel error model) and with its golden EXR.
 
-Per scene:
+Per scene, for one barycentric method (``method``, default "hw"):
 
 1. render on the GPU (:func:`glraster.rasterize`) with the scene's outputs;
 2. compute the float64 reference (:func:`glraster.golden.reference_for`);
 3. :func:`glraster.compare`: coverage (exact where llvmpipe's fill rule is modeled, edge
    band elsewhere), triangle ids, and every value against its per-pixel tolerance from
-   :class:`glraster.tolerance.ErrorModel` for this context;
+   :meth:`glraster.tolerance.ErrorModel.for_method` for this method and context;
 4. non-finite GPU values on covered pixels are failures of their own;
 5. the golden EXR must equal the reference bit for bit (:func:`glraster.golden.check_scene`),
    so the GPU is checked against the golden through the same tolerances; the largest
@@ -32,7 +32,7 @@ import numpy as np
 from . import golden as _golden
 from . import mutants as _mutants
 from .compare import compare, waived_pixels
-from .raster import rasterize
+from .raster import METHODS, rasterize
 from .scenes import Scene, list_scenes, load_scene
 from .tolerance import ErrorModel
 
@@ -100,6 +100,7 @@ class CheckResult:
     backend: str
     renderer: str
     gl_version: str
+    method: str = "hw"
     scenes: list = field(default_factory=list)
     mutants: list | None = None
     control_failures: list = field(default_factory=list)  # scenes the control failed
@@ -129,7 +130,7 @@ def evaluate(gpu, ref, ctx, model=None):
         if a is None:
             continue
         nf = ~np.isfinite(a.reshape(a.shape[0] * a.shape[1], -1)[pix]).all(axis=1)
-        if name == "screen" and nf.any():
+        if name in model.waived_outputs and nf.any():
             nf &= ~waived_pixels(ref, model).reshape(-1)[pix]
         nonfinite |= nf
     n_nonfinite = int(nonfinite.sum())
@@ -169,21 +170,25 @@ def _golden_max_error(gpu, g) -> float:
     return worst
 
 
-def run_scene(scene: Scene, ctx, *, golden_dir=None, check_golden=True, keep=False, ref=None):
-    """Check one scene. Returns (SceneResult, artifacts) where artifacts is
-    {"gpu", "ref", "report"} when ``keep`` (for reports) else None. ``ref``: the scene's
-    reference raster when already computed (from :func:`glraster.golden.reference_for`)."""
+def run_scene(scene: Scene, ctx, *, method="hw", golden_dir=None, check_golden=True, keep=False,
+              ref=None):
+    """Check one scene rendered with ``method``. Returns (SceneResult, artifacts) where
+    artifacts is {"gpu", "ref", "report"} when ``keep`` (for reports) else None. ``ref``: the
+    scene's reference raster when already computed (from
+    :func:`glraster.golden.reference_for`)."""
     res = SceneResult(scene.name, scene.description, tuple(scene.resolution), len(scene.tri))
     artifacts = None
     try:
         t = time.perf_counter()
-        gpu = rasterize(scene.pos, scene.tri, scene.resolution, ctx=ctx, outputs=scene.outputs)
+        gpu = rasterize(scene.pos, scene.tri, scene.resolution, ctx=ctx, outputs=scene.outputs,
+                        method=method)
         res.timings["gpu"] = time.perf_counter() - t
         t = time.perf_counter()
         ref = ref if ref is not None else _golden.reference_for(scene)
         res.timings["reference"] = time.perf_counter() - t
         t = time.perf_counter()
-        rep, failures, nonfinite, waived = evaluate(gpu, ref, ctx)
+        rep, failures, nonfinite, waived = evaluate(gpu, ref, ctx,
+                                                    ErrorModel.for_method(method, ctx))
         res.report, res.nonfinite, res.waived = rep, nonfinite, waived
         res.failures = failures
         res.timings["compare"] = time.perf_counter() - t
@@ -248,9 +253,11 @@ def run_mutants(ctx, candidates, references, mutant_list=None, progress=None):
     return results, control_failures
 
 
-def run(ctx, names=None, *, golden_dir=None, check_golden=True, mutants=False,
+def run(ctx, names=None, *, method="hw", golden_dir=None, check_golden=True, mutants=False,
         mutant_pattern=None, on_scene=None, progress=None, references=None) -> CheckResult:
-    """Check the scenes ``names`` (default: the whole catalog) on ``ctx``.
+    """Check the scenes ``names`` (default: the whole catalog) on ``ctx``, rendered with
+    ``method`` (one of :data:`glraster.raster.METHODS`). The mutants are faults injected
+    into the "hw" shaders, so ``mutants`` requires method "hw".
 
     references: optional dict name -> reference raster, used and filled in (scenes up to
     REFERENCE_CACHE_PIXELS), so that several runs (e.g. one per backend) share them.
@@ -259,9 +266,14 @@ def run(ctx, names=None, *, golden_dir=None, check_golden=True, mutants=False,
     {"gpu", "ref", "report"} (e.g. to write report images); artifacts are dropped after.
     progress(index, total, label): called before each step.
     """
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {sorted(METHODS)}, got {method!r}")
+    if mutants and method != "hw":
+        raise ValueError(f"mutants are faults in the hw shaders: method must be 'hw' with "
+                         f"mutants, got {method!r}")
     t0 = time.perf_counter()
     names = list(names) if names is not None else list_scenes()
-    out = CheckResult(ctx.backend, ctx.renderer, ctx.gl_version)
+    out = CheckResult(ctx.backend, ctx.renderer, ctx.gl_version, method)
     explicit = golden_dir is not None or os.environ.get("GLRASTER_GOLDEN_DIR")
     if check_golden and not explicit and not _golden.golden_available():
         # An installed package has no golden/ folder: compare with the reference only and
@@ -278,7 +290,8 @@ def run(ctx, names=None, *, golden_dir=None, check_golden=True, mutants=False,
             progress(i, total, name)
         scene = load_scene(name)
         cached = references.get(name) if references is not None else None
-        res, art = run_scene(scene, ctx, golden_dir=golden_dir, check_golden=check_golden,
+        res, art = run_scene(scene, ctx, method=method, golden_dir=golden_dir,
+                             check_golden=check_golden,
                              keep=bool(on_scene) or mutants or references is not None,
                              ref=cached)
         h, w = scene.resolution
@@ -305,7 +318,8 @@ def run(ctx, names=None, *, golden_dir=None, check_golden=True, mutants=False,
 
 def format_table(result: CheckResult) -> str:
     """The per-scene table (and the mutant table when present) as plain text."""
-    lines = [f"backend {result.backend} | {result.renderer} | GL {result.gl_version}", ""]
+    lines = [f"backend {result.backend} | {result.renderer} | GL {result.gl_version} | "
+             f"method {result.method}", ""]
     hdr = (f"{'scene':<28}{'size':>11}{'tris':>8}{'covered':>9}{'cov!':>6}{'id!':>5}"
            f"{'persp e/tol':>12}{'screen e/tol':>13}{'depth e/tol':>12}{'golden':>8}"
            f"{'secs':>7}  status")

@@ -83,11 +83,11 @@ class Report:
 
 
 def waived_pixels(ref, model: ErrorModel) -> np.ndarray:
-    """(H, W) bool: pixels whose ``screen`` value ``model`` does not judge (the triangles of
-    :func:`~glraster.tolerance.mesa_noperspective_clip_bug`, when
-    ``model.waive_noperspective_multiclip``)."""
+    """(H, W) bool: pixels where ``model`` does not judge the outputs in
+    ``model.waived_outputs`` (the triangles of
+    :func:`~glraster.tolerance.mesa_noperspective_clip_bug`)."""
     out = np.zeros(ref.mask.shape, bool)
-    if model.waive_noperspective_multiclip and ref.setup is not None:
+    if model.waived_outputs and ref.setup is not None:
         out[ref.mask] = mesa_noperspective_clip_bug(ref.setup)[ref.tri_id[ref.mask]]
     return out
 
@@ -127,7 +127,7 @@ def compare(gpu, ref, model: ErrorModel | None = None) -> Report:
             continue
         judged = same
         waived = 0
-        if name == "screen":
+        if name in model.waived_outputs:
             not_judged = waived_pixels(ref, model)
             judged = same & ~not_judged
             waived = int((same & not_judged).sum())

@@ -1,7 +1,7 @@
 """JUnit XML for CI systems (GitLab, Jenkins, GitHub test reporters) from a check run.
 
 One ``<testsuite name="glraster.check">`` with a ``<testcase>`` per scene (classname
-``glraster.check.<backend>``) and, after a mutant pass, a ``<testsuite
+``glraster.check.<backend>``, plus ``.<method>`` for a method other than hw) and, after a mutant pass, a ``<testsuite
 name="glraster.mutants">`` with a testcase per mutant (failing when it escaped) plus one
 for the control run of the real shaders. Failures carry a one-line message and the full
 comparison summary as text. The file is written atomically.
@@ -38,10 +38,11 @@ def to_xml(result) -> ET.ElementTree:
                           hostname=socket.gethostname())
     props = ET.SubElement(suite, "properties")
     for k, v in (("backend", result.backend), ("renderer", result.renderer),
-                 ("gl_version", result.gl_version)):
+                 ("gl_version", result.gl_version), ("method", result.method)):
         ET.SubElement(props, "property", name=k, value=str(v))
     fails = errors = 0
-    cls = f"glraster.check.{result.backend}"
+    cls = f"glraster.check.{result.backend}" + (
+        f".{result.method}" if result.method != "hw" else "")
     for s in result.scenes:
         summary = s.report.summary() if s.report is not None else ""
         if s.golden is not None:

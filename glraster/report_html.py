@@ -231,7 +231,7 @@ ul.fail {{ color: #b00; }}
 </style></head><body>
 <h1>glraster check <span class="verdict {verdict}">{verdict}</span></h1>
 <div class="meta">backend <b>{e(result.backend)}</b> &middot; {e(result.renderer)} &middot;
-GL {e(result.gl_version)} &middot; {n_ok}/{len(result.scenes)} scenes pass &middot;
+GL {e(result.gl_version)} &middot; method <b>{e(result.method)}</b> &middot; {n_ok}/{len(result.scenes)} scenes pass &middot;
 {result.seconds:.1f} s</div>
 <p class="legend">Error heatmap: error / tolerance
 <span class="bar" style="width:200px;margin-left:6px"></span> 1e-3 &rarr; 1,

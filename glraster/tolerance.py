@@ -41,15 +41,16 @@ class ErrorModel:
 
     ulp_factor : C, the number of float32 roundings allowed per term
     position_error_px : delta, sample-position uncertainty in pixels
-    waive_noperspective_multiclip : do not judge ``screen`` on the triangles
-        :func:`mesa_noperspective_clip_bug` selects, where Mesa's draw-module clipper
-        (llvmpipe 22.3) breaks GL's rule for noperspective values (docs/llvmpipe.md).
-        Waived pixels are counted in the report, never hidden.
+    waived_outputs : outputs not judged on the triangles :func:`mesa_noperspective_clip_bug`
+        selects, where Mesa's draw-module clipper (llvmpipe 22.3) breaks GL's rule for
+        noperspective values (docs/llvmpipe.md): the outputs a method computes from the
+        driver's noperspective varyings. Waived pixels are counted in the report, never
+        hidden.
     """
 
     ulp_factor: float = 4.0
     position_error_px: float = 0.0
-    waive_noperspective_multiclip: bool = True
+    waived_outputs: tuple[str, ...] = ("screen",)
     # compensated: the barycentrics (not depth, which stays the driver's) are evaluated in
     # about twice the working precision and rounded once ("homogeneous", "homogeneous64":
     # glraster/homogeneous.py), so the position-dependent terms (|grad f| (R + kappa D)
@@ -64,7 +65,7 @@ class ErrorModel:
             return cls()
         return cls(
             position_error_px=2.0 ** -max(4, min(ctx.subpixel_bits, 16)),
-            waive_noperspective_multiclip=False,
+            waived_outputs=(),
         )
 
     @classmethod
@@ -74,10 +75,11 @@ class ErrorModel:
         "hw", "divw" and "solve4" interpolate or solve in plain float32 from the same
         float32 window-space data as the driver: the driver model (:meth:`for_context`)
         bounds them (measured: worst error / tolerance <= 0.62 on the benchmark scenes,
-        docs/performance.md; divw inherits llvmpipe's noperspective clipping defect on
-        the triangles of :func:`mesa_noperspective_clip_bug`, docs/stability.md).
-        "homogeneous" and "homogeneous64" evaluate compensated and compute noperspective
-        values from the unclipped triangle's formula, so no clipper deviation is waived.
+        docs/performance.md). Waived on a driver with the clipper defect: hw's screen
+        (noperspective varyings), and divw's screen and persp (persp divides the
+        noperspective barycentrics by w). solve4 and the "homogeneous" methods compute
+        barycentrics from the unclipped triangle, so nothing is waived for them;
+        "homogeneous" and "homogeneous64" evaluate compensated as well.
         """
         from dataclasses import replace
 
@@ -87,7 +89,11 @@ class ErrorModel:
             raise ValueError(f"method must be one of {sorted(METHODS)}, got {method!r}")
         base = cls.for_context(ctx)
         if method in ("homogeneous", "homogeneous64"):
-            return replace(base, compensated=True, waive_noperspective_multiclip=False)
+            return replace(base, compensated=True, waived_outputs=())
+        if method == "solve4":
+            return replace(base, waived_outputs=())
+        if method == "divw" and base.waived_outputs:
+            return replace(base, waived_outputs=("screen", "persp"))
         return base
 
 

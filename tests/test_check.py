@@ -8,6 +8,7 @@ import pytest
 
 import glraster as gr
 from glraster import check, golden, junit
+from glraster.raster import METHODS
 from glraster.scenes import list_scenes, load_scene
 
 REFERENCES = {}          # name -> reference raster, shared by both backends' runs
@@ -20,6 +21,16 @@ def test_every_catalog_scene_passes(ctx):
     failing = [f"{s.name}: {'; '.join(s.failures)}" for s in result.scenes if not s.ok]
     assert not failing, f"{ctx.backend}:\n" + "\n".join(failing)
     assert len(result.scenes) == len(list_scenes())
+
+
+@pytest.mark.parametrize("method", sorted(set(METHODS) - {"hw"}))
+def test_every_catalog_scene_passes_with_every_method(ctx, method):
+    # Each method within its own error model (ErrorModel.for_method); goldens are checked
+    # once, by the hw run above (they hold the reference, not a method's output).
+    result = check.run(ctx, method=method, check_golden=False, references=REFERENCES)
+    failing = [f"{s.name}: {'; '.join(s.failures)}" for s in result.scenes if not s.ok]
+    assert not failing, f"{ctx.backend} {method}:\n" + "\n".join(failing)
+    assert result.method == method and f"method {method}" in check.format_table(result)
 
 
 def test_table_and_junit_report_a_golden_failure(ctx, tmp_path):
@@ -62,7 +73,7 @@ def test_waived_pixels_are_counted_and_are_a_real_driver_deviation(ctx):
     if not ctx.is_llvmpipe:
         pytest.skip("the waiver applies to llvmpipe only")
     assert not failures and waived.get("screen", 0) > 0
-    strict = ErrorModel(waive_noperspective_multiclip=False)
+    strict = ErrorModel(waived_outputs=())
     _, strict_failures, _, _ = check.evaluate(gpu, ref, ctx, model=strict)
     assert any(f.startswith("screen") or "NaN" in f for f in strict_failures)
     # Every waived pixel belongs to a triangle crossing at least two clip planes.
@@ -94,3 +105,21 @@ def test_cli_exit_codes(tmp_path, capsys, ctx):
     assert args.func(args) == 1
     out = capsys.readouterr()
     assert "FAIL" in out.out and "]" in out.err          # table on stdout, progress on stderr
+
+
+def test_cli_method_option(tmp_path, capsys, ctx):
+    p = _parser()
+    args = p.parse_args(["check", "--method", "exact", "--scenes", "basic_triangle"])
+    assert args.func(args) == 2
+    assert "--method must be one of" in capsys.readouterr().err
+    args = p.parse_args(["check", "--method", "divw", "--mutants", "--scenes", "basic_triangle"])
+    assert args.func(args) == 2
+    assert "--mutants" in capsys.readouterr().err
+    args = p.parse_args(["check", "--backend", ctx.backend, "--method", "homogeneous",
+                         "--scenes", "basic_*", "--junit", str(tmp_path / "j.xml")])
+    assert args.func(args) == 0
+    assert "method homogeneous" in capsys.readouterr().out
+    root = ET.parse(tmp_path / "j.xml").getroot()
+    assert root.find("testsuite/testcase").get("classname").endswith(".homogeneous")
+    with pytest.raises(ValueError, match="mutants"):
+        check.run(ctx, ["basic_triangle"], method="solve4", mutants=True)

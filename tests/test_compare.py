@@ -110,7 +110,7 @@ def test_generic_drivers_get_the_subpixel_term():
         subpixel_bits = 8
     model = ErrorModel.for_context(FakeContext())
     assert model.position_error_px == 2.0**-8
-    assert not model.waive_noperspective_multiclip
+    assert not model.waived_outputs
 
 
 def test_nan_from_the_gpu_is_over_tolerance(scene):

@@ -22,6 +22,9 @@ def register(subparsers) -> None:
     add_backend_argument(p)
     p.add_argument("--scenes", default=None, metavar="PATTERN",
                    help="comma-separated fnmatch patterns of scene names (default: all)")
+    p.add_argument("--method", default="hw", metavar="NAME",
+                   help="barycentric method to check: hw (default), divw, homogeneous, "
+                        "homogeneous64 or solve4; each is judged by its own error model")
     p.add_argument("--junit", default=None, metavar="FILE", help="write JUnit XML here")
     p.add_argument("--html", default=None, metavar="DIR",
                    help="write an HTML report (DIR/index.html)")
@@ -73,7 +76,17 @@ def run(args) -> int:
     from ..context import Context
     from ..errors import BackendUnavailable
 
+    from ..raster import METHODS
+
+    if args.method not in METHODS:
+        print(f"glraster check: --method must be one of {', '.join(sorted(METHODS))}, got "
+              f"{args.method!r}", file=sys.stderr)
+        return EXIT_USAGE
     if args.mutants:
+        if args.method != "hw":
+            print("glraster check: --mutants injects faults into the hw shaders; it cannot "
+                  f"be combined with --method {args.method}", file=sys.stderr)
+            return EXIT_USAGE
         try:
             mutants.select(args.mutants)
         except ValueError as exc:
@@ -89,7 +102,8 @@ def run(args) -> int:
         from ..report_html import HtmlReport
 
         report = HtmlReport(args.html)
-    result = check.run(ctx, names, golden_dir=args.golden_dir, check_golden=not args.no_golden,
+    result = check.run(ctx, names, method=args.method, golden_dir=args.golden_dir,
+                       check_golden=not args.no_golden,
                        mutants=bool(args.mutants), mutant_pattern=args.mutants,
                        on_scene=report.add_scene if report else None, progress=Progress())
     print(check.format_table(result))
