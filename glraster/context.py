@@ -13,6 +13,8 @@ from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
 
+import moderngl
+
 from .backends import create_backend
 from .shaders import compile_program
 
@@ -116,8 +118,18 @@ class Context:
         key = (resolution, tuple(color_formats.items()), depth_texture)
         targets = self._framebuffers.pop(key, None)
         if targets is None:
-            height, width = resolution
-            attachments, color = [], {}
+            targets = self._new_targets(resolution, color_formats, depth_texture)
+            while len(self._framebuffers) >= FRAMEBUFFER_CACHE_SIZE:
+                self._framebuffers.popitem(last=False)[1].release()
+        self._framebuffers[key] = targets
+        return targets
+
+    def _new_targets(self, resolution, color_formats: dict, depth_texture: bool) -> Targets:
+        """Allocate the framebuffer of :meth:`targets`; a size the driver cannot allocate
+        is a ValueError naming the resolution (nothing is left allocated)."""
+        height, width = resolution
+        attachments, color, depth = [], {}, None
+        try:
             for name, (components, dtype) in color_formats.items():
                 color[name] = len(attachments)
                 attachments.append(self.mgl.texture((width, height), components, dtype=dtype))
@@ -125,12 +137,21 @@ class Context:
                 depth = self.mgl.depth_texture((width, height))
             else:
                 depth = self.mgl.depth_renderbuffer((width, height))
+            refused = self.mgl.error
+            if refused != "GL_NO_ERROR":
+                raise moderngl.Error(refused)
             fbo = self.mgl.framebuffer(color_attachments=attachments, depth_attachment=depth)
-            targets = Targets(fbo, color, attachments, depth)
-            while len(self._framebuffers) >= FRAMEBUFFER_CACHE_SIZE:
-                self._framebuffers.popitem(last=False)[1].release()
-        self._framebuffers[key] = targets
-        return targets
+        except moderngl.Error as exc:
+            for obj in attachments + ([depth] if depth is not None else []):
+                obj.release()
+            biggest = max([4 * c for c, _ in color_formats.values()] + [4])
+            raise ValueError(
+                f"resolution {height}x{width}: the driver cannot allocate the render targets "
+                f"({', '.join(color_formats)}, depth): {exc}. The largest holds "
+                f"{biggest * height * width / 2**30:.2f} GiB or more; llvmpipe refuses a texture "
+                "over 1.5 GiB (a 10032x10032 RGBA32F one is its largest square). Request "
+                "fewer outputs or a smaller resolution.") from None
+        return Targets(fbo, color, attachments, depth)
 
     def storage_buffer(self, name: str, data):
         """A buffer holding ``data`` (a C-contiguous array), reused between calls; grows by

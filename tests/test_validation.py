@@ -97,3 +97,19 @@ def test_integer_and_float64_positions_are_converted_once(ctx):
     as_f32 = gr.rasterize(np.array([[-1, -1, 0, 1], [1, -1, 0, 1], [0, 1, 0, 1]], np.float32),
                           GOOD_TRI, (16, 16), ctx=ctx)
     np.testing.assert_array_equal(as_int.persp, as_f32.persp)
+
+
+def test_targets_the_driver_cannot_allocate_are_a_clear_error(ctx):
+    # 16384 x 16384 is within GL_MAX_TEXTURE_SIZE, but a vec3 float32 target of that size
+    # holds 3-4 GiB, more than llvmpipe allocates for one texture. The call must fail with
+    # a ValueError naming the resolution, leave no GL error and no half-built framebuffer,
+    # and the context must keep working.
+    if not ctx.is_llvmpipe or ctx.max_texture_size < 16384:
+        pytest.skip("the allocation limit measured here is llvmpipe's")
+    gr.rasterize(GOOD_POS, GOOD_TRI, (16, 16), ctx=ctx, outputs=("screen",))  # the program
+    before = ctx.cached_object_count()
+    with pytest.raises(ValueError, match="resolution 16384x16384: the driver cannot allocate"):
+        gr.rasterize(GOOD_POS, GOOD_TRI, (16384, 16384), ctx=ctx, outputs=("screen",))
+    assert ctx.gl_error() == "GL_NO_ERROR"
+    assert ctx.cached_object_count() == before
+    assert gr.rasterize(GOOD_POS, GOOD_TRI, (16, 16), ctx=ctx).mask.any()
