@@ -173,6 +173,17 @@ class Context:
         with self:
             return self.mgl.error
 
+    def release_targets(self):
+        """Free the cached framebuffers (e.g. after rendering a few very large frames: each
+        keeps its float targets, up to several GiB, until four other sizes push it out)."""
+        with self:
+            # Bind framebuffer 0 first: moderngl rebinds the framebuffer it last used after
+            # creating the next one, and binding a deleted name is GL_INVALID_OPERATION.
+            self.mgl.detect_framebuffer(0).use()
+            for targets in self._framebuffers.values():
+                targets.release()
+        self._framebuffers.clear()
+
     def cached_object_count(self) -> int:
         """Number of GL objects held in the caches (for leak tests)."""
         return (

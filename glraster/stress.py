@@ -8,6 +8,9 @@ origin         a well-shaped triangle (every altitude >= 8 px, w 1 .. 2.5) at x 
                whole strip: the triangle really sits 16k px from where llvmpipe anchors
                its plane equations)
 origin_y      the same along y, in a 64 x 16384 strip
+origin_xy     the same along the diagonal, at (d, d) for d = 0 .. 9800 px, in a 10000 x 10000
+               viewport: both coordinates large at once. (A 16384 x 16384 float target
+               cannot be allocated on llvmpipe, which refuses textures over 1.5 GiB.)
 origin_w1      the same with every w = 1 (the affine path: persp = screen)
 w_ratio        w of the vertices in ratio 1 .. 1e6 (same window-space triangle)
 aspect         a sliver of length ~16k px and aspect 1 .. 1e6, in a 16384 x 64 strip
@@ -41,6 +44,8 @@ from .raster import METHODS, rasterize
 
 EPS32 = float(np.finfo(np.float32).eps)
 STRIP = (64, 16384)
+SQUARE = (10000, 10000)  # about the largest square vec3 float32 target llvmpipe allocates
+LARGE_PIXELS = 1 << 24     # points above this free their framebuffers after measuring
 
 
 @dataclass
@@ -85,6 +90,13 @@ def sweep_points(name: str):
         for d in values:
             win = _well_shaped((31.7, d + 40.3), 28.0, 1.1)
             pts.append(Point(_from_window(win, w3, z3, res), np.array([[0, 1, 2]]), res))
+        return values, pts
+    if name == "origin_xy":
+        values = np.array([0, 2500, 5000, 7500, 9800])
+        pts = []
+        for d in values:
+            win = _well_shaped((d + 40.3, d + 31.7), 28.0, 0.3)
+            pts.append(Point(_from_window(win, w3, z3, SQUARE), np.array([[0, 1, 2]]), SQUARE))
         return values, pts
     if name == "origin_w1":
         values = np.array([0, 64, 256, 1024, 4096, 8192, 12288, 16000])
@@ -159,7 +171,7 @@ def sweep_points(name: str):
     raise ValueError(f"sweep must be one of {SWEEPS}, got {name!r}")
 
 
-SWEEPS = ("origin", "origin_y", "origin_w1", "w_ratio", "aspect", "size", "near", "extent", "scale")
+SWEEPS = ("origin", "origin_y", "origin_xy", "origin_w1", "w_ratio", "aspect", "size", "near", "extent", "scale")
 
 
 def truth(pos, tri, tri_id, resolution):
@@ -216,25 +228,34 @@ def truth(pos, tri, tri_id, resolution):
 
 
 def measure(point: Point, method: str, ctx) -> dict:
-    """Error statistics of ``method`` on one point (see the module docstring)."""
+    """Error statistics of ``method`` on one point (see the module docstring). Only the
+    covered pixels are kept; the framebuffers of large points are freed afterwards."""
     outputs = ("persp", "screen", "depth", "tri_id")
     r = rasterize(point.pos, point.tri, point.resolution, ctx=ctx, method=method,
                   outputs=outputs, cull=False)
     nonfinite = int(sum((~np.isfinite(getattr(r, n))).sum() for n in ("persp", "screen", "depth")))
-    values = {"persp": r.persp, "screen": r.screen}
-    if method == "homogeneous64":
+    out = {"pixels": int(r.mask.sum()), "nonfinite": nonfinite}
+    pix = np.flatnonzero(r.tri_id.reshape(-1) >= 0)   # the pixels truth() evaluates
+    values = {name: getattr(r, name).reshape(-1, 3)[pix].astype(np.float64)
+              for name in ("persp", "screen")}
+    tri_id = r.tri_id
+    del r
+    if method == "homogeneous64" and len(pix):
         for name, code in (("persp", 1), ("screen", 2)):
             split = rasterize(point.pos, point.tri, point.resolution, ctx=ctx, method=method,
                               outputs=("persp", "screen", "tri_id"), cull=False, affine=False,
                               extra_defines={"SPLIT64": code})
-            values[name] = split.persp.astype(np.float64) + split.screen.astype(np.float64)
-    out = {"pixels": int(r.mask.sum()), "nonfinite": nonfinite}
-    if not r.mask.any():
+            values[name] = (split.persp.reshape(-1, 3)[pix].astype(np.float64)
+                            + split.screen.reshape(-1, 3)[pix])
+            del split
+    if point.resolution[0] * point.resolution[1] > LARGE_PIXELS:
+        ctx.release_targets()
+    if not len(pix):
         return out
-    pix, persp, screen, g_persp, g_screen, d = truth(point.pos, point.tri, r.tri_id,
-                                                     point.resolution)
+    _, persp, screen, g_persp, g_screen, d = truth(point.pos, point.tri, tri_id,
+                                                   point.resolution)
     for name, ref, grad in (("persp", persp, g_persp), ("screen", screen, g_screen)):
-        got = values[name].reshape(-1, 3)[pix].astype(np.float64)
+        got = values[name]
         err = np.abs(got - ref)
         err = np.where(np.isfinite(err), err, np.inf)
         with np.errstate(invalid="ignore", over="ignore"):
@@ -281,7 +302,8 @@ def plot(result: dict, path: str) -> None:
     colors = dict(zip(METHODS, ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd"]))
     for col, sweep in enumerate(sweeps):
         values = np.array(result[sweep]["values"])
-        x = np.where(values > 0, values, np.nan)
+        linear = sweep.startswith("origin")
+        x = values if linear else np.where(values > 0, values, np.nan)  # no 0 on a log axis
         for method, stats in result[sweep]["methods"].items():
             err = np.array([s.get("persp", {}).get("max", np.nan) for s in stats])
             ratio = np.array([s.get("persp", {}).get("ratio_max", np.nan) for s in stats])
@@ -292,7 +314,7 @@ def plot(result: dict, path: str) -> None:
         for row in range(2):
             ax = axes[row, col]
             ax.set_yscale("log")
-            if not sweep.startswith("origin"):
+            if not linear:
                 ax.set_xscale("log")
             ax.grid(True, which="both", alpha=0.3)
         axes[0, col].set_title(sweep)

@@ -56,6 +56,9 @@ class ErrorModel:
     # glraster/homogeneous.py), so the position-dependent terms (|grad f| (R + kappa D)
     # and the vertex-value term) shrink by a factor eps32. See for_method().
     compensated: bool = False
+    # persp computed from the window-space barycentrics divided by w ("divw"): it carries
+    # the noperspective interpolation error too (see value_tolerance).
+    persp_from_screen: bool = False
 
     @classmethod
     def for_context(cls, ctx) -> "ErrorModel":
@@ -75,9 +78,10 @@ class ErrorModel:
         "hw", "divw" and "solve4" interpolate or solve in plain float32 from the same
         float32 window-space data as the driver: the driver model (:meth:`for_context`)
         bounds them (measured: worst error / tolerance <= 0.62 on the benchmark scenes,
-        docs/performance.md). Waived on a driver with the clipper defect: hw's screen
-        (noperspective varyings), and divw's screen and persp (persp divides the
-        noperspective barycentrics by w). solve4 and the "homogeneous" methods compute
+        docs/performance.md). divw's persp divides the noperspective barycentrics by w,
+        so its bound adds the screen bound carried through that division
+        (``persp_from_screen``). Waived on a driver with the clipper defect: hw's screen
+        (noperspective varyings), and divw's screen and persp. solve4 and the "homogeneous" methods compute
         barycentrics from the unclipped triangle, so nothing is waived for them;
         "homogeneous" and "homogeneous64" evaluate compensated as well.
         """
@@ -92,8 +96,9 @@ class ErrorModel:
             return replace(base, compensated=True, waived_outputs=())
         if method == "solve4":
             return replace(base, waived_outputs=())
-        if method == "divw" and base.waived_outputs:
-            return replace(base, waived_outputs=("screen", "persp"))
+        if method == "divw":
+            waived = ("screen", "persp") if base.waived_outputs else ()
+            return replace(base, waived_outputs=waived, persp_from_screen=True)
         return base
 
 
@@ -259,10 +264,11 @@ def value_tolerance(ref, model: ErrorModel = ErrorModel()) -> dict:
         return np.nan_to_num(b, nan=np.inf)
 
     w = ts.clip[t, :, 3]
+    # a clipped vertex's window-space blend factor carries eps32 N (see N)
+    screen_tol = bound(np.abs(s * w) + cond.N[t][:, None], grad_s * np.abs(w), 1.0)
     if ref.screen is not None:
         tol = np.zeros((height * width, 3))
-        # a clipped vertex's window-space blend factor carries eps32 N (see N)
-        tol[pix] = bound(np.abs(s * w) + cond.N[t][:, None], grad_s * np.abs(w), 1.0)
+        tol[pix] = screen_tol
         out["screen"] = tol.reshape(height, width, 3)
     if ref.persp is not None:
         Q = s.sum(1, keepdims=True)
@@ -271,6 +277,13 @@ def value_tolerance(ref, model: ErrorModel = ErrorModel()) -> dict:
         dq = bound(np.abs(s) * (1 + S[t][:, None]), grad_s, 1.0 / cond.wmin[t][:, None])
         tol = np.zeros((height * width, 3))
         tol[pix] = (dq + np.abs(persp) * dq.sum(1, keepdims=True)) / Q + C * EPS32 * np.abs(persp)
+        if model.persp_from_screen:
+            # persp_i = (screen_i / w_i) / sum_j (screen_j / w_j) and that sum is Q = 1 / w_p:
+            # screen errors d_j reach persp as (d_i / w_i + persp_i sum_j d_j / w_j) / Q.
+            with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+                d = screen_tol / np.abs(w)
+                carried = (d + np.abs(persp) * d.sum(1, keepdims=True)) / np.abs(Q)
+            tol[pix] += np.nan_to_num(carried, nan=np.inf)
         out["persp"] = tol.reshape(height, width, 3)
     if ref.depth is not None:
         z = ts.clip[t, :, 2]

@@ -109,3 +109,17 @@ def test_contexts_of_both_backends_coexist():
     finally:
         for c in contexts:
             c.release()
+
+
+def test_release_targets_frees_the_framebuffers_and_rendering_goes_on(ctx):
+    pos, tri = synthetic.random_soup(3, seed=2)
+    before = gr.rasterize(pos, tri, (24, 24), ctx=ctx)
+    gr.rasterize(pos, tri, (20, 20), ctx=ctx, outputs=("depth",))
+    programs_and_buffers = ctx.cached_object_count() - sum(
+        2 + len(t.attachments) for t in ctx._framebuffers.values())
+    ctx.release_targets()
+    assert ctx.cached_object_count() == programs_and_buffers
+    assert ctx.gl_error() == "GL_NO_ERROR"
+    after = gr.rasterize(pos, tri, (24, 24), ctx=ctx)   # the next call allocates again
+    np.testing.assert_array_equal(before.persp, after.persp)
+    np.testing.assert_array_equal(before.tri_id, after.tri_id)

@@ -47,11 +47,12 @@ def test_homogeneous64_error_stays_below_1e_12(ctx, sweep):
             assert stats[name]["max"] <= 1e-12, (sweep, value, name, stats[name])
 
 
-def test_well_shaped_triangles_stay_within_1e_6_16k_pixels_from_the_origin(ctx):
-    """homogeneous: max error <= 1e-6 for a triangle with every altitude >= 8 px anywhere
-    along a 16384-px-wide viewport, where hw's error is larger (llvmpipe anchors its planes
-    at the framebuffer origin)."""
-    values, points = stress.sweep_points("origin_w1")
+@pytest.mark.parametrize("sweep", ["origin_w1", "origin_xy"])
+def test_well_shaped_triangles_stay_within_1e_6_far_from_the_origin(ctx, sweep):
+    """homogeneous: max error <= 1e-6 for a triangle with every altitude >= 8 px 16k px
+    along a 16384-px-wide viewport and at (9800, 9800) in a 10000 x 10000 one, where hw's
+    error is larger (llvmpipe anchors its planes at the framebuffer origin)."""
+    values, points = stress.sweep_points(sweep)
     far = stress.measure(points[-1], "homogeneous", ctx)
     assert far["persp"]["max"] <= 1e-6 and far["screen"]["max"] <= 1e-6
     hw_far = stress.measure(points[-1], "hw", ctx)
