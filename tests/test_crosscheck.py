@@ -23,7 +23,7 @@ def report(tmp_path_factory):
 
 def test_median_relative_depth_difference(report):
     assert report.compared > 2500
-    # The requirement is 1e-4.  Measured ~8e-8: about one step of pyrender's 24-bit
+    # The target is 1e-4.  Measured ~8e-8: about one step of pyrender's 24-bit
     # depth (2^-24 z (f-n)/(n f) = 6e-8 relative here), so 1e-6 still leaves 10x margin.
     assert report.median_rel <= 1e-6, report.summary()
 

@@ -33,7 +33,7 @@ def test_random_soup_matches_reference(ctx, seed):
     if ctx.is_llvmpipe:  # the fill rule is modeled exactly: not even band mismatches
         assert report.coverage_mismatch_in_band == 0
         assert not ref.edge_band.any()
-    # The accuracy target for the bulk of pixels.
+    # glraster's accuracy target for the bulk of pixels.
     assert report.values["persp"].p999 <= 1e-5
     assert report.values["screen"].p999 <= 1e-5
 
