@@ -32,6 +32,7 @@ depth tie, where either triangle is accepted.
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -40,11 +41,15 @@ from . import reference_kernels as kernels
 from . import validate
 from .raster import Raster
 from .reference_kernels import FIXED_ONE, SUBPIXEL_BITS  # noqa: F401 (part of this API)
+from .tolerance import Conditioning, depth_error, triangle_conditioning
 
 DEFAULT_EDGE_BAND_PX = 4.0 / FIXED_ONE
-# Two fragments at a pixel whose window depths differ by at most this are a depth tie: the
-# GPU's float32 plane equations may order them either way. ~2^-17, above the depth error the
-# tolerance model allows for well-shaped triangles (docs/tolerance.md).
+# numba's default (workqueue) threading layer runs one parallel kernel at a time per process
+_PARALLEL_KERNEL = threading.Lock()
+# Two fragments at a pixel are a depth tie, where the GPU's float32 plane equations may order
+# them either way, when their depths differ by at most this plus both fragments' depth error
+# bounds (tolerance.depth_error: large only where an ill-conditioned sliver's plane
+# extrapolates). ~2^-17, above the depth error of well-shaped triangles (docs/tolerance.md).
 DEPTH_TIE = 2.0**-17
 
 
@@ -83,6 +88,7 @@ class TriangleSetup:
     x_plane_crossed : (T,) bool  some vertex is outside x = -w or x = +w
     depth_plane : (T, 3)  window depth = a p_x + b p_y + c
     culled : (T,) bool    produces no fragment (zero area)
+    conditioning : tolerance.Conditioning of the triangles, when computed (rasterize does)
     """
 
     clip: np.ndarray
@@ -96,6 +102,7 @@ class TriangleSetup:
     x_plane_crossed: np.ndarray
     depth_plane: np.ndarray
     culled: np.ndarray
+    conditioning: "Conditioning | None" = field(default=None, repr=False)
 
 
 def window_float32(clip: np.ndarray, resolution) -> np.ndarray:
@@ -283,13 +290,19 @@ def rasterize(
     height, width = validate.resolution(resolution)
     n = height * width
 
-    # the depth test state of reference_kernels: winner, its depth, the runner-up's depth
+    # the depth test state of reference_kernels
     best_depth = np.full(n, np.inf)
     best_tri = np.full(n, -1, np.int64)
-    second = np.full(n, np.inf)
+    best_error = np.zeros(n)
+    others_low = np.full(n, np.inf)
     band = np.zeros(n, bool)
     ts = setup(pos, tri, (height, width), fill_rule) if len(tri) else None
     if ts is not None:
+        ts.conditioning = triangle_conditioning(ts, (height, width))
+        error = depth_error(ts)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            # lambda_k = s_k w_k = e_k(p) w_k / det: the window-space barycentrics as planes
+            screen_planes = ts.adj * (ts.clip[:, :, 3] / ts.det[:, None])[:, :, None]
         # Covered pixels as row spans: exact integer spans for the triangles with a
         # fixed-point setup; every bbox candidate tested in float64 for the others, which
         # also mark the edge band where coverage is not modeled exactly. The depth test's
@@ -301,7 +314,8 @@ def rasterize(
             kernels.float_spans(loose, ts.adj, ts.det, ts.depth_plane, ts.bbox, ~ts.fixed_ok,
                                 ~ts.exact & ~ts.culled, edge_band_px, width, band),
         ):
-            kernels.depth_test(*spans, ts.depth_plane, width, best_depth, best_tri, second)
+            kernels.depth_test(*spans, ts.depth_plane, screen_planes, error, width,
+                               best_depth, best_tri, best_error, others_low)
 
     covered = best_tri >= 0
     shape = (height, width)
@@ -309,7 +323,7 @@ def rasterize(
         resolution=shape,
         mask=covered.reshape(shape),
         edge_band=band.reshape(shape),
-        depth_tie=(covered & (second <= best_depth + DEPTH_TIE)).reshape(shape),
+        depth_tie=(covered & (others_low <= best_depth + best_error + DEPTH_TIE)).reshape(shape),
         setup=ts,
         info={"backend": "reference", "renderer": f"float64 (numba), fill rule {fill_rule}"},
         **_values(ts, best_tri, shape, names),
@@ -336,8 +350,10 @@ def _values(ts, best_tri, shape, names) -> dict:
     screen = np.zeros((n, 3) if "screen" in names else (0, 3))
     depth = np.ones(n if "depth" in names else 0)
     if ts is not None:
-        kernels.values(best_tri, width, ts.adj, ts.det, np.ascontiguousarray(ts.clip[..., 3]),
-                       np.ascontiguousarray(ts.clip[..., 2]), persp, screen, depth)
+        with _PARALLEL_KERNEL:
+            kernels.values(best_tri, width, ts.adj, ts.det,
+                           np.ascontiguousarray(ts.clip[..., 3]),
+                           np.ascontiguousarray(ts.clip[..., 2]), persp, screen, depth)
     out = {}
     if "persp" in names:
         out["persp"] = persp.reshape(height, width, 3)

@@ -7,16 +7,17 @@ do not depend on how the work is split. numba compiles without fast-math, so LLV
 contracts ``a * b + c`` into an FMA nor reorders sums; ``error_model="numpy"`` makes a
 division by zero give inf/NaN as in NumPy instead of raising.
 
-Depth test state, three arrays over the H*W pixels (row-major, index py * W + px):
+Depth test state, four arrays over the H*W pixels (row-major, index py * W + px):
 
     best_depth  (N,) float64   window depth of the winning fragment (inf: none yet)
     best_tri    (N,) int64     its triangle (-1: none)
-    second      (N,) float64   the smallest depth among the other fragments (inf: none)
+    best_error  (N,) float64   the bound on the driver's depth error of that triangle
+    others_low  (N,) float64   min over the other fragments of depth - its error bound
 
 The winner is the fragment of least depth, and among equal depths the one of the lower
-triangle index: GL's LESS test applied in draw order. Keeping the runner-up makes the
-result independent of the order in which fragments arrive, and tells where another
-triangle came within DEPTH_TIE of the winner (a depth tie).
+triangle index: GL's LESS test applied in draw order. The state does not depend on the
+order in which fragments arrive, and tells where another triangle's depth interval
+reaches the winner's, so that the driver may pick either (a depth tie).
 """
 
 from __future__ import annotations
@@ -30,33 +31,59 @@ _compiled = numba.njit(cache=True, nogil=True, error_model="numpy")
 
 SUBPIXEL_BITS = 8  # llvmpipe: FIXED_ORDER = 8, so positions snap to 1/256 px
 FIXED_ONE = 1 << SUBPIXEL_BITS
+# a pixel center with some lambda_k below -this lies outside the float triangle (far above
+# the float64 rounding of lambda at pixel coordinates up to 16k)
+EXTRAPOLATION_SLACK = 1e-6
 
 
 @_compiled
-def depth_test(span_tri, span_y, span_x0, span_x1, depth_plane, width,
-               best_depth, best_tri, second):
+def depth_test(span_tri, span_y, span_x0, span_x1, depth_plane, screen_planes, depth_error,
+               width, best_depth, best_tri, best_error, others_low):
     """Depth-test the fragments of spans: S spans, fragments (x, span_y[s]) of triangle
     span_tri[s] for span_x0[s] <= x <= span_x1[s] (int64 arrays, pixel units).
-    depth_plane (T, 3): window depth = a p_x + b p_y + c at the pixel center p."""
+
+    depth_plane   (T, 3)     window depth = a p_x + b p_y + c at the pixel center p
+    screen_planes (T, 3, 3)  the window-space barycentrics lambda_k as such planes
+    depth_error   (T, 2)     bound on the driver's depth error inside the triangle
+                             (column 0) and where its planes extrapolate (column 1: a
+                             pixel covered outside the float triangle, some lambda_k < 0)
+    """
     for i in range(span_tri.shape[0]):
         t = span_tri[i]
         a, b, c = depth_plane[t, 0], depth_plane[t, 1], depth_plane[t, 2]
         py = span_y[i]
         cy = py + 0.5
         row = py * width
+        # The part of the span inside the float triangle: lambda_k(p) = A p_x + B >= -slack
+        # for every k, an interval of p_x (lambda is linear along the row).
+        inside_lo, inside_hi = -np.inf, np.inf
+        for k in range(3):
+            slope = screen_planes[t, k, 0]
+            offset = screen_planes[t, k, 1] * cy + screen_planes[t, k, 2] + EXTRAPOLATION_SLACK
+            if slope > 0:
+                inside_lo = max(inside_lo, -offset / slope)
+            elif slope < 0:
+                inside_hi = min(inside_hi, -offset / slope)
+            elif not offset >= 0:                       # also NaN: never inside
+                inside_hi = -np.inf
         for px in range(span_x0[i], span_x1[i] + 1):
-            depth = a * (px + 0.5) + b * cy + c          # (a p_x + b p_y) + c
+            cx = px + 0.5
+            depth = a * cx + b * cy + c                  # (a p_x + b p_y) + c
             # GL stores float32 depth and tests LESS against the cleared 1.0 (NaN fails).
             if not np.float32(depth) < np.float32(1.0):
                 continue
+            error = depth_error[t, 0] if inside_lo <= cx <= inside_hi else depth_error[t, 1]
             p = row + px
             held = best_depth[p]
             if depth < held or (depth == held and t < best_tri[p]):
-                second[p] = held
+                low = held - best_error[p]               # the former winner joins the others
                 best_depth[p] = depth
                 best_tri[p] = t
-            elif depth < second[p]:
-                second[p] = depth
+                best_error[p] = error
+            else:
+                low = depth - error
+            if low < others_low[p]:
+                others_low[p] = low
 
 
 @_compiled
@@ -180,7 +207,7 @@ def float_spans(tris, adj, det, depth_plane, bbox, cover, mark_band, band_px, wi
     return span_tri[:n], span_y[:n], span_x0[:n], span_x1[:n]
 
 
-@_compiled
+@numba.njit(cache=True, nogil=True, error_model="numpy", parallel=True)
 def values(best_tri, width, adj, det, w, z, persp, screen, depth):
     """The outputs at every covered pixel from its winning triangle, in float64.
 
@@ -196,21 +223,23 @@ def values(best_tri, width, adj, det, w, z, persp, screen, depth):
     want_persp = persp.shape[0] > 0
     want_screen = screen.shape[0] > 0
     want_depth = depth.shape[0] > 0
-    s = np.empty(3)
-    for p in range(best_tri.shape[0]):
+    for p in numba.prange(best_tri.shape[0]):         # pixels are independent: all cores
         t = best_tri[p]
         if t < 0:
             continue
         cx = p % width + 0.5
         cy = p // width + 0.5
-        for k in range(3):
-            s[k] = (adj[t, k, 0] * cx + adj[t, k, 1] * cy + adj[t, k, 2]) / det[t]
+        s0 = (adj[t, 0, 0] * cx + adj[t, 0, 1] * cy + adj[t, 0, 2]) / det[t]
+        s1 = (adj[t, 1, 0] * cx + adj[t, 1, 1] * cy + adj[t, 1, 2]) / det[t]
+        s2 = (adj[t, 2, 0] * cx + adj[t, 2, 1] * cy + adj[t, 2, 2]) / det[t]
         if want_persp:
-            total = s[0] + s[1] + s[2]
-            for k in range(3):
-                persp[p, k] = s[k] / total
+            total = s0 + s1 + s2
+            persp[p, 0] = s0 / total
+            persp[p, 1] = s1 / total
+            persp[p, 2] = s2 / total
         if want_screen:
-            for k in range(3):
-                screen[p, k] = s[k] * w[t, k]
+            screen[p, 0] = s0 * w[t, 0]
+            screen[p, 1] = s1 * w[t, 1]
+            screen[p, 2] = s2 * w[t, 2]
         if want_depth:
-            depth[p] = (s[0] * z[t, 0] + s[1] * z[t, 1] + s[2] * z[t, 2]) * 0.5 + 0.5
+            depth[p] = (s0 * z[t, 0] + s1 * z[t, 1] + s2 * z[t, 2]) * 0.5 + 0.5

@@ -116,6 +116,37 @@ def test_bounding_boxes_stay_inside_the_viewport():
     assert (ts.bbox[live][:, [2, 3]] >= 0).all() and (ts.bbox[live][:, [2, 3]] < 40).all()
 
 
+def test_where_a_snapped_sliver_extrapolates_its_depth_it_is_a_depth_tie():
+    # A sliver of float area 0.009 px^2 (from a 1M-triangle terrain at 4096x4096) snaps to
+    # 1/256-px vertices with 9x that area: llvmpipe covers pixel centers that lie outside
+    # its float triangle, where every depth plane set up from float32 vertices extrapolates
+    # (sum |lambda| > 5 here; measured 3.8e-4 off in the terrain). There a triangle
+    # 1e-4 behind may win on the GPU: a depth tie. Elsewhere the floor's pixels stay judged.
+    res = (128, 64)
+    sliver = np.array([[13.00195312, 40.15722656], [18.83056641, 55.19677734],
+                       [33.11279297, 92.05224609]])
+    depth = np.array([0.98427219, 0.98419955, 0.98408612])
+    floor = np.array([[0.0, 0.0], [64.0, 0.0], [64.0, 128.0], [0.0, 128.0]])   # two triangles
+
+    def clip(win, window_depth):
+        ndc = win / np.array([res[1], res[0]]) * 2 - 1
+        return np.concatenate([ndc, 2 * window_depth[:, None] - 1, np.ones((len(win), 1))], 1)
+    pos = np.concatenate([clip(sliver, depth), clip(floor, np.full(4, 0.9843))]).astype(np.float32)
+    tri = [[0, 1, 2], [3, 4, 5], [3, 5, 6]]
+    ref = gr.reference.rasterize(pos, tri, res)
+    s, _ = gr.reference.edge_values(ref.setup, np.zeros(res[0] * res[1], int),
+                                    np.tile(np.arange(res[1]), res[0]),
+                                    np.repeat(np.arange(res[0]), res[1]))
+    reach = np.abs(s * ref.setup.clip[0, :, 3]).sum(1).reshape(res)   # sum |lambda|
+    on_sliver = ref.mask & (ref.tri_id == 0)
+    outside = on_sliver & (reach > 1 + 1e-6)
+    assert outside.any() and reach[outside].max() > 5
+    assert ref.depth_tie[outside].all()
+    # a plain depth difference, not DEPTH_TIE, separates them there
+    assert (0.9843 - ref.depth[outside]).min() > 10 * gr.reference.DEPTH_TIE
+    assert not ref.depth_tie[ref.mask & (ref.tri_id > 0)].any()
+
+
 def test_coplanar_duplicates_are_a_depth_tie_won_by_the_first():
     pos = np.array([[-0.9, -0.9, 0.1, 1], [0.9, -0.9, 0.2, 1], [0, 0.9, 0.3, 1]], np.float32)
     ref = gr.reference.rasterize(np.concatenate([pos, pos]), [[0, 1, 2], [3, 4, 5]], (32, 32))
@@ -178,10 +209,27 @@ def test_depth_test_does_not_depend_on_fragment_order():
     res = (64, 64)
     ts = setup(pos, tri, res, "llvmpipe")
     spans = kernels.fixed_point_spans(np.flatnonzero(ts.fixed_ok), ts.fixed, ts.bbox)
+    error = np.random.default_rng(1).uniform(0, 1e-3, (len(tri), 2))   # per-triangle bounds
+    planes = ts.adj * (ts.clip[:, :, 3] / ts.det[:, None])[:, :, None]
     results = []
     for order in (np.arange(len(spans[0])), np.random.default_rng(0).permutation(len(spans[0]))):
-        state = np.full(64 * 64, np.inf), np.full(64 * 64, -1), np.full(64 * 64, np.inf)
-        kernels.depth_test(*(a[order] for a in spans), ts.depth_plane, 64, *state)
+        n = 64 * 64
+        state = np.full(n, np.inf), np.full(n, -1), np.zeros(n), np.full(n, np.inf)
+        kernels.depth_test(*(a[order] for a in spans), ts.depth_plane, planes, error, 64,
+                           *state)
         results.append(state)
     for a, b in zip(*results):
         np.testing.assert_array_equal(a, b)
+
+
+def test_concurrent_calls_from_threads_give_the_same_result():
+    # A rendering service may call the reference from several threads at once; the
+    # compiled kernels release the GIL and the parallel value pass is serialized.
+    from concurrent.futures import ThreadPoolExecutor
+    pos, tri = random_soup(6, 400, w_range=(0.5, 3.0))
+    alone = gr.reference.rasterize(pos, tri, (96, 128))
+    with ThreadPoolExecutor(4) as pool:
+        results = list(pool.map(lambda _: gr.reference.rasterize(pos, tri, (96, 128)), range(8)))
+    for r in results:
+        for name in ("persp", "screen", "depth", "tri_id", "depth_tie", "edge_band"):
+            np.testing.assert_array_equal(getattr(r, name), getattr(alone, name))
