@@ -35,6 +35,7 @@ from __future__ import annotations
 import threading
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 
 from . import reference_kernels as kernels
@@ -314,8 +315,10 @@ def rasterize(
             kernels.float_spans(loose, ts.adj, ts.det, ts.depth_plane, ts.bbox, ~ts.fixed_ok,
                                 ~ts.exact & ~ts.culled, edge_band_px, width, band),
         ):
-            kernels.depth_test(*spans, ts.depth_plane, screen_planes, error, width,
-                               best_depth, best_tri, best_error, others_low)
+            with _PARALLEL_KERNEL:
+                kernels.depth_test(*spans, ts.depth_plane, screen_planes, error, width,
+                                   best_depth, best_tri, best_error, others_low,
+                                   numba.get_num_threads())
 
     covered = best_tri >= 0
     shape = (height, width)

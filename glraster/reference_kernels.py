@@ -28,6 +28,7 @@ import numba
 import numpy as np
 
 _compiled = numba.njit(cache=True, nogil=True, error_model="numpy")
+_parallel = numba.njit(cache=True, nogil=True, error_model="numpy", parallel=True)
 
 SUBPIXEL_BITS = 8  # llvmpipe: FIXED_ORDER = 8, so positions snap to 1/256 px
 FIXED_ONE = 1 << SUBPIXEL_BITS
@@ -36,9 +37,9 @@ FIXED_ONE = 1 << SUBPIXEL_BITS
 EXTRAPOLATION_SLACK = 1e-6
 
 
-@_compiled
+@_parallel
 def depth_test(span_tri, span_y, span_x0, span_x1, depth_plane, screen_planes, depth_error,
-               width, best_depth, best_tri, best_error, others_low):
+               width, best_depth, best_tri, best_error, others_low, bands):
     """Depth-test the fragments of spans: S spans, fragments (x, span_y[s]) of triangle
     span_tri[s] for span_x0[s] <= x <= span_x1[s] (int64 arrays, pixel units).
 
@@ -47,43 +48,52 @@ def depth_test(span_tri, span_y, span_x0, span_x1, depth_plane, screen_planes, d
     depth_error   (T, 2)     bound on the driver's depth error inside the triangle
                              (column 0) and where its planes extrapolate (column 1: a
                              pixel covered outside the float triangle, some lambda_k < 0)
+    bands                    the rows are split into this many bands, one per thread, so
+                             that no two threads touch the same pixel
     """
-    for i in range(span_tri.shape[0]):
-        t = span_tri[i]
-        a, b, c = depth_plane[t, 0], depth_plane[t, 1], depth_plane[t, 2]
-        py = span_y[i]
-        cy = py + 0.5
-        row = py * width
-        # The part of the span inside the float triangle: lambda_k(p) = A p_x + B >= -slack
-        # for every k, an interval of p_x (lambda is linear along the row).
-        inside_lo, inside_hi = -np.inf, np.inf
-        for k in range(3):
-            slope = screen_planes[t, k, 0]
-            offset = screen_planes[t, k, 1] * cy + screen_planes[t, k, 2] + EXTRAPOLATION_SLACK
-            if slope > 0:
-                inside_lo = max(inside_lo, -offset / slope)
-            elif slope < 0:
-                inside_hi = min(inside_hi, -offset / slope)
-            elif not offset >= 0:                       # also NaN: never inside
-                inside_hi = -np.inf
-        for px in range(span_x0[i], span_x1[i] + 1):
-            cx = px + 0.5
-            depth = a * cx + b * cy + c                  # (a p_x + b p_y) + c
-            # GL stores float32 depth and tests LESS against the cleared 1.0 (NaN fails).
-            if not np.float32(depth) < np.float32(1.0):
+    height = best_depth.shape[0] // width
+    for band in numba.prange(bands):
+        first, last = height * band // bands, height * (band + 1) // bands
+        for i in range(span_tri.shape[0]):
+            py = span_y[i]
+            if not first <= py < last:
                 continue
-            error = depth_error[t, 0] if inside_lo <= cx <= inside_hi else depth_error[t, 1]
-            p = row + px
-            held = best_depth[p]
-            if depth < held or (depth == held and t < best_tri[p]):
-                low = held - best_error[p]               # the former winner joins the others
-                best_depth[p] = depth
-                best_tri[p] = t
-                best_error[p] = error
-            else:
-                low = depth - error
-            if low < others_low[p]:
-                others_low[p] = low
+            t = span_tri[i]
+            a, b, c = depth_plane[t, 0], depth_plane[t, 1], depth_plane[t, 2]
+            cy = py + 0.5
+            row = py * width
+            # The part of the span inside the float triangle: lambda_k(p) = A p_x + B >=
+            # -slack for every k, an interval of p_x (lambda is linear along the row).
+            inside_lo, inside_hi = -np.inf, np.inf
+            for k in range(3):
+                slope = screen_planes[t, k, 0]
+                offset = screen_planes[t, k, 1] * cy + screen_planes[t, k, 2] \
+                    + EXTRAPOLATION_SLACK
+                if slope > 0:
+                    inside_lo = max(inside_lo, -offset / slope)
+                elif slope < 0:
+                    inside_hi = min(inside_hi, -offset / slope)
+                elif not offset >= 0:                   # also NaN: never inside
+                    inside_hi = -np.inf
+            for px in range(span_x0[i], span_x1[i] + 1):
+                cx = px + 0.5
+                depth = a * cx + b * cy + c              # (a p_x + b p_y) + c
+                # GL stores float32 depth and tests LESS against the cleared 1.0 (NaN fails)
+                if not np.float32(depth) < np.float32(1.0):
+                    continue
+                inside = inside_lo <= cx <= inside_hi
+                error = depth_error[t, 0] if inside else depth_error[t, 1]
+                p = row + px
+                held = best_depth[p]
+                if depth < held or (depth == held and t < best_tri[p]):
+                    low = held - best_error[p]           # the former winner joins the others
+                    best_depth[p] = depth
+                    best_tri[p] = t
+                    best_error[p] = error
+                else:
+                    low = depth - error
+                if low < others_low[p]:
+                    others_low[p] = low
 
 
 @_compiled
@@ -207,7 +217,7 @@ def float_spans(tris, adj, det, depth_plane, bbox, cover, mark_band, band_px, wi
     return span_tri[:n], span_y[:n], span_x0[:n], span_x1[:n]
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy", parallel=True)
+@_parallel
 def values(best_tri, width, adj, det, w, z, persp, screen, depth):
     """The outputs at every covered pixel from its winning triangle, in float64.
 

@@ -216,7 +216,7 @@ def test_depth_test_does_not_depend_on_fragment_order():
         n = 64 * 64
         state = np.full(n, np.inf), np.full(n, -1), np.zeros(n), np.full(n, np.inf)
         kernels.depth_test(*(a[order] for a in spans), ts.depth_plane, planes, error, 64,
-                           *state)
+                           *state, 2)
         results.append(state)
     for a, b in zip(*results):
         np.testing.assert_array_equal(a, b)
