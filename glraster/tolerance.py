@@ -281,75 +281,104 @@ def value_tolerance(ref, model: ErrorModel = ErrorModel()) -> dict:
 
     ref: ReferenceRaster computed with "tri_id" among its outputs. Returns a dict mapping
     "persp" and "screen" to (H, W, 3) float64 and "depth" to (H, W) float64 bounds on
-    |GPU - reference|, for the outputs the reference holds; 0 at empty pixels.
+    |GPU - reference|, for the outputs the reference holds; 0 at empty pixels. The
+    per-pixel bounds are evaluated by a compiled loop (:func:`_tolerances`).
     """
-    from .reference import edge_values
-
     height, width = ref.resolution
+    n = height * width
     ts = ref.setup
+    screen = np.zeros((n, 3) if ref.screen is not None else (0, 3))
+    persp = np.zeros((n, 3) if ref.persp is not None else (0, 3))
+    depth = np.zeros(n if ref.depth is not None else 0)
+    if ts is not None and ref.mask.any():
+        cond = ts.conditioning if ts.conditioning is not None else \
+            triangle_conditioning(ts, ref.resolution)
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            # inf (an unmeasurable clipped polygon) times 0 must stay inf, not NaN
+            reach = np.nan_to_num(cond.R + cond.kappa * cond.D, nan=np.inf)
+            # The gradient's numerator (e.g. df01 dy20 - dy01 df20) rounds each vertex
+            # value f_v: an error of eps32 |f_v| / h per pixel of distance, over up to D px.
+            span = np.nan_to_num(cond.D / cond.h, nan=np.inf)
+        _tolerances(np.flatnonzero(ref.mask), ref.tri_id.reshape(-1).astype(np.int64), width,
+                    ts.adj, ts.det, np.ascontiguousarray(ts.clip, dtype=np.float64), reach,
+                    span, cond.S, cond.N, cond.wmin, model.ulp_factor * EPS32,
+                    model.position_error_px,
+                    # compensated evaluation: the position terms carry eps32^2
+                    EPS32 if model.compensated else 1.0, model.persp_from_screen,
+                    screen, persp, depth)
     out = {}
-    pix = np.flatnonzero(ref.mask)
-    if ts is None or not len(pix):
-        for name in ("persp", "screen"):
-            if getattr(ref, name) is not None:
-                out[name] = np.zeros((height, width, 3))
-        if ref.depth is not None:
-            out["depth"] = np.zeros((height, width))
-        return out
-
-    cond = ts.conditioning if ts.conditioning is not None else \
-        triangle_conditioning(ts, ref.resolution)
-    S = cond.S
-    t = ref.tri_id.reshape(-1)[pix]
-    s, adj = edge_values(ts, t, pix % width, pix // width)
-    det = ts.det[t][:, None]
-    grad_s = (np.abs(adj[..., 0]) + np.abs(adj[..., 1])) / np.abs(det)   # |grad s_i|_1
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        # inf (an unmeasurable clipped polygon) times 0 must stay inf, not NaN
-        reach = np.nan_to_num(cond.R + cond.kappa * cond.D, nan=np.inf)[t][:, None]
-        # The gradient's numerator (e.g. df01 dy20 - dy01 df20) rounds each vertex value
-        # f_v: an error of eps32 |f_v| / h per pixel of distance, over up to D pixels.
-        span = np.nan_to_num(cond.D / cond.h, nan=np.inf)[t][:, None]
-    C, delta = model.ulp_factor, model.position_error_px
-    # compensated evaluation (ErrorModel.compensated): position terms carry eps32^2
-    shrink = EPS32 if model.compensated else 1.0
-
-    def bound(value, grad, vertex_value, compensated=True):
-        k = shrink if compensated else 1.0
-        with np.errstate(invalid="ignore", over="ignore"):
-            b = C * EPS32 * (np.abs(value) + k * (grad * reach + vertex_value * span)) \
-                + grad * delta
-        return np.nan_to_num(b, nan=np.inf)
-
-    w = ts.clip[t, :, 3]
-    # a clipped vertex's window-space blend factor carries eps32 N (see N)
-    screen_tol = bound(np.abs(s * w) + cond.N[t][:, None], grad_s * np.abs(w), 1.0)
     if ref.screen is not None:
-        tol = np.zeros((height * width, 3))
-        tol[pix] = screen_tol
-        out["screen"] = tol.reshape(height, width, 3)
+        out["screen"] = screen.reshape(height, width, 3)
     if ref.persp is not None:
-        Q = s.sum(1, keepdims=True)
-        persp = s / Q
-        # a clipped vertex's 1 / w carries a relative error of about eps32 S (see S)
-        dq = bound(np.abs(s) * (1 + S[t][:, None]), grad_s, 1.0 / cond.wmin[t][:, None])
-        tol = np.zeros((height * width, 3))
-        tol[pix] = (dq + np.abs(persp) * dq.sum(1, keepdims=True)) / Q + C * EPS32 * np.abs(persp)
-        if model.persp_from_screen:
-            # persp_i = (screen_i / w_i) / sum_j (screen_j / w_j) and that sum is Q = 1 / w_p:
-            # screen errors d_j reach persp as (d_i / w_i + persp_i sum_j d_j / w_j) / Q.
-            with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-                d = screen_tol / np.abs(w)
-                carried = (d + np.abs(persp) * d.sum(1, keepdims=True)) / np.abs(Q)
-            tol[pix] += np.nan_to_num(carried, nan=np.inf)
-        out["persp"] = tol.reshape(height, width, 3)
+        out["persp"] = persp.reshape(height, width, 3)
     if ref.depth is not None:
-        z = ts.clip[t, :, 2]
-        zw = (s * z).sum(1) * 0.5 + 0.5
-        grad_z = 0.5 * np.abs((adj[..., :2] * (z / det)[..., None]).sum(1)).sum(1)
-        tol = np.zeros(height * width)
-        # a clipped vertex's depth carries eps32 S / 2 from its float32 blend (see S)
-        tol[pix] = bound((np.abs(zw) + S[t] / 2)[:, None], grad_z[:, None], 1.0,
-                         compensated=False)[:, 0]
-        out["depth"] = tol.reshape(height, width)
+        out["depth"] = depth.reshape(height, width)
     return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _bound(unit, value, grad, vertex_value, shrink, reach, span, delta):
+    """unit (|f| + shrink (|grad f|_1 reach + F span)) + |grad f|_1 delta, NaN -> inf:
+    the module docstring's bound with unit = C eps32."""
+    b = unit * (value + shrink * (grad * reach + vertex_value * span)) + grad * delta
+    return np.inf if math.isnan(b) else b
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _tolerances(pix, tri_id, width, adj, det, clip, reach, span, S, N, wmin, unit, delta,
+                shrink, persp_from_screen, screen_tol, persp_tol, depth_tol):
+    """Fill the bounds of :func:`value_tolerance` at the covered pixels ``pix`` (K,) of
+    ``tri_id`` (H*W,): screen_tol and persp_tol (H*W, 3), depth_tol (H*W,), each skipped
+    when empty. adj (T, 3, 3), det (T,), clip (T, 3, 4) from the reference setup; reach =
+    R + kappa D, span = D / h, S, N, wmin (T,) from :func:`triangle_conditioning`."""
+    s = np.empty(3)
+    grad = np.empty(3)
+    screen = np.empty(3)
+    dq = np.empty(3)
+    for i in range(pix.shape[0]):
+        p = pix[i]
+        t = tri_id[p]
+        cx = p % width + 0.5
+        cy = p // width + 0.5
+        for k in range(3):                               # s = M^-1 (p, 1), |grad s_k|_1
+            s[k] = (adj[t, k, 0] * cx + adj[t, k, 1] * cy + adj[t, k, 2]) / det[t]
+            grad[k] = (abs(adj[t, k, 0]) + abs(adj[t, k, 1])) / abs(det[t])
+        r, sp = reach[t], span[t]
+        for k in range(3):
+            # a clipped vertex's window-space blend factor carries eps32 N (see N)
+            w = clip[t, k, 3]
+            screen[k] = _bound(unit, abs(s[k] * w) + N[t], grad[k] * abs(w), 1.0, shrink, r,
+                               sp, delta)
+        if screen_tol.shape[0]:
+            screen_tol[p, :] = screen
+        if persp_tol.shape[0]:
+            total = s[0] + s[1] + s[2]                   # Q = 1 / w_p
+            for k in range(3):
+                # a clipped vertex's 1 / w carries a relative error of about eps32 S
+                dq[k] = _bound(unit, abs(s[k]) * (1 + S[t]), grad[k], 1.0 / wmin[t], shrink,
+                               r, sp, delta)
+            dq_sum = dq[0] + dq[1] + dq[2]
+            carried_sum = 0.0
+            for k in range(3):
+                carried_sum += screen[k] / abs(clip[t, k, 3])
+            for k in range(3):
+                persp = abs(s[k] / total)
+                tol = (dq[k] + persp * dq_sum) / total + unit * persp
+                if persp_from_screen:
+                    # divw: persp_i = (screen_i / w_i) / sum_j (screen_j / w_j), that sum
+                    # is Q: screen errors d_j reach persp as (d_i / w_i + persp_i
+                    # sum_j d_j / w_j) / Q
+                    carried = (screen[k] / abs(clip[t, k, 3]) + persp * carried_sum) \
+                        / abs(total)
+                    tol += np.inf if math.isnan(carried) else carried
+                persp_tol[p, k] = tol
+        if depth_tol.shape[0]:
+            zw = (s[0] * clip[t, 0, 2] + s[1] * clip[t, 1, 2] + s[2] * clip[t, 2, 2]) * 0.5 + 0.5
+            gx, gy = 0.0, 0.0
+            for k in range(3):
+                gx += adj[t, k, 0] * (clip[t, k, 2] / det[t])
+                gy += adj[t, k, 1] * (clip[t, k, 2] / det[t])
+            # a clipped vertex's depth carries eps32 S / 2 from its float32 blend (see S);
+            # depth comes from the driver, never compensated
+            depth_tol[p] = _bound(unit, abs(zw) + S[t] / 2, 0.5 * (abs(gx) + abs(gy)), 1.0,
+                                  1.0, r, sp, delta)
