@@ -238,7 +238,7 @@ PRESETS = {
 }
 
 
-def run(preset="quick", *, backend="egl", max_reference_pixels=1 << 20, progress=None,
+def run(preset="quick", *, backend="egl", max_reference_pixels=1 << 24, progress=None,
         with_pyrender=True, summaries=True, **overrides) -> dict:
     """Run a preset (see PRESETS; keyword arguments override its fields).
 

@@ -29,8 +29,9 @@ def register(subparsers) -> None:
     p.add_argument("--plot", default=None, metavar="FILE",
                    help="write the log-log time/error Pareto plot (PNG)")
     p.add_argument("--no-pyrender", action="store_true", help="skip the pyrender peer")
-    p.add_argument("--max-reference-pixels", type=int, default=1 << 20, metavar="N",
-                   help="compute errors only for images of at most N pixels (default 2^20)")
+    p.add_argument("--max-reference-pixels", type=int, default=1 << 24, metavar="N",
+                   help="compute errors only for images of at most N pixels (default 2^24: "
+                        "every size up to 4096x4096)")
     p.set_defaults(func=run)
 
 
