@@ -11,13 +11,16 @@ Depth test state, four arrays over the H*W pixels (row-major, index py * W + px)
 
     best_depth  (N,) float64   window depth of the winning fragment (inf: none yet)
     best_tri    (N,) int64     its triangle (-1: none)
-    best_error  (N,) float64   the bound on the driver's depth error of that triangle
+    best_error  (N,) float64   the bound on the driver's depth error of that fragment
     others_low  (N,) float64   min over the other fragments of depth - its error bound
 
 The winner is the fragment of least depth, and among equal depths the one of the lower
 triangle index: GL's LESS test applied in draw order. The state does not depend on the
 order in which fragments arrive, and tells where another triangle's depth interval
 reaches the winner's, so that the driver may pick either (a depth tie).
+
+``depth_test`` and ``values`` run on every core (numba ``parallel=True``): the depth test
+gives each thread a band of rows, the value pass splits the pixels. The others are serial.
 """
 
 from __future__ import annotations
