@@ -45,7 +45,8 @@ from .reference_kernels import FIXED_ONE, SUBPIXEL_BITS  # noqa: F401 (part of t
 from .tolerance import Conditioning, depth_error, triangle_conditioning
 
 DEFAULT_EDGE_BAND_PX = 4.0 / FIXED_ONE
-# numba's default (workqueue) threading layer runs one parallel kernel at a time per process
+# one parallel kernel at a time: numba's workqueue threading layer (used when OpenMP and TBB
+# are missing) must not be entered from two threads at once
 _PARALLEL_KERNEL = threading.Lock()
 # Two fragments at a pixel are a depth tie, where the GPU's float32 plane equations may order
 # them either way, when their depths differ by at most this plus both fragments' depth error
@@ -89,7 +90,7 @@ class TriangleSetup:
     x_plane_crossed : (T,) bool  some vertex is outside x = -w or x = +w
     depth_plane : (T, 3)  window depth = a p_x + b p_y + c
     culled : (T,) bool    produces no fragment (zero area)
-    conditioning : tolerance.Conditioning of the triangles, when computed (rasterize does)
+    conditioning : tolerance.Conditioning of the triangles (error-model inputs)
     """
 
     clip: np.ndarray
@@ -103,7 +104,7 @@ class TriangleSetup:
     x_plane_crossed: np.ndarray
     depth_plane: np.ndarray
     culled: np.ndarray
-    conditioning: "Conditioning | None" = field(default=None, repr=False)
+    conditioning: Conditioning = field(repr=False)
 
 
 def window_float32(clip: np.ndarray, resolution) -> np.ndarray:
@@ -196,10 +197,11 @@ def setup(pos: np.ndarray, tri: np.ndarray, resolution, fill_rule: str | None) -
     culled = (det == 0) | ~np.isfinite(depth_plane).all(1) | (exact & ~fixed_ok)
     bbox = _bounding_boxes(clip, resolution, w, z)
     bbox[culled] = (0, -1, 0, -1)
+    planes_crossed = outside.sum(1)
     return TriangleSetup(
-        clip, adj, det, exact, fixed, fixed_ok & modeled, bbox, outside.sum(1),
-        outside[:, :2].any(1),
-        depth_plane, culled,
+        clip, adj, det, exact, fixed, fixed_ok & modeled, bbox, planes_crossed,
+        outside[:, :2].any(1), depth_plane, culled,
+        triangle_conditioning(clip, planes_crossed == 0, resolution),
     )
 
 
@@ -217,13 +219,11 @@ def _bounding_boxes(clip, resolution, w, z) -> np.ndarray:
         ndc = clip[simple][..., :2] / w[simple][..., None]
         lo[simple] = ndc.min(1)
         hi[simple] = ndc.max(1)
-    for t in np.flatnonzero(~simple):
-        poly = clip_polygon(clip[t])
-        if len(poly) and (poly[:, 3] > 1e-12 * np.abs(poly[:, :3]).max(initial=1.0)).all():
-            ndc = poly[:, :2] / poly[:, 3:4]
-            lo[t], hi[t] = ndc.min(0), ndc.max(0)
-        elif not len(poly):
-            lo[t], hi[t] = np.inf, -np.inf  # nothing survives clipping
+    if not simple.all():
+        crossing = np.flatnonzero(~simple)
+        part_lo, part_hi = lo[crossing], hi[crossing]
+        kernels.near_far_extents(np.ascontiguousarray(clip[crossing]), part_lo, part_hi)
+        lo[crossing], hi[crossing] = part_lo, part_hi
     size = np.array([width, height], np.float64)
     with np.errstate(invalid="ignore"):
         lo_px = np.floor((lo + 1) * size / 2 - 0.5) - 1
@@ -233,26 +233,6 @@ def _bounding_boxes(clip, resolution, w, z) -> np.ndarray:
     lo_px = np.maximum(lo_px, 0)
     hi_px = np.minimum(hi_px, size - 1)
     return np.stack([lo_px[:, 0], hi_px[:, 0], lo_px[:, 1], hi_px[:, 1]], 1).astype(np.int64)
-
-
-def clip_polygon(vertices: np.ndarray, axes=(2,)) -> np.ndarray:
-    """Sutherland-Hodgman clip of one triangle (3, 4) against -w <= c <= w for each
-    coordinate index c in ``axes`` (2: near/far; (0, 1, 2): the whole view volume).
-    Returns (N, 4)."""
-    poly = list(vertices)
-    planes = [(axis, sign) for axis in axes for sign in (1.0, -1.0)]
-    for axis, sign in planes:  # keep w + c >= 0, then w - c >= 0
-        out = []
-        for a, b in zip(poly, poly[1:] + poly[:1]):
-            da, db = a[3] + sign * a[axis], b[3] + sign * b[axis]
-            if da >= 0:
-                out.append(a)
-            if (da >= 0) != (db >= 0):
-                out.append(a + (b - a) * (da / (da - db)))
-        poly = out
-        if not poly:
-            break
-    return np.array(poly).reshape(-1, 4)
 
 
 def rasterize(
@@ -299,7 +279,6 @@ def rasterize(
     band = np.zeros(n, bool)
     ts = setup(pos, tri, (height, width), fill_rule) if len(tri) else None
     if ts is not None:
-        ts.conditioning = triangle_conditioning(ts, (height, width))
         error = depth_error(ts)
         with np.errstate(divide="ignore", invalid="ignore"):
             # lambda_k = s_k w_k = e_k(p) w_k / det: the window-space barycentrics as planes

@@ -33,6 +33,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from .reference_kernels import clip_to_planes
+
 EPS32 = float(np.finfo(np.float32).eps)  # 2^-23
 
 
@@ -129,7 +131,7 @@ class Conditioning:
     N: np.ndarray
 
 
-def triangle_conditioning(setup, resolution) -> Conditioning:
+def triangle_conditioning(clip, simple, resolution) -> Conditioning:
     """Per-triangle (R, kappa, D, S, h, wmin, N), each (T,) float64, from the window-space
     vertices. h is the smallest altitude (px) of a triangle the driver may draw; wmin the
     smallest w of its vertices. N (0 for unclipped triangles) bounds the relative error of the
@@ -145,58 +147,32 @@ def triangle_conditioning(setup, resolution) -> Conditioning:
     Triangles that cross a clip plane use the vertices of their polygon clipped to the
     view volume (what the driver's clipper produces; Mesa's clips at the viewport sides
     too once it clips at all); a polygon reaching w <= 0 cannot be measured (inf).
-    Computed by a compiled loop (:func:`_conditioning`).
+    clip (T, 3, 4) clip-space vertices; simple (T,) bool: the triangle crosses no clip
+    plane. Computed by a compiled loop (:func:`_conditioning`).
     """
     height, width = resolution
-    T = len(setup.clip)
+    T = len(clip)
     cond = Conditioning(*(np.empty(T) for _ in range(7)))
-    _conditioning(np.ascontiguousarray(setup.clip, dtype=np.float64),
-                  setup.planes_crossed == 0, float(width), float(height),
+    _conditioning(np.ascontiguousarray(clip, dtype=np.float64), simple,
+                  float(width), float(height),
                   cond.R, cond.kappa, cond.D, cond.S, cond.h, cond.wmin, cond.N)
     return cond
-
-
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _clip_to_view_volume(vertices, poly, scratch):
-    """Sutherland-Hodgman clip of a triangle (3, 4) against -w <= x, y, z <= w, planes in
-    the order x = +-w, y = +-w, z = +-w (Mesa's order). Writes the polygon into ``poly``
-    (at least (9, 4)) and returns its vertex count."""
-    poly[:3] = vertices
-    n = 3
-    for axis in range(3):
-        for sign in (1.0, -1.0):          # keep w + c >= 0, then w - c >= 0
-            out = 0
-            for i in range(n):
-                a, b = poly[i], poly[(i + 1) % n]
-                da = a[3] + sign * a[axis]
-                db = b[3] + sign * b[axis]
-                if da >= 0:
-                    scratch[out] = a
-                    out += 1
-                if (da >= 0) != (db >= 0):
-                    scratch[out] = a + (b - a) * (da / (da - db))
-                    out += 1
-            poly[:out] = scratch[:out]
-            n = out
-            if n == 0:
-                return 0
-    return n
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _conditioning(clip, simple, width, height, R, kappa, D, S, h, wmin, N):
     """Fill the (T,) outputs of :func:`triangle_conditioning` for clip (T, 3, 4) float64;
     simple (T,) bool: the triangle is drawn unclipped."""
-    poly = np.empty((16, 4))
-    scratch = np.empty((16, 4))
-    win = np.empty((16, 2))
+    poly = np.empty((9, 4))
+    scratch = np.empty((9, 4))
+    win = np.empty((9, 2))
     cx, cy = width / 2, height / 2                  # the viewport center, and the scale
     for t in range(clip.shape[0]):
         if simple[t]:
             poly[:3] = clip[t]
             n = 3
         else:
-            n = _clip_to_view_volume(clip[t], poly, scratch)
+            n = clip_to_planes(clip[t], 0, poly, scratch)
             unmeasurable = n < 3
             for i in range(n):
                 unmeasurable |= poly[i, 3] <= 0
@@ -266,8 +242,6 @@ def depth_error(setup, model: ErrorModel = ErrorModel()) -> np.ndarray:
     reference: a sliver snapped to 40x its area was measured 3.8e-4 off in depth where
     it extrapolates (1M-triangle terrain at 4096x4096)."""
     cond = setup.conditioning
-    if cond is None:
-        raise ValueError("setup.conditioning must be computed first (triangle_conditioning)")
     grad_z = np.abs(setup.depth_plane[:, 0]) + np.abs(setup.depth_plane[:, 1])
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         base = 1 + cond.S / 2 + grad_z * (cond.R + cond.kappa * cond.D)
@@ -291,8 +265,7 @@ def value_tolerance(ref, model: ErrorModel = ErrorModel()) -> dict:
     persp = np.zeros((n, 3) if ref.persp is not None else (0, 3))
     depth = np.zeros(n if ref.depth is not None else 0)
     if ts is not None and ref.mask.any():
-        cond = ts.conditioning if ts.conditioning is not None else \
-            triangle_conditioning(ts, ref.resolution)
+        cond = ts.conditioning
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
             # inf (an unmeasurable clipped polygon) times 0 must stay inf, not NaN
             reach = np.nan_to_num(cond.R + cond.kappa * cond.D, nan=np.inf)
