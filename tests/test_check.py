@@ -27,7 +27,10 @@ def test_every_catalog_scene_passes(ctx):
 def test_every_catalog_scene_passes_with_every_method(ctx, method):
     # Each method within its own error model (ErrorModel.for_method); goldens are checked
     # once, by the hw run above (they hold the reference, not a method's output).
-    result = check.run(ctx, method=method, check_golden=False, references=REFERENCES)
+    rendered_with = set()
+    result = check.run(ctx, method=method, check_golden=False, references=REFERENCES,
+                       on_scene=lambda res, art: rendered_with.add(art["gpu"].info["method"]))
+    assert rendered_with == {method}
     failing = [f"{s.name}: {'; '.join(s.failures)}" for s in result.scenes if not s.ok]
     assert not failing, f"{ctx.backend} {method}:\n" + "\n".join(failing)
     assert result.method == method and f"method {method}" in check.format_table(result)
