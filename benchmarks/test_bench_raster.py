@@ -10,9 +10,9 @@ import pytest
 
 import glraster as gr
 from glraster import reference
-from glraster.bench import make_scene
-from glraster.fill_limit import FillLimit
-from glraster.raster import METHODS
+from glraster.studies.bench import make_scene
+from glraster.studies.fill_limit import FillLimit
+from glraster.gpu.rasterize import METHODS
 
 
 @pytest.fixture(scope="module")

@@ -6,7 +6,7 @@ import numbers
 
 import numpy as np
 
-OUTPUTS = ("persp", "screen", "depth", "tri_id")
+from glraster.types import OUTPUTS
 
 
 def positions(pos) -> np.ndarray:

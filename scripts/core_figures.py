@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 
 import glraster as gr
-from glraster import synthetic
-from glraster.backends import available_backends
-from glraster.tolerance import ErrorModel
+from glraster.geometry import synthetic
+from glraster.gpu.backends import available_backends
+from glraster.verify.tolerance import ErrorModel
 
 SCENES = {
     "1000 random triangles, w in [0.2, 20]": [synthetic.random_soup(100, seed=s) for s in range(10)],

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 import glraster as gr
-from glraster.backends import available_backends
+from glraster.gpu.backends import available_backends
 
 # Every backend that works on this machine; if none does, "auto" makes the tests fail with
 # BackendUnavailable instead of silently skipping them.

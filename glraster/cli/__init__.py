@@ -1,0 +1,46 @@
+"""The ``glraster`` command line.
+
+Every module in :mod:`glraster.commands` defines ``register(subparsers)``, which adds its
+subcommand(s) with ``set_defaults(func=handler)``; ``handler(args)`` returns the exit code.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import pkgutil
+import sys
+
+from glraster._version import __version__
+from glraster.cli import commands
+from glraster.errors import BackendUnavailable, ShaderCompileError
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="glraster",
+        description="Headless GPU rasterization of barycentric coordinates, checked "
+                    "against an analytic float64 reference.",
+    )
+    parser.add_argument("--version", action="version", version=f"glraster {__version__}")
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for module in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
+        importlib.import_module(f"{commands.__name__}.{module.name}").register(subparsers)
+    return parser
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except (ValueError, FileNotFoundError, BackendUnavailable, ShaderCompileError) as exc:
+        print(f"glraster {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

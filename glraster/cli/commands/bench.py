@@ -1,0 +1,97 @@
+"""`glraster bench`: run time against error for every method (see glraster.bench)."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "bench", help="time every method against the fill limit, the reference and pyrender",
+        description="For each method x scene x resolution x triangle count: first-run and "
+                    "warm median time, error against the float64 reference, ratio to the "
+                    "fill limit (a bare moderngl draw of the same targets), peak host "
+                    "memory, and pyrender (depth only) as the peer; then the README headline "
+                    "figures and each skip switch on/off. The quick preset takes ~1-2 "
+                    "minutes, the full one ~50 minutes on 2 cores (docs/performance.md).")
+    p.add_argument("--preset", choices=("quick", "full"), default="quick",
+                   help="case grid (default: quick)")
+    p.add_argument("--quick", dest="preset", action="store_const", const="quick",
+                   help="same as --preset quick")
+    p.add_argument("--full", dest="preset", action="store_const", const="full",
+                   help="same as --preset full")
+    p.add_argument("--methods", default=None, metavar="LIST",
+                   help="comma-separated methods (default: all)")
+    p.add_argument("--backend", default="egl", choices=("egl", "osmesa"),
+                   help="OpenGL backend (default: egl, the driver pyrender uses too)")
+    p.add_argument("--json", default=None, metavar="FILE", help="write all results as JSON")
+    p.add_argument("--plot", default=None, metavar="FILE",
+                   help="write the log-log time/error Pareto plot (PNG)")
+    p.add_argument("--no-pyrender", action="store_true", help="skip the pyrender peer")
+    p.add_argument("--max-reference-pixels", type=int, default=1 << 24, metavar="N",
+                   help="compute errors only for images of at most N pixels (default 2^24: "
+                        "every size up to 4096x4096)")
+    p.set_defaults(func=run)
+
+
+def _print_cases(cases) -> None:
+    print(f"{'method':<14}{'scene':<9}{'res':>6}{'tris':>9}{'first ms':>10}{'warm ms':>10}"
+          f"{'x fill':>8}{'persp max':>11}{'screen max':>11}{'err/tol':>9}{'host MiB':>9}")
+    for c in cases:
+        err = c["error"]
+        pm = err.get("persp", {}).get("max")
+        sm = err.get("screen", {}).get("max")
+        ratio = max((v.get("worst_ratio", 0) for v in err.values() if isinstance(v, dict)),
+                    default=None)
+        fmt = lambda v: f"{v:11.2e}" if v is not None else f"{'-':>11}"  # noqa: E731
+        print(f"{c['method']:<14}{c['scene']:<9}{c['resolution'][0]:>6}{c['triangles']:>9}"
+              f"{c['first_ms']:>10.2f}{c['warm_ms']:>10.2f}{c['fill_ratio']:>8.2f}"
+              f"{fmt(pm)}{fmt(sm)}{(f'{ratio:9.3f}' if ratio is not None else f'{chr(45):>9}')}"
+              f"{c['peak_host_mib']:>9.1f}")
+        if c.get("pyrender"):
+            p = c["pyrender"]
+            print(f"{'':<14}pyrender depth-only {p['warm_ms']:.2f} ms vs glraster depth-only "
+                  f"{p['glraster_depth_ms']:.2f} ms: glraster {p['ratio']:.2f}x faster")
+
+
+def run(args) -> int:
+    from glraster.studies import bench
+    from glraster.cli.commands.check import Progress
+
+    overrides = {}
+    if args.methods:
+        overrides["methods"] = tuple(m.strip() for m in args.methods.split(",") if m.strip())
+    try:
+        result = bench.run(args.preset, backend=args.backend, progress=Progress(),
+                           with_pyrender=not args.no_pyrender,
+                           max_reference_pixels=args.max_reference_pixels, **overrides)
+    except ValueError as exc:
+        print(f"glraster bench: {exc}", file=sys.stderr)
+        return 2
+    _print_cases(result["cases"])
+    head = result["headline"]
+    print(f"\nheadline ({head['scene']}):")
+    hf = head["hw_over_fill"]
+    print(f"  hw {head['hw_ms']:.1f} ms vs fill limit {head['fill_ms']:.1f} ms: "
+          f"{hf['median']:.3f}x (pairs {hf['pairs']}, min {hf['min']:.3f}, max {hf['max']:.3f})")
+    oh = head["overhead_64x64_ms"]
+    print(f"  64x64 one triangle warm: {oh['median']:.3f} ms median, {oh['p90']:.3f} ms p90; "
+          + ", ".join(f"{m} {v:.3f}" for m, v in oh["per_method"].items()))
+    ref = head["reference_mpix_per_s"]
+    print(f"  reference: {ref['median']:.2f} Mpixel/s (best {ref['best']:.2f})")
+    pr = head["pyrender"]
+    print(f"  pyrender depth-only {pr['pyrender_depth_ms']:.1f} ms vs glraster depth-only "
+          f"{pr['glraster_depth_ms']:.1f} ms ({pr['speedup_depth_only']:.2f}x), glraster all "
+          f"outputs {pr['glraster_all_outputs_ms']:.1f} ms")
+    print("\nskip switches (on / off, median ms):")
+    for label, v in result["skips"].items():
+        print(f"  {label:<58}{v['on_ms']:>9.2f}{v['off_ms']:>9.2f}")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(result, f, indent=1, default=float)
+        print(f"wrote {args.json}")
+    if args.plot:
+        bench.pareto_plot(result, args.plot)
+        print(f"wrote {args.plot}")
+    return 0

@@ -1,0 +1,116 @@
+"""`glraster check`: the conformance run on the current driver (see glraster.check)."""
+
+from __future__ import annotations
+
+import sys
+import time
+
+from glraster.cli.commands import add_backend_argument
+
+EXIT_FAIL = 1
+EXIT_USAGE = 2
+EXIT_NO_BACKEND = 3
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "check", help="render the scene catalog and compare with the reference and goldens",
+        description="Render every catalog scene on the current OpenGL driver, compare it "
+                    "pixel by pixel with the float64 reference (per-pixel tolerances from "
+                    "the error model, exact coverage where the fill rule is modeled) and "
+                    "check the golden EXRs bit for bit. Exits 1 on any failure.")
+    add_backend_argument(p)
+    p.add_argument("--scenes", default=None, metavar="PATTERN",
+                   help="comma-separated fnmatch patterns of scene names (default: all)")
+    p.add_argument("--method", default="hw", metavar="NAME",
+                   help="barycentric method to check: hw (default), divw, homogeneous, "
+                        "homogeneous64 or solve4; each is judged by its own error model")
+    p.add_argument("--junit", default=None, metavar="FILE", help="write JUnit XML here")
+    p.add_argument("--html", default=None, metavar="DIR",
+                   help="write an HTML report (DIR/index.html)")
+    p.add_argument("--mutants", nargs="?", const="all", default=None, metavar="PATTERN",
+                   help="also run the fault-injection mutants (all, or matching PATTERN); "
+                        "each must be caught by some scene")
+    p.add_argument("--golden-dir", default=None, metavar="DIR",
+                   help="golden folder (default: $GLRASTER_GOLDEN_DIR or golden/)")
+    p.add_argument("--no-golden", action="store_true", help="skip the golden comparison")
+    p.add_argument("--list", action="store_true", help="list the matching scenes and exit")
+    p.set_defaults(func=run)
+
+
+class Progress:
+    """A one-line progress bar on stderr (a line per step when stderr is not a terminal)."""
+
+    def __init__(self, stream=None, width=30):
+        self.stream = stream or sys.stderr
+        self.tty = self.stream.isatty()
+        self.width = width
+        self.t0 = time.perf_counter()
+
+    def __call__(self, i, total, label):
+        done = int(self.width * i / max(total, 1))
+        bar = "#" * done + "." * (self.width - done)
+        text = f"[{bar}] {i:>3}/{total} {time.perf_counter() - self.t0:6.1f}s {label}"
+        if self.tty:
+            self.stream.write("\r" + text[:110].ljust(110))
+            if i >= total:
+                self.stream.write("\n")
+        else:
+            self.stream.write(text + "\n")
+        self.stream.flush()
+
+
+def run(args) -> int:
+    from glraster.conformance.scenes import describe, list_scenes
+
+    names = list_scenes(args.scenes)
+    if not names:
+        print(f"glraster check: no scene matches {args.scenes!r}; known: "
+              f"{', '.join(list_scenes())}", file=sys.stderr)
+        return EXIT_USAGE
+    if args.list:
+        for n in names:
+            print(f"{n:<28} {describe(n)}")
+        return 0
+    from glraster.conformance import check, mutants
+    from glraster.gpu.context import Context
+    from glraster.errors import BackendUnavailable
+
+    from glraster.gpu.rasterize import METHODS
+
+    if args.method not in METHODS:
+        print(f"glraster check: --method must be one of {', '.join(sorted(METHODS))}, got "
+              f"{args.method!r}", file=sys.stderr)
+        return EXIT_USAGE
+    if args.mutants:
+        if args.method != "hw":
+            print("glraster check: --mutants injects faults into the hw shaders; it cannot "
+                  f"be combined with --method {args.method}", file=sys.stderr)
+            return EXIT_USAGE
+        try:
+            mutants.select(args.mutants)
+        except ValueError as exc:
+            print(f"glraster check: {exc}", file=sys.stderr)
+            return EXIT_USAGE
+    try:
+        ctx = Context(backend=args.backend)
+    except (BackendUnavailable, ValueError) as exc:
+        print(f"glraster check: {exc}", file=sys.stderr)
+        return EXIT_NO_BACKEND
+    report = None
+    if args.html:
+        from glraster.conformance.html_report import HtmlReport
+
+        report = HtmlReport(args.html)
+    result = check.run(ctx, names, method=args.method, golden_dir=args.golden_dir,
+                       check_golden=not args.no_golden,
+                       mutants=bool(args.mutants), mutant_pattern=args.mutants,
+                       on_scene=report.add_scene if report else None, progress=Progress())
+    print(check.format_table(result))
+    if args.junit:
+        from glraster.conformance import junit
+
+        print(f"JUnit XML: {junit.write(result, args.junit)}")
+    if report:
+        print(f"HTML report: {report.finish(result)}")
+    return 0 if result.ok else EXIT_FAIL

@@ -1,0 +1,89 @@
+"""`glraster golden update|check`: the golden EXRs of the scene catalog."""
+
+from __future__ import annotations
+
+import sys
+import time
+
+GOLDEN_BUDGET_BYTES = 20 * 1024 * 1024
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "golden", help="regenerate or verify the golden EXRs (reference output)",
+        description="Golden EXRs hold the float64 reference rounded to float32, one per "
+                    "catalog scene. 'update' rewrites them; 'check' recomputes the "
+                    "reference and requires every stored bit back.")
+    sub = p.add_subparsers(dest="golden_command", metavar="{update,check}")
+    sub.required = True
+    for name, helptext in (("update", "regenerate golden EXRs from the reference"),
+                           ("check", "verify that the reference reproduces every golden bit")):
+        q = sub.add_parser(name, help=helptext, description=helptext)
+        q.add_argument("names", nargs="*", metavar="NAME",
+                       help="scene names or fnmatch patterns (default: all scenes)")
+        q.add_argument("--dir", default=None, metavar="DIR",
+                       help="golden folder (default: $GLRASTER_GOLDEN_DIR or golden/)")
+        if name == "update":
+            q.add_argument("--force", action="store_true",
+                           help="rewrite even goldens the reference still reproduces")
+        q.set_defaults(func=_update if name == "update" else _check)
+
+
+def _names(patterns):
+    from glraster.conformance.scenes import list_scenes
+
+    if not patterns:
+        return list_scenes()
+    names = list_scenes(",".join(patterns))
+    unmatched = [p for p in patterns if not list_scenes(p)]
+    if unmatched:
+        raise ValueError(f"no scene matches {', '.join(unmatched)}; known: "
+                         f"{', '.join(list_scenes())}")
+    return names
+
+
+def _update(args) -> int:
+    from glraster.conformance import golden
+
+    try:
+        names = _names(args.names)
+    except ValueError as exc:
+        print(f"glraster golden update: {exc}", file=sys.stderr)
+        return 2
+    t0 = time.perf_counter()
+    written = 0
+    for name in names:
+        t = time.perf_counter()
+        paths = golden.update([name], directory=args.dir, force=args.force)
+        state = "written" if paths else "unchanged (reproduced bit for bit)"
+        written += len(paths)
+        size = golden.golden_path(name, args.dir).stat().st_size / 1024
+        print(f"{name:<28} {size:9.1f} KiB  {time.perf_counter() - t:6.2f} s  {state}")
+    total = golden.folder_size(args.dir)
+    print(f"wrote {written} of {len(names)} golden file(s) to {golden.golden_dir(args.dir)} in "
+          f"{time.perf_counter() - t0:.1f} s; folder total {total / 1024 / 1024:.2f} MiB")
+    if total > GOLDEN_BUDGET_BYTES:
+        print(f"warning: golden folder exceeds the {GOLDEN_BUDGET_BYTES // 1024 // 1024} MiB "
+              "budget", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _check(args) -> int:
+    from glraster.conformance import golden
+
+    try:
+        names = _names(args.names)
+    except ValueError as exc:
+        print(f"glraster golden check: {exc}", file=sys.stderr)
+        return 2
+    t0 = time.perf_counter()
+    bad = 0
+    for name in names:
+        res = golden.check_scene(golden.load_scene(name), directory=args.dir)
+        bad += not res.ok
+        print(f"{name:<28} {'ok  ' if res.ok else 'FAIL'} {res.message}")
+    total = golden.folder_size(args.dir)
+    print(f"{len(names) - bad}/{len(names)} goldens reproduced bit for bit in "
+          f"{time.perf_counter() - t0:.1f} s; folder total {total / 1024 / 1024:.2f} MiB")
+    return 1 if bad else 0

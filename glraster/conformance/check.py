@@ -1,0 +1,363 @@
+"""The conformance run behind ``glraster check``: every catalog scene on the current driver,
+compared with the reference (per-pixel error model) and with its golden EXR.
+
+Per scene, for one barycentric method (``method``, default "hw"):
+
+1. render on the GPU (:func:`glraster.rasterize`) with the scene's outputs;
+2. compute the float64 reference (:func:`glraster.conformance.golden.reference_for`);
+3. :func:`glraster.compare`: coverage (exact where llvmpipe's fill rule is modeled, edge
+   band elsewhere), triangle ids, and every value against its per-pixel tolerance from
+   :meth:`glraster.verify.tolerance.ErrorModel.for_method` for this method and context;
+4. non-finite GPU values on covered pixels are failures of their own;
+5. the golden EXR must equal the reference bit for bit (:func:`glraster.conformance.golden.check_scene`),
+   so the GPU is checked against the golden through the same tolerances; the largest
+   |GPU - golden| is reported as a figure.
+
+Pixels the error model waives (documented driver deviations, see
+:class:`glraster.verify.tolerance.ErrorModel`) are counted and shown ("waived"), never hidden.
+
+With ``mutants``, every mutant of :mod:`glraster.mutants` is rendered on the scenes that the
+real shaders passed (cheapest first) until one scene catches it; the real shaders go
+through the same mutant path as a control and must pass every one of those scenes.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from glraster.conformance import golden as _golden
+from glraster.conformance import mutants as _mutants
+from glraster.verify.compare import compare, waived_pixels
+from glraster.gpu.rasterize import METHODS, rasterize
+from glraster.conformance.scenes import Scene, list_scenes, load_scene
+from glraster.verify.tolerance import ErrorModel
+
+# References kept in memory for the mutant pass: scenes up to this many pixels.
+REFERENCE_CACHE_PIXELS = 1 << 20
+
+
+@dataclass
+class SceneResult:
+    """Outcome of one scene.
+
+    status  : "pass", "fail" or "error" (an exception; ``error`` holds the message)
+    report  : the :class:`glraster.verify.compare.Report` (None on error)
+    golden  : :class:`glraster.conformance.golden.GoldenResult` (None when golden checking is off)
+    nonfinite : covered GPU pixels with NaN/Inf in some (judged) output
+    waived  : output -> pixels the error model did not judge (documented deviation)
+    golden_max_error : largest |GPU - golden| over pixels both cover with the same triangle
+    timings : seconds for "gpu", "reference", "compare", "golden"
+    """
+
+    name: str
+    description: str
+    resolution: tuple
+    triangles: int
+    status: str = "pass"
+    report: object = None
+    golden: object = None
+    nonfinite: int = 0
+    waived: dict = field(default_factory=dict)
+    golden_max_error: float = 0.0
+    error: str = ""
+    failures: list = field(default_factory=list)
+    timings: dict = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "pass"
+
+    @property
+    def seconds(self) -> float:
+        return sum(self.timings.values())
+
+
+@dataclass
+class MutantResult:
+    """Outcome of one mutant: caught by ``caught_by`` (a scene name) or escaped."""
+
+    name: str
+    fault: str
+    caught_by: str | None = None
+    reason: str = ""
+    scenes_tried: int = 0
+    error: str = ""
+    seconds: float = 0.0
+
+    @property
+    def caught(self) -> bool:
+        return self.caught_by is not None
+
+
+@dataclass
+class CheckResult:
+    """A whole run: context description, per-scene results, and the mutant pass."""
+
+    backend: str
+    renderer: str
+    gl_version: str
+    method: str = "hw"
+    scenes: list = field(default_factory=list)
+    mutants: list | None = None
+    control_failures: list = field(default_factory=list)  # scenes the control failed
+    seconds: float = 0.0
+    notes: list = field(default_factory=list)  # remarks for people (e.g. goldens skipped)
+
+    @property
+    def ok(self) -> bool:
+        scenes_ok = all(s.ok for s in self.scenes)
+        if self.mutants is None:
+            return scenes_ok
+        return scenes_ok and all(m.caught for m in self.mutants) and not self.control_failures
+
+
+def evaluate(gpu, ref, ctx, model=None):
+    """Compare a GPU raster with the reference (:func:`glraster.compare` with the context's
+    error model) and add the non-finite rule: a NaN or Inf on a covered pixel fails, except
+    in values the model waives. Returns (report, failures: list of str, nonfinite: int,
+    waived: output -> pixels not judged)."""
+    model = model if model is not None else ErrorModel.for_context(ctx)
+    rep = compare(gpu, ref, model=model)
+    failures = []
+    pix = np.flatnonzero(gpu.mask)               # work on covered pixels only
+    nonfinite = np.zeros(len(pix), bool)
+    for name in ("persp", "screen", "depth"):
+        a = getattr(gpu, name)
+        if a is None:
+            continue
+        nf = ~np.isfinite(a.reshape(a.shape[0] * a.shape[1], -1)[pix]).all(axis=1)
+        if name in model.waived_outputs and nf.any():
+            nf &= ~waived_pixels(ref, model).reshape(-1)[pix]
+        nonfinite |= nf
+    n_nonfinite = int(nonfinite.sum())
+    if rep.coverage_mismatch:
+        failures.append(f"{rep.coverage_mismatch} coverage mismatches outside the edge band")
+    if rep.tri_id_mismatch:
+        failures.append(f"{rep.tri_id_mismatch} triangle id mismatches")
+    if n_nonfinite:
+        failures.append(f"{n_nonfinite} covered pixels with NaN/Inf values")
+    for name, stats in rep.values.items():
+        if stats.over_tolerance:
+            failures.append(f"{name}: {stats.over_tolerance} pixels over tolerance (worst "
+                            f"error/tolerance {stats.worst_ratio:.3g}, max error {stats.max:.3g})")
+    waived = {n: v.waived for n, v in rep.values.items() if getattr(v, "waived", 0)}
+    return rep, failures, n_nonfinite, waived
+
+
+def _golden_max_error(gpu, g) -> float:
+    """Largest |GPU - golden| over the golden's window, where both hold the same id."""
+    y0, y1, x0, x1 = g.window
+    worst = 0.0
+    same = None
+    if g.tri_id is not None and gpu.tri_id is not None:
+        same = (gpu.tri_id[y0:y1, x0:x1] == g.tri_id) & (g.tri_id >= 0)
+    for name in ("persp", "screen", "depth"):
+        a, b = getattr(gpu, name), getattr(g, name)
+        if a is None or b is None:
+            continue
+        err = np.abs(a[y0:y1, x0:x1].astype(np.float64) - b)
+        if err.ndim == 3:
+            err = err.max(axis=2)
+        if same is not None:
+            err = err[same]
+        err = err[np.isfinite(err)]
+        if err.size:
+            worst = max(worst, float(err.max()))
+    return worst
+
+
+def run_scene(scene: Scene, ctx, *, method="hw", golden_dir=None, check_golden=True, keep=False,
+              ref=None):
+    """Check one scene rendered with ``method``. Returns (SceneResult, artifacts) where
+    artifacts is {"gpu", "ref", "report"} when ``keep`` (for reports) else None. ``ref``: the
+    scene's reference raster when already computed (from
+    :func:`glraster.conformance.golden.reference_for`)."""
+    res = SceneResult(scene.name, scene.description, tuple(scene.resolution), len(scene.tri))
+    artifacts = None
+    try:
+        t = time.perf_counter()
+        gpu = rasterize(scene.pos, scene.tri, scene.resolution, ctx=ctx, outputs=scene.outputs,
+                        method=method)
+        res.timings["gpu"] = time.perf_counter() - t
+        t = time.perf_counter()
+        ref = ref if ref is not None else _golden.reference_for(scene)
+        res.timings["reference"] = time.perf_counter() - t
+        t = time.perf_counter()
+        rep, failures, nonfinite, waived = evaluate(gpu, ref, ctx,
+                                                    ErrorModel.for_method(method, ctx))
+        res.report, res.nonfinite, res.waived = rep, nonfinite, waived
+        res.failures = failures
+        res.timings["compare"] = time.perf_counter() - t
+        if check_golden:
+            t = time.perf_counter()
+            res.golden = _golden.check_scene(scene, ref=ref, directory=golden_dir)
+            if res.golden.ok:
+                res.golden_max_error = _golden_max_error(gpu, res.golden.raster)
+            else:
+                res.failures.append(f"golden: {res.golden.message}")
+            res.golden.raster = None  # do not keep the arrays around
+            res.timings["golden"] = time.perf_counter() - t
+        res.status = "fail" if res.failures else "pass"
+        if keep:
+            artifacts = {"gpu": gpu, "ref": ref, "report": rep}
+    except Exception as exc:  # a scene that crashes must not stop the run
+        res.status = "error"
+        res.error = f"{type(exc).__name__}: {exc}"
+        res.failures.append(res.error)
+    return res, artifacts
+
+
+def _cost(scene: Scene) -> float:
+    h, w = scene.resolution
+    return h * w + 20.0 * len(scene.tri)
+
+
+def run_mutants(ctx, candidates, references, mutant_list=None, progress=None):
+    """Run the control and each mutant over ``candidates`` (scenes the real shaders
+    passed), cheapest first, using ``references`` (name -> reference raster).
+
+    Returns (list of MutantResult, list of scene names where the control failed)."""
+    order = sorted(candidates, key=_cost)
+    control_failures = []
+    for scene in order:
+        gpu = _mutants.render(None, scene.pos, scene.tri, scene.resolution, ctx=ctx,
+                              outputs=scene.outputs)
+        _, failures, _, _ = evaluate(gpu, references[scene.name], ctx)
+        if failures:
+            control_failures.append(scene.name)
+    results = []
+    for i, m in enumerate(mutant_list if mutant_list is not None else _mutants.MUTANTS):
+        if progress:
+            progress(i, m.name)
+        mr = MutantResult(m.name, m.fault)
+        t = time.perf_counter()
+        for scene in order:
+            mr.scenes_tried += 1
+            try:
+                gpu = _mutants.render(m, scene.pos, scene.tri, scene.resolution, ctx=ctx,
+                                      outputs=scene.outputs)
+            except Exception as exc:
+                mr.error = f"{type(exc).__name__}: {exc}"
+                break
+            _, failures, _, _ = evaluate(gpu, references[scene.name], ctx)
+            if failures:
+                mr.caught_by = scene.name
+                mr.reason = "; ".join(failures)
+                break
+        mr.seconds = time.perf_counter() - t
+        results.append(mr)
+    return results, control_failures
+
+
+def run(ctx, names=None, *, method="hw", golden_dir=None, check_golden=True, mutants=False,
+        mutant_pattern=None, on_scene=None, progress=None, references=None) -> CheckResult:
+    """Check the scenes ``names`` (default: the whole catalog) on ``ctx``, rendered with
+    ``method`` (one of :data:`glraster.gpu.rasterize.METHODS`). The mutants are faults injected
+    into the "hw" shaders, so ``mutants`` requires method "hw".
+
+    references: optional dict name -> reference raster, used and filled in (scenes up to
+    REFERENCE_CACHE_PIXELS), so that several runs (e.g. one per backend) share them.
+
+    on_scene(result, artifacts): called after each scene with its SceneResult and
+    {"gpu", "ref", "report"} (e.g. to write report images); artifacts are dropped after.
+    progress(index, total, label): called before each step.
+    """
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {sorted(METHODS)}, got {method!r}")
+    if mutants and method != "hw":
+        raise ValueError(f"mutants are faults in the hw shaders: method must be 'hw' with "
+                         f"mutants, got {method!r}")
+    t0 = time.perf_counter()
+    names = list(names) if names is not None else list_scenes()
+    out = CheckResult(ctx.backend, ctx.renderer, ctx.gl_version, method)
+    explicit = golden_dir is not None or os.environ.get("GLRASTER_GOLDEN_DIR")
+    if check_golden and not explicit and not _golden.golden_available():
+        # An installed package has no golden/ folder: compare with the reference only and
+        # say so. A folder named explicitly must exist (a missing file fails its scene).
+        check_golden = False
+        out.notes.append(f"no golden folder at {_golden.golden_dir()}: golden comparison "
+                         "skipped (set GLRASTER_GOLDEN_DIR or --golden-dir)")
+    mutant_refs = {}
+    passed = []
+    mutant_list = _mutants.select(mutant_pattern) if mutants else []
+    total = len(names) + (len(mutant_list) if mutants else 0)
+    for i, name in enumerate(names):
+        if progress:
+            progress(i, total, name)
+        scene = load_scene(name)
+        cached = references.get(name) if references is not None else None
+        res, art = run_scene(scene, ctx, method=method, golden_dir=golden_dir,
+                             check_golden=check_golden,
+                             keep=bool(on_scene) or mutants or references is not None,
+                             ref=cached)
+        h, w = scene.resolution
+        if references is not None and art is not None and h * w <= REFERENCE_CACHE_PIXELS:
+            references[name] = art["ref"]
+        out.scenes.append(res)
+        if on_scene:
+            on_scene(res, art)
+        if mutants and res.ok and art is not None and h * w <= REFERENCE_CACHE_PIXELS:
+            mutant_refs[name] = art["ref"]
+            passed.append(scene)
+        del art
+    if mutants:
+        def mprog(j, label):
+            if progress:
+                progress(len(names) + j, total, f"mutant {label}")
+        out.mutants, out.control_failures = run_mutants(ctx, passed, mutant_refs,
+                                                        mutant_list, mprog)
+    if progress:
+        progress(total, total, "done")
+    out.seconds = time.perf_counter() - t0
+    return out
+
+
+def format_table(result: CheckResult) -> str:
+    """The per-scene table (and the mutant table when present) as plain text."""
+    lines = [f"backend {result.backend} | {result.renderer} | GL {result.gl_version} | "
+             f"method {result.method}", ""]
+    hdr = (f"{'scene':<28}{'size':>11}{'tris':>8}{'covered':>9}{'cov!':>6}{'id!':>5}"
+           f"{'persp e/tol':>12}{'screen e/tol':>13}{'depth e/tol':>12}{'golden':>8}"
+           f"{'secs':>7}  status")
+    lines.append(hdr)
+    lines.append("-" * len(hdr))
+    for s in result.scenes:
+        h, w = s.resolution
+        rep = s.report
+        def ratio(n):
+            if rep is None or n not in rep.values:
+                return "-"
+            return f"{rep.values[n].worst_ratio:.3f}"
+        gold = "-" if s.golden is None else ("exact" if s.golden.ok else "DIFF")
+        status = s.status.upper()
+        if s.waived:
+            status += f" (waived {sum(s.waived.values())} px)"
+        lines.append(
+            f"{s.name:<28}{f'{w}x{h}':>11}{s.triangles:>8}"
+            f"{(rep.covered_gpu if rep else 0):>9}{(rep.coverage_mismatch if rep else 0):>6}"
+            f"{(rep.tri_id_mismatch if rep else 0):>5}{ratio('persp'):>12}{ratio('screen'):>13}"
+            f"{ratio('depth'):>12}{gold:>8}{s.seconds:>7.2f}  {status}")
+        for f in s.failures:
+            lines.append(f"    - {f}")
+    n_ok = sum(s.ok for s in result.scenes)
+    lines.append("")
+    lines.append(f"{n_ok}/{len(result.scenes)} scenes pass")
+    if result.mutants is not None:
+        lines.append("")
+        lines.append(f"{'mutant':<24}{'caught by':<28}{'tried':>6}{'secs':>7}  reason")
+        for m in result.mutants:
+            who = m.caught_by or ("ERROR" if m.error else "ESCAPED")
+            lines.append(f"{m.name:<24}{who:<28}{m.scenes_tried:>6}{m.seconds:>7.2f}  "
+                         f"{(m.reason or m.error)[:90]}")
+        caught = sum(m.caught for m in result.mutants)
+        lines.append(f"{caught}/{len(result.mutants)} mutants caught; control (real shaders "
+                     f"via the mutant path): "
+                     + ("no false alarm" if not result.control_failures
+                        else f"FAILED on {', '.join(result.control_failures)}"))
+    lines += [f"note: {n}" for n in result.notes]
+    lines.append(f"total {result.seconds:.1f} s: " + ("PASS" if result.ok else "FAIL"))
+    return "\n".join(lines)

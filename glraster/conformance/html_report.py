@@ -1,0 +1,349 @@
+"""The HTML report of a check run: a folder with ``index.html`` and ``img/*.png``.
+
+Per scene it shows four images, upright (row 0 of the arrays is at the bottom, so rows are
+flipped for display), cropped to the pixels either side covers and reduced to at most
+``MAX_IMAGE_PX`` on a side (max-pooling for the error and coverage maps, so no defect
+disappears):
+
+- GPU: perspective-correct barycentrics (b0, b1, b2) as RGB; empty pixels dark gray,
+  NaN/Inf magenta;
+- reference: the same from the float64 reference;
+- error heatmap: the largest error/tolerance ratio over persp, screen and depth, log scale
+  1e-3 .. 1 (viridis), red above 1 (a failure), dark gray where nothing was compared;
+- coverage difference: gray both cover, blue reference only, orange GPU only, yellow a
+  difference accepted in the edge band or a depth tie, red both cover with different ids.
+
+It also holds the per-output error statistics, the failures, golden status and timings,
+a summary figure (matplotlib, Agg) of the worst error/tolerance per scene, and the mutant
+table. Nothing is loaded from the network; the page works from ``file://``.
+"""
+
+from __future__ import annotations
+
+import html
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+MAX_IMAGE_PX = 384
+EMPTY_RGB = (32, 32, 32)
+NONFINITE_RGB = (255, 0, 255)
+
+
+def _crop_window(mask: np.ndarray, margin: int = 2):
+    ys = np.flatnonzero(mask.any(axis=1))
+    xs = np.flatnonzero(mask.any(axis=0))
+    h, w = mask.shape
+    if not len(ys):
+        return (0, min(h, 64), 0, min(w, 64))
+    return (max(0, ys[0] - margin), min(h, ys[-1] + 1 + margin),
+            max(0, xs[0] - margin), min(w, xs[-1] + 1 + margin))
+
+
+def _factor(shape) -> int:
+    return max(1, int(np.ceil(max(shape[:2]) / MAX_IMAGE_PX)))
+
+
+def _pool_max(a: np.ndarray, f: int) -> np.ndarray:
+    """Max over f x f blocks of an (H, W[, C]) array (edges padded with the minimum)."""
+    if f == 1:
+        return a
+    h, w = a.shape[:2]
+    ph, pw = -h % f, -w % f
+    pad = [(0, ph), (0, pw)] + [(0, 0)] * (a.ndim - 2)
+    fill = a.min() if a.size else 0
+    b = np.pad(a, pad, constant_values=fill)
+    b = b.reshape(b.shape[0] // f, f, b.shape[1] // f, f, *a.shape[2:])
+    return b.max(axis=(1, 3))
+
+
+def write_png(path: Path, rgb: np.ndarray):
+    """Write an (H, W, 3) uint8 array, given with row 0 at the bottom, upright."""
+    import OpenImageIO as oiio
+
+    img = np.ascontiguousarray(rgb[::-1])
+    spec = oiio.ImageSpec(img.shape[1], img.shape[0], 3, oiio.UINT8)
+    out = oiio.ImageOutput.create(str(path))
+    if out is None or not out.open(str(path), spec) or not out.write_image(img):
+        raise OSError(f"cannot write {path}: {oiio.geterror()}")
+    out.close()
+
+
+def bary_rgb(bary, mask) -> np.ndarray:
+    """(H, W, 3) uint8 picture of barycentrics: RGB = (b0, b1, b2)."""
+    rgb = np.empty(mask.shape + (3,), np.uint8)
+    rgb[:] = EMPTY_RGB
+    if bary is None:
+        return rgb
+    b = np.asarray(bary, dtype=np.float64)
+    fin = np.isfinite(b).all(axis=2)
+    ok = mask & fin
+    rgb[ok] = (np.clip(b[ok], 0, 1) * 255 + 0.5).astype(np.uint8)
+    rgb[mask & ~fin] = NONFINITE_RGB
+    return rgb
+
+
+def heat_rgb(ratio, compared) -> np.ndarray:
+    """(H, W, 3) uint8: log10 error/tolerance from 1e-3 (dark) to 1 (yellow), red above 1."""
+    from matplotlib import colormaps
+
+    rgb = np.empty(ratio.shape + (3,), np.uint8)
+    rgb[:] = EMPTY_RGB
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.clip((np.log10(np.maximum(ratio, 1e-12)) + 3.0) / 3.0, 0.0, 1.0)
+    lut = (colormaps["viridis"](np.linspace(0, 1, 256))[:, :3] * 255).astype(np.uint8)
+    rgb[compared] = lut[(t[compared] * 255).astype(int)]
+    rgb[compared & ~(ratio <= 1)] = (255, 0, 0)
+    return rgb
+
+
+COVERAGE_COLORS = np.array([(0, 0, 0), (110, 110, 110), (255, 230, 0), (40, 110, 255),
+                            (255, 140, 0), (255, 0, 0)], np.uint8)
+
+
+def coverage_codes(gpu_mask, ref_mask, ambiguous, id_mismatch) -> np.ndarray:
+    """(H, W) uint8 class per pixel, in increasing severity: 0 empty, 1 both cover,
+    2 difference accepted (edge band / depth tie), 3 reference only, 4 GPU only,
+    5 both cover with different triangle ids."""
+    code = np.zeros(gpu_mask.shape, np.uint8)
+    code[gpu_mask & ref_mask] = 1
+    differ = gpu_mask != ref_mask
+    code[differ & ambiguous] = 2
+    code[differ & ~ambiguous & ref_mask] = 3
+    code[differ & ~ambiguous & gpu_mask] = 4
+    code[id_mismatch] = 5
+    return code
+
+
+class HtmlReport:
+    """Collects scenes during a check run and writes ``directory/index.html``.
+
+    Use ``add_scene(result, artifacts)`` as the ``on_scene`` callback of
+    :func:`glraster.conformance.check.run`, then ``finish(check_result)``.
+    """
+
+    def __init__(self, directory):
+        self.dir = Path(directory)
+        self.img = self.dir / "img"
+        self.img.mkdir(parents=True, exist_ok=True)
+        self.images: dict[str, dict] = {}
+
+    def add_scene(self, res, art):
+        """Write the four images of one scene (nothing when the scene raised)."""
+        if art is None:
+            return
+        gpu, ref, rep = art["gpu"], art["ref"], art["report"]
+        y0, y1, x0, x1 = _crop_window(gpu.mask | ref.mask)
+        f = _factor((y1 - y0, x1 - x0))
+        sl = (slice(y0, y1), slice(x0, x1))
+        names = {}
+
+        def save(kind, rgb, pooled=None):
+            if f > 1:
+                rgb = pooled if pooled is not None else rgb[::f, ::f]
+            fname = f"{res.name}_{kind}.png"
+            write_png(self.img / fname, rgb)
+            names[kind] = fname
+
+        gpu_b = gpu.persp if gpu.persp is not None else gpu.screen
+        ref_b = ref.persp if ref.persp is not None else ref.screen
+        save("gpu", bary_rgb(gpu_b[sl] if gpu_b is not None else None, gpu.mask[sl]))
+        save("ref", bary_rgb(ref_b[sl] if ref_b is not None else None, ref.mask[sl]))
+        ratio = np.zeros((y1 - y0, x1 - x0))
+        for key, m in rep.maps.items():
+            if key.endswith("_ratio"):
+                ratio = np.maximum(ratio, np.nan_to_num(m[sl], nan=np.inf))
+        compared = gpu.mask[sl] & ref.mask[sl]
+        heat = heat_rgb(ratio, compared)
+        save("error", heat, _pool_heat(ratio, compared, f) if f > 1 else None)
+        amb = ref.ambiguous[sl]
+        idm = np.zeros_like(compared)
+        if gpu.tri_id is not None:
+            idm = compared & (gpu.tri_id[sl] != ref.tri_id[sl]) & ~amb
+        codes = coverage_codes(gpu.mask[sl], ref.mask[sl], amb, idm)
+        save("coverage", COVERAGE_COLORS[_pool_max(codes, f)])
+        self.images[res.name] = {"files": names, "crop": (y0, y1, x0, x1), "factor": f}
+
+    def _summary_figure(self, result) -> str | None:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        scenes = [s for s in result.scenes if s.report is not None]
+        if not scenes:
+            return None
+        fig, (ax, ax2) = plt.subplots(1, 2, figsize=(12, max(4, 0.22 * len(scenes) + 1)),
+                                      gridspec_kw={"width_ratios": [3, 1]})
+        y = np.arange(len(scenes))
+        for k, (name, color) in enumerate((("persp", "#1f77b4"), ("screen", "#ff7f0e"),
+                                           ("depth", "#2ca02c"))):
+            vals = [max(s.report.values[name].worst_ratio, 1e-4) if name in s.report.values
+                    else np.nan for s in scenes]
+            ax.barh(y + (k - 1) * 0.27, vals, height=0.27, color=color, label=name)
+        ax.axvline(1.0, color="red", lw=1)
+        ax.set_xscale("log")
+        ax.set_xlim(1e-4, max(10.0, ax.get_xlim()[1]))
+        ax.set_yticks(y, [s.name for s in scenes], fontsize=8)
+        ax.invert_yaxis()
+        ax.set_xlabel("worst error / per-pixel tolerance (fails above 1)")
+        ax.legend(loc="lower right", fontsize=8)
+        ax2.barh(y, [s.seconds for s in scenes], color="#888")
+        ax2.set_yticks(y, [""] * len(scenes))
+        ax2.invert_yaxis()
+        ax2.set_xlabel("seconds")
+        fig.suptitle(f"{result.renderer} via {result.backend}", fontsize=10)
+        fig.tight_layout()
+        fname = "summary.png"
+        fig.savefig(self.img / fname, dpi=80)
+        plt.close(fig)
+        return fname
+
+    def finish(self, result) -> Path:
+        """Write index.html (atomically) and return its path."""
+        fig = self._summary_figure(result)
+        e = html.escape
+        n_ok = sum(s.ok for s in result.scenes)
+        verdict = "PASS" if result.ok else "FAIL"
+        parts = [f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8">
+<title>glraster check: {verdict}</title>
+<style>
+body {{ font-family: system-ui, sans-serif; margin: 24px; background: #fafafa; color: #222; }}
+h1 {{ margin-bottom: 4px; }} .meta {{ color: #555; margin-bottom: 16px; }}
+.verdict {{ display: inline-block; padding: 2px 10px; border-radius: 4px; color: #fff; }}
+.PASS {{ background: #2a7d2a; }} .FAIL, .ERROR {{ background: #c62828; }}
+table {{ border-collapse: collapse; margin: 8px 0 16px; font-size: 13px; }}
+th, td {{ border: 1px solid #ccc; padding: 3px 8px; text-align: right; white-space: nowrap; }}
+td.wrap {{ white-space: normal; min-width: 360px; }}
+th {{ background: #eee; }} td.l, th.l {{ text-align: left; }}
+tr.fail td {{ background: #fde0e0; }}
+section.scene {{ background: #fff; border: 1px solid #ddd; border-radius: 6px; padding: 12px 16px; margin: 16px 0; }}
+.figs {{ display: flex; flex-wrap: wrap; gap: 12px; }}
+figure {{ margin: 0; }} figure img {{ width: 256px; image-rendering: pixelated; border: 1px solid #999; background: #202020; }}
+figcaption {{ font-size: 12px; color: #444; text-align: center; }}
+.legend span {{ display: inline-block; width: 12px; height: 12px; vertical-align: middle; margin: 0 3px 0 10px; }}
+.bar {{ display: inline-block; width: 200px; height: 12px; vertical-align: middle;
+  background: linear-gradient(to right, #440154, #3b528b, #21918c, #5ec962, #fde725); }}
+ul.fail {{ color: #b00; }}
+</style></head><body>
+<h1>glraster check <span class="verdict {verdict}">{verdict}</span></h1>
+<div class="meta">backend <b>{e(result.backend)}</b> &middot; {e(result.renderer)} &middot;
+GL {e(result.gl_version)} &middot; method <b>{e(result.method)}</b> &middot; {n_ok}/{len(result.scenes)} scenes pass &middot;
+{result.seconds:.1f} s</div>
+<p class="legend">Error heatmap: error / tolerance
+<span class="bar" style="width:200px;margin-left:6px"></span> 1e-3 &rarr; 1,
+<span style="background:#f00"></span>above 1 (failure).
+Coverage: <span style="background:#6e6e6e"></span>both
+<span style="background:#286eff"></span>reference only
+<span style="background:#ff8c00"></span>GPU only
+<span style="background:#ffe600"></span>accepted (edge band / depth tie)
+<span style="background:#f00"></span>different triangle.</p>
+"""]
+        if fig:
+            parts.append(f'<img src="img/{fig}" alt="worst error/tolerance per scene" '
+                         f'style="max-width:100%">')
+        parts.append("<h2>Scenes</h2><table><tr><th class=l>scene</th><th>size</th>"
+                     "<th>triangles</th><th>covered</th><th>coverage mismatches</th>"
+                     "<th>id mismatches</th><th>persp err/tol</th><th>screen err/tol</th>"
+                     "<th>depth err/tol</th><th>golden</th><th>s</th><th>status</th></tr>")
+        for s in result.scenes:
+            rep = s.report
+            h, w = s.resolution
+
+            def r(n):
+                return f"{rep.values[n].worst_ratio:.3f}" if rep and n in rep.values else "-"
+            gold = "-" if s.golden is None else ("bit-exact" if s.golden.ok else "DIFFERS")
+            status = s.status.upper() + (f" (waived {sum(s.waived.values())} px)"
+                                         if s.waived else "")
+            parts.append(
+                f'<tr class="{"" if s.ok else "fail"}"><td class=l><a href="#{e(s.name)}">'
+                f'{e(s.name)}</a></td><td>{w}x{h}</td><td>{s.triangles}</td>'
+                f'<td>{rep.covered_gpu if rep else "-"}</td>'
+                f'<td>{rep.coverage_mismatch if rep else "-"}</td>'
+                f'<td>{rep.tri_id_mismatch if rep else "-"}</td><td>{r("persp")}</td>'
+                f'<td>{r("screen")}</td><td>{r("depth")}</td><td>{gold}</td>'
+                f'<td>{s.seconds:.2f}</td><td class=l>{status}</td></tr>')
+        parts.append("</table>")
+        if result.mutants is not None:
+            parts.append("<h2>Fault injection</h2><table><tr><th class=l>mutant</th>"
+                         "<th class=l>fault</th><th class=l>caught by</th><th>scenes tried</th>"
+                         "<th class=l>how</th></tr>")
+            for m in result.mutants:
+                who = m.caught_by or ("error: " + m.error if m.error else "ESCAPED")
+                parts.append(f'<tr class="{"" if m.caught else "fail"}"><td class=l>'
+                             f'{e(m.name)}</td><td class="l wrap">{e(m.fault)}</td><td class=l>'
+                             f'{e(who)}</td><td>{m.scenes_tried}</td><td class="l wrap">'
+                             f'{e(m.reason[:160])}</td></tr>')
+            ctrl = ("no false alarm" if not result.control_failures
+                    else "FALSE ALARM on " + ", ".join(result.control_failures))
+            parts.append(f"</table><p>Control (real shaders through the mutant path): "
+                         f"{e(ctrl)}</p>")
+        parts.append("<h2>Details</h2>")
+        for s in result.scenes:
+            parts.append(self._scene_html(s))
+        parts.append("</body></html>\n")
+        path = self.dir / "index.html"
+        fd, tmp = tempfile.mkstemp(prefix=".index.", suffix=".html", dir=self.dir)
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write("\n".join(parts))
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+        return path
+
+    def _scene_html(self, s) -> str:
+        e = html.escape
+        h, w = s.resolution
+        out = [f'<section class="scene" id="{e(s.name)}"><h3>{e(s.name)} '
+               f'<span class="verdict {s.status.upper()}">{s.status.upper()}</span></h3>',
+               f"<p>{e(s.description)} &mdash; {w}x{h}, {s.triangles} "
+               f"triangle{'' if s.triangles == 1 else 's'}</p>"]
+        info = self.images.get(s.name)
+        if info:
+            y0, y1, x0, x1 = info["crop"]
+            caps = {"gpu": "GPU (persp b0,b1,b2 as RGB)", "ref": "reference",
+                    "error": "error / tolerance", "coverage": "coverage difference"}
+            out.append('<div class="figs">')
+            for kind, fname in info["files"].items():
+                out.append(f'<figure><img src="img/{e(fname)}" alt="{e(s.name)} {kind}">'
+                           f"<figcaption>{caps[kind]}</figcaption></figure>")
+            out.append("</div>")
+            note = f"pixels x {x0}..{x1 - 1}, y {y0}..{y1 - 1}"
+            if info["factor"] > 1:
+                note += f", reduced {info['factor']}x (max-pooled maps)"
+            out.append(f'<p style="font-size:12px;color:#666">{note}</p>')
+        if s.failures:
+            out.append('<ul class="fail">' + "".join(f"<li>{e(f)}</li>" for f in s.failures)
+                       + "</ul>")
+        rep = s.report
+        if rep is not None:
+            out.append("<table><tr><th class=l>output</th><th>pixels</th><th>max</th>"
+                       "<th>p99.9</th><th>mean</th><th>&gt; tol</th><th>err/tol</th></tr>")
+            for n, v in rep.values.items():
+                out.append(f"<tr><td class=l>{n}</td><td>{v.pixels}</td><td>{v.max:.3e}</td>"
+                           f"<td>{v.p999:.3e}</td><td>{v.mean:.3e}</td><td>{v.over_tolerance}"
+                           f"</td><td>{v.worst_ratio:.3f}</td></tr>")
+            out.append("</table>")
+            out.append(f"<p>covered: GPU {rep.covered_gpu}, reference {rep.covered_ref}; "
+                       f"coverage mismatches {rep.coverage_mismatch} "
+                       f"(+{rep.coverage_mismatch_in_band} accepted); id mismatches "
+                       f"{rep.tri_id_mismatch}</p>")
+        if s.waived:
+            out.append("<p>not judged (documented driver deviation, see the error model): "
+                       f"{e(', '.join(f'{k}: {v} px' for k, v in s.waived.items()))}</p>")
+        if s.golden is not None:
+            out.append(f"<p>golden: {e(s.golden.message)}; max |GPU &minus; golden| "
+                       f"{s.golden_max_error:.3g}</p>")
+        if s.timings:
+            out.append("<p style='font-size:12px;color:#666'>"
+                       + ", ".join(f"{k} {v:.3f} s" for k, v in s.timings.items()) + "</p>")
+        out.append("</section>")
+        return "\n".join(out)
+
+
+def _pool_heat(ratio, compared, f):
+    """Heatmap reduced by f with the worst ratio of each block."""
+    r = _pool_max(np.where(compared, ratio, -1.0), f)
+    return heat_rgb(np.maximum(r, 0), r >= 0)

@@ -1,0 +1,236 @@
+"""The conformance scene catalog.
+
+Scenes ship with the package as recipes in ``glraster/scenes/data/catalog.json``: each entry
+names a builder (see :mod:`glraster.conformance.scenes.builders`) and its parameters, so geometry is
+generated deterministically (seeded) instead of being stored. A :class:`Scene` holds the
+resulting clip-space geometry:
+
+- ``pos``: (V, 4) float32 clip-space positions (the float64 recipe result rounded once);
+- ``tri``: (T, 3) int32 vertex indices;
+- ``resolution``: (height, width) in pixels.
+
+Users can also load their own scenes with :func:`load_scene_file` (``.npz`` or ``.json``),
+which validates every field and raises ``ValueError`` naming the file and the field.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import hashlib
+import json
+from dataclasses import dataclass, field
+from functools import lru_cache
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from glraster.conformance.scenes.builders import BUILDERS
+
+from glraster.types import OUTPUTS as ALL_OUTPUTS
+MAX_RESOLUTION = 16384
+
+
+@dataclass(frozen=True)
+class Scene:
+    """One scene: clip-space geometry and the viewport it is rendered at."""
+
+    name: str
+    pos: np.ndarray            # (V, 4) float32 clip space
+    tri: np.ndarray            # (T, 3) int32 vertex indices
+    resolution: tuple[int, int]  # (height, width)
+    description: str = ""
+    outputs: tuple[str, ...] = ALL_OUTPUTS
+    tags: tuple[str, ...] = field(default_factory=tuple)
+
+    @property
+    def hash(self) -> str:
+        """sha256 (hex, 16 chars) of resolution, pos and tri bytes: identifies the geometry."""
+        return scene_hash(self.pos, self.tri, self.resolution)
+
+
+def scene_hash(pos: np.ndarray, tri: np.ndarray, resolution) -> str:
+    """Stable content hash of a scene: resolution as int64, pos as little-endian float32,
+    tri as little-endian int32, all C-ordered. Returns 16 hex characters."""
+    h = hashlib.sha256()
+    h.update(np.asarray(resolution, dtype="<i8").tobytes())
+    h.update(np.ascontiguousarray(pos, dtype="<f4").tobytes())
+    h.update(np.ascontiguousarray(tri, dtype="<i4").tobytes())
+    return h.hexdigest()[:16]
+
+
+@lru_cache(maxsize=1)
+def _catalog() -> dict[str, dict]:
+    text = resources.files(__name__).joinpath("data/catalog.json").read_text()
+    data = json.loads(text)
+    out = {}
+    for entry in data["scenes"]:
+        if entry["name"] in out:
+            raise RuntimeError(f"duplicate scene name in catalog: {entry['name']}")
+        out[entry["name"]] = entry
+    return out
+
+
+def list_scenes(pattern: str | None = None) -> list[str]:
+    """Names of the catalog scenes, in catalog order.
+
+    pattern: optional shell-style pattern (``fnmatch``) or comma-separated list of
+    patterns, e.g. ``"grid_*,torus"``."""
+    names = list(_catalog())
+    if not pattern:
+        return names
+    pats = [p.strip() for p in pattern.split(",") if p.strip()]
+    return [n for n in names if any(fnmatch.fnmatchcase(n, p) for p in pats)]
+
+
+def describe(name: str) -> str:
+    """The catalog description of scene ``name``."""
+    return _entry(name).get("description", "")
+
+
+def _entry(name: str) -> dict:
+    cat = _catalog()
+    if name not in cat:
+        raise ValueError(f"unknown scene {name!r}; known scenes: {', '.join(cat)}")
+    return cat[name]
+
+
+@lru_cache(maxsize=64)
+def load_scene(name: str) -> Scene:
+    """Build catalog scene ``name`` (cached; the arrays are read-only)."""
+    return build_scene(_entry(name), source=f"catalog scene {name!r}")
+
+
+def build_scene(entry: dict, source: str = "scene") -> Scene:
+    """Build a Scene from a recipe dict (the catalog format) and validate it."""
+    for key in ("name", "resolution", "builder"):
+        if key not in entry:
+            raise ValueError(f"{source}: missing field {key!r}")
+    resolution = _check_resolution(entry["resolution"], source)
+    fn = BUILDERS.get(entry["builder"])
+    if fn is None:
+        raise ValueError(f"{source}: unknown builder {entry['builder']!r}; "
+                         f"known: {', '.join(sorted(BUILDERS))}")
+    try:
+        pos, tri = fn(resolution, **entry.get("params", {}))
+    except TypeError as exc:
+        raise ValueError(f"{source}: bad parameters for builder {entry['builder']!r}: {exc}") from exc
+    outputs = tuple(entry.get("outputs", ALL_OUTPUTS))
+    return make_scene(entry["name"], pos, tri, resolution, entry.get("description", ""),
+                      outputs=outputs, tags=tuple(entry.get("tags", ())), source=source)
+
+
+def make_scene(name, pos, tri, resolution, description="", outputs=ALL_OUTPUTS, tags=(),
+               source="scene") -> Scene:
+    """Validate arrays and wrap them in a read-only Scene (pos -> float32, tri -> int32)."""
+    resolution = _check_resolution(resolution, source)
+    pos = np.asarray(pos)
+    if pos.ndim != 2 or pos.shape[1] != 4:
+        raise ValueError(f"{source}: pos must have shape (V, 4), got {pos.shape}")
+    if not np.issubdtype(pos.dtype, np.number) or np.issubdtype(pos.dtype, np.complexfloating):
+        raise ValueError(f"{source}: pos must be real numbers, got dtype {pos.dtype}")
+    with np.errstate(over="ignore"):
+        pos32 = np.ascontiguousarray(pos, dtype=np.float32)
+    if not np.all(np.isfinite(pos32)):
+        bad = int(np.argwhere(~np.isfinite(pos32))[0, 0])
+        raise ValueError(f"{source}: pos must be finite in float32 (vertex {bad} is not)")
+    tri = np.asarray(tri)
+    if tri.ndim != 2 or tri.shape[1] != 3:
+        raise ValueError(f"{source}: tri must have shape (T, 3), got {tri.shape}")
+    if tri.size and not np.issubdtype(tri.dtype, np.integer):
+        if not np.all(np.mod(tri, 1) == 0):
+            raise ValueError(f"{source}: tri must hold integer vertex indices, got dtype {tri.dtype}")
+    tri64 = tri.astype(np.int64)
+    if tri64.size and (tri64.min() < 0 or tri64.max() >= len(pos32)):
+        raise ValueError(f"{source}: tri indices must lie in [0, {len(pos32) - 1}], "
+                         f"got range [{tri64.min()}, {tri64.max()}]")
+    if len(tri64) >= 2 ** 31 - 1:
+        raise ValueError(f"{source}: too many triangles ({len(tri64)})")
+    bad = [o for o in outputs if o not in ALL_OUTPUTS]
+    if bad or not outputs:
+        raise ValueError(f"{source}: outputs must be a non-empty subset of {ALL_OUTPUTS}, got {outputs}")
+    tri32 = np.ascontiguousarray(tri64, dtype=np.int32)
+    pos32.setflags(write=False)
+    tri32.setflags(write=False)
+    return Scene(str(name), pos32, tri32, resolution, description, tuple(outputs), tuple(tags))
+
+
+def _check_resolution(resolution, source) -> tuple[int, int]:
+    try:
+        h, w = (int(v) for v in resolution)
+        ok = all(float(v) == int(v) for v in resolution)
+    except (TypeError, ValueError):
+        raise ValueError(f"{source}: resolution must be (height, width), got {resolution!r}") from None
+    if not ok or not (1 <= h <= MAX_RESOLUTION and 1 <= w <= MAX_RESOLUTION):
+        raise ValueError(f"{source}: resolution must be two integers in [1, {MAX_RESOLUTION}], "
+                         f"got {tuple(resolution)}")
+    return h, w
+
+
+def load_scene_file(path) -> Scene:
+    """Load a user scene file.
+
+    ``.npz``: arrays ``pos`` (V, 4) clip space, ``tri`` (T, 3) integer, ``resolution``
+    (2,) = (height, width); optional ``name`` (string array).
+    ``.json``: either ``{"pos": [[x, y, z, w], ...], "tri": [[i, j, k], ...],
+    "resolution": [H, W]}`` or a catalog-style recipe ``{"name", "resolution",
+    "builder", "params"}``. Raises ValueError naming the file and the faulty field.
+    """
+    path = Path(path)
+    src = str(path)
+    if not path.is_file():
+        raise ValueError(f"{src}: no such scene file")
+    suffix = path.suffix.lower()
+    if suffix == ".npz":
+        try:
+            data = np.load(path, allow_pickle=False)
+        except Exception as exc:  # zipfile/pickle errors from a corrupt file
+            raise ValueError(f"{src}: not a readable .npz file ({exc})") from None
+        with data:
+            missing = [k for k in ("pos", "tri", "resolution") if k not in data.files]
+            if missing:
+                raise ValueError(f"{src}: missing array(s) {', '.join(missing)} "
+                                 f"(found: {', '.join(data.files) or 'none'})")
+            name = str(data["name"]) if "name" in data.files else path.stem
+            return make_scene(name, data["pos"], data["tri"], data["resolution"],
+                              source=src)
+    if suffix == ".json":
+        try:
+            entry = json.loads(path.read_text())
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"{src}: invalid JSON ({exc})") from None
+        if not isinstance(entry, dict):
+            raise ValueError(f"{src}: top level must be a JSON object")
+        if "builder" in entry:
+            entry = dict(entry)
+            entry.setdefault("name", path.stem)
+            return build_scene(entry, source=src)
+        missing = [k for k in ("pos", "tri", "resolution") if k not in entry]
+        if missing:
+            raise ValueError(f"{src}: missing field(s) {', '.join(missing)}")
+        try:
+            pos = np.array(entry["pos"], dtype=np.float64)
+            tri = np.array(entry["tri"], dtype=np.float64)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{src}: pos and tri must be rectangular numeric lists ({exc})") from None
+        if tri.size == 0:
+            tri = tri.reshape(0, 3)
+        return make_scene(entry.get("name", path.stem), pos, tri, entry["resolution"],
+                          entry.get("description", ""),
+                          outputs=tuple(entry.get("outputs", ALL_OUTPUTS)), source=src)
+    raise ValueError(f"{src}: unsupported scene file type {suffix!r} (use .npz or .json)")
+
+
+def resolve(name_or_path) -> Scene:
+    """A catalog scene by name, or a user scene file by path."""
+    s = str(name_or_path)
+    if s in _catalog():
+        return load_scene(s)
+    if Path(s).suffix.lower() in (".npz", ".json") or Path(s).exists():
+        return load_scene_file(s)
+    raise ValueError(f"{s!r} is neither a catalog scene nor a scene file; "
+                     f"known scenes: {', '.join(_catalog())}")
+
+
+__all__ = ["Scene", "list_scenes", "load_scene", "load_scene_file", "make_scene",
+           "build_scene", "scene_hash", "describe", "resolve", "ALL_OUTPUTS"]

@@ -1,0 +1,73 @@
+"""Headless OpenGL backends: one small class per platform behind one interface.
+
+A backend creates an OpenGL 4.5 core context without a window and hands it to moderngl.
+Every backend class has::
+
+    Backend.name            -> str           "egl" or "osmesa"
+    Backend.create()        -> moderngl.Context   (raises BackendUnavailable)
+    Backend.release()       -> None
+
+All GL work happens inside ``with mgl_ctx:``, which makes the backend's context current
+(glcontext's EGL object and the OSMesa loader both implement ``__enter__``/``__exit__``), so
+contexts of both backends can live in one process.
+
+``create_backend("auto")`` tries EGL first, then OSMesa.
+"""
+
+from __future__ import annotations
+
+import os
+
+from glraster.errors import BackendUnavailable
+from glraster.gpu.backends.egl import EGLBackend
+from glraster.gpu.backends.osmesa import OSMesaBackend
+
+BACKENDS = {"egl": EGLBackend, "osmesa": OSMesaBackend}
+INSTALL_HINT = (
+    "install Mesa's headless libraries, e.g. on Debian/Ubuntu: "
+    "sudo apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri libosmesa6"
+)
+
+
+def resolve_backend_name(backend: str | None) -> str:
+    """The backend to use: the argument, else $GLRASTER_BACKEND, else "auto"."""
+    name = backend if backend is not None else os.environ.get("GLRASTER_BACKEND", "auto")
+    if not isinstance(name, str) or name.lower() not in ("auto", *BACKENDS):
+        raise ValueError(
+            f"backend must be one of 'auto', 'egl', 'osmesa', got {name!r}"
+            + (" (from GLRASTER_BACKEND)" if backend is None else "")
+        )
+    return name.lower()
+
+
+def create_backend(backend: str | None = None):
+    """Create a backend and its moderngl context: ``(backend, moderngl.Context)``."""
+    name = resolve_backend_name(backend)
+    candidates = list(BACKENDS) if name == "auto" else [name]
+    failures = []
+    for candidate in candidates:
+        instance = BACKENDS[candidate]()
+        try:
+            return instance, instance.create()
+        except BackendUnavailable as exc:
+            failures.append(f"{candidate}: {exc}")
+    raise BackendUnavailable(
+        "no headless OpenGL 4.5 context could be created ("
+        + "; ".join(failures)
+        + f"); {INSTALL_HINT}"
+    )
+
+
+def available_backends() -> list[str]:
+    """Names of the backends that can create a context on this machine."""
+    names = []
+    for name, cls in BACKENDS.items():
+        instance = cls()
+        try:
+            ctx = instance.create()
+        except BackendUnavailable:
+            continue
+        ctx.release()
+        instance.release()
+        names.append(name)
+    return names

@@ -1,0 +1,224 @@
+"""The headless OpenGL context and the GL objects glraster keeps alive between calls.
+
+A :class:`Context` owns one moderngl context (EGL or OSMesa) and caches, across calls:
+compiled programs (one per shader variant), framebuffers (the last few resolutions and
+output sets) and storage buffers (grown geometrically, never shrunk). Nothing grows with
+the number of calls.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import OrderedDict
+from dataclasses import dataclass
+from pathlib import Path
+
+import moderngl
+
+from glraster.gpu.backends import create_backend
+from glraster.gpu.shaders import compile_program
+
+# Framebuffers kept alive: enough for a test suite that alternates a few sizes.
+FRAMEBUFFER_CACHE_SIZE = 4
+
+
+@dataclass
+class Targets:
+    """A framebuffer and its attachments for one resolution and one set of outputs.
+
+    ``color`` maps output name ("persp", "screen", "tri_id") to its color attachment
+    index; ``depth`` is the DEPTH_COMPONENT32F attachment (texture or renderbuffer).
+    """
+
+    fbo: object
+    color: dict
+    attachments: list
+    depth: object
+
+    def release(self):
+        self.fbo.release()
+        for attachment in self.attachments:
+            attachment.release()
+        self.depth.release()
+
+
+class Context:
+    """A headless OpenGL 4.5 core context.
+
+    Parameters
+    ----------
+    backend : {"auto", "egl", "osmesa"} or None
+        "auto" tries EGL, then OSMesa. None reads ``$GLRASTER_BACKEND`` (default "auto").
+
+    Attributes
+    ----------
+    backend : str             "egl" or "osmesa", the backend actually in use
+    renderer : str            GL_RENDERER, e.g. "llvmpipe (LLVM 15.0.6, 256 bits)"
+    gl_version : str          GL_VERSION
+    vendor : str              GL_VENDOR
+    max_texture_size : int    largest width or height glraster can render
+    subpixel_bits : int       GL_SUBPIXEL_BITS
+    mgl : moderngl.Context    the underlying moderngl context; use it inside ``with ctx:``
+    """
+
+    def __init__(self, backend: str | None = "auto"):
+        self._backend, self.mgl = create_backend(backend)
+        self.backend = self._backend.name
+        self._lock = threading.RLock()
+        self._programs: dict = {}
+        self._framebuffers: OrderedDict = OrderedDict()
+        self._buffers: dict = {}
+        with self:
+            info = self.mgl.info
+            self.renderer = info["GL_RENDERER"]
+            self.gl_version = info["GL_VERSION"]
+            self.vendor = info["GL_VENDOR"]
+            viewport = info["GL_MAX_VIEWPORT_DIMS"]
+            self.max_texture_size = int(
+                min(info["GL_MAX_TEXTURE_SIZE"], info["GL_MAX_RENDERBUFFER_SIZE"], *viewport)
+            )
+            self.subpixel_bits = int(info["GL_SUBPIXEL_BITS"])
+            self.max_storage_block_size = int(info["GL_MAX_SHADER_STORAGE_BLOCK_SIZE"])
+            self.mgl.enable(self.mgl.DEPTH_TEST)
+            self.mgl.depth_func = "<"
+
+    @property
+    def is_llvmpipe(self) -> bool:
+        """True on Mesa's llvmpipe, whose fill rule glraster models exactly."""
+        return "llvmpipe" in self.renderer
+
+    # -- making the context current -------------------------------------------------------
+    def __enter__(self):
+        self._lock.acquire()
+        self.mgl.__enter__()
+        return self
+
+    def __exit__(self, *exc):
+        try:
+            self.mgl.__exit__(*exc)
+        finally:
+            self._lock.release()
+
+    # -- cached GL objects ----------------------------------------------------------------
+    def program(self, vert: Path, frag: Path, defines: dict):
+        """The linked program for two shader files and a set of defines (cached)."""
+        key = (str(vert), str(frag), tuple(sorted(defines.items())))
+        program = self._programs.get(key)
+        if program is None:
+            program = compile_program(self.mgl, vert, frag, defines)
+            vao = self.mgl.vertex_array(program, [])
+            self._programs[key] = program = (program, vao)
+        return program
+
+    def targets(self, resolution: tuple[int, int], color_formats: dict, depth_texture: bool):
+        """Framebuffer of ``resolution`` (H, W) with one color attachment per entry of
+        ``color_formats`` (name -> (components, dtype)) and a float32 depth attachment
+        (a texture when it is read back, else a renderbuffer). Least recently used first out.
+        """
+        key = (resolution, tuple(color_formats.items()), depth_texture)
+        targets = self._framebuffers.pop(key, None)
+        if targets is None:
+            targets = self._new_targets(resolution, color_formats, depth_texture)
+            while len(self._framebuffers) >= FRAMEBUFFER_CACHE_SIZE:
+                self._framebuffers.popitem(last=False)[1].release()
+        self._framebuffers[key] = targets
+        return targets
+
+    def _new_targets(self, resolution, color_formats: dict, depth_texture: bool) -> Targets:
+        """Allocate the framebuffer of :meth:`targets`; a size the driver cannot allocate
+        is a ValueError naming the resolution (nothing is left allocated)."""
+        height, width = resolution
+        attachments, color, depth = [], {}, None
+        try:
+            for name, (components, dtype) in color_formats.items():
+                color[name] = len(attachments)
+                attachments.append(self.mgl.texture((width, height), components, dtype=dtype))
+            if depth_texture:
+                depth = self.mgl.depth_texture((width, height))
+            else:
+                depth = self.mgl.depth_renderbuffer((width, height))
+            refused = self.mgl.error
+            if refused != "GL_NO_ERROR":
+                raise moderngl.Error(refused)
+            fbo = self.mgl.framebuffer(color_attachments=attachments, depth_attachment=depth)
+        except moderngl.Error as exc:
+            for obj in attachments + ([depth] if depth is not None else []):
+                obj.release()
+            biggest = max([4 * c for c, _ in color_formats.values()] + [4])
+            raise ValueError(
+                f"resolution {height}x{width}: the driver cannot allocate the render targets "
+                f"({', '.join(color_formats)}, depth): {exc}. The largest holds "
+                f"{biggest * height * width / 2**30:.2f} GiB or more; llvmpipe refuses a texture "
+                "over 1.5 GiB (a 10032x10032 RGBA32F one is its largest square). Request "
+                "fewer outputs or a smaller resolution.") from None
+        return Targets(fbo, color, attachments, depth)
+
+    def storage_buffer(self, name: str, data):
+        """A buffer holding ``data`` (a C-contiguous array), reused between calls; grows by
+        doubling when needed."""
+        data = memoryview(data).cast("B")
+        nbytes = max(data.nbytes, 16)
+        buffer = self._buffers.get(name)
+        if buffer is None or buffer.size < nbytes:
+            if buffer is not None:
+                buffer.release()
+            size = 1 << (nbytes - 1).bit_length()
+            buffer = self._buffers[name] = self.mgl.buffer(reserve=size, dynamic=True)
+        if data.nbytes:
+            buffer.write(data)
+        return buffer
+
+    def gl_error(self) -> str:
+        """The pending GL error ("GL_NO_ERROR" when there is none); reading clears it."""
+        with self:
+            return self.mgl.error
+
+    def release_targets(self):
+        """Free the cached framebuffers (e.g. after rendering a few very large frames: each
+        keeps its float targets, up to several GiB, until four other sizes push it out)."""
+        with self:
+            # Bind framebuffer 0 first: moderngl rebinds the framebuffer it last used after
+            # creating the next one, and binding a deleted name is GL_INVALID_OPERATION.
+            self.mgl.detect_framebuffer(0).use()
+            for targets in self._framebuffers.values():
+                targets.release()
+        self._framebuffers.clear()
+
+    def cached_object_count(self) -> int:
+        """Number of GL objects held in the caches (for leak tests)."""
+        return (
+            len(self._programs) + len(self._buffers)
+            + sum(2 + len(t.attachments) for t in self._framebuffers.values())
+        )
+
+    def release(self):
+        """Release every GL object and the context itself."""
+        with self:
+            for program, vao in self._programs.values():
+                vao.release()
+                program.release()
+            for targets in self._framebuffers.values():
+                targets.release()
+            for buffer in self._buffers.values():
+                buffer.release()
+        self._programs.clear()
+        self._framebuffers.clear()
+        self._buffers.clear()
+        self.mgl.release()
+        self._backend.release()
+
+    def __repr__(self):
+        return f"glraster.Context(backend={self.backend!r}, renderer={self.renderer!r})"
+
+
+_default_context: Context | None = None
+_default_lock = threading.Lock()
+
+
+def default_context() -> Context:
+    """The process-wide context, made on first use (backend from ``$GLRASTER_BACKEND``)."""
+    global _default_context
+    with _default_lock:
+        if _default_context is None:
+            _default_context = Context(backend=None)
+        return _default_context

@@ -1,0 +1,306 @@
+"""The analytic reference rasterizer, in float64: per-triangle setup in NumPy, the loops over
+pixels compiled (:mod:`glraster.reference_kernels`).
+
+Formulation (2D homogeneous rasterization, Olano & Greer 1997). With homogeneous window
+coordinates X_i = (x_i + w_i) W/2, Y_i = (y_i + w_i) H/2 of the three clip-space vertices, the
+3x3 matrix M = [[X_0 X_1 X_2], [Y_0 Y_1 Y_2], [w_0 w_1 w_2]] maps the clip-space barycentrics
+of a point to its homogeneous window position. For a pixel center p = (p_x, p_y):
+
+    s = M^-1 (p_x, p_y, 1)            s_i = lambda_i / w_p,   sum(s) = 1 / w_p
+    persp_i  = s_i / sum(s)            perspective-correct (GL 4.5 eq. 14.9; seed 002 eq. 2.4.9)
+    screen_i = s_i w_i                 window-space affine barycentrics (eq. 14.10)
+    z_ndc    = sum(s_i z_i),  depth = z_ndc / 2 + 1/2
+
+A point is on the triangle and in front of the eye when every s_i >= 0 (then w_p > 0), and
+inside the near/far planes when -1 <= z_ndc <= 1: this handles vertices with w <= 0 and
+near/far crossings without splitting triangles, and the values are those of the unclipped
+triangle, as GL requires. M^-1 = adj(M) / det(M); the rows of adj(M) are the three edge
+functions e_i(p), linear in window space.
+
+Coverage of triangles whose vertices lie inside the viewport follows Mesa llvmpipe's fill
+rule exactly (:func:`llvmpipe_edges`); other triangles (clipped by the near/far planes or
+reaching outside the viewport, where the driver's clipper makes new float vertices) and
+every triangle when ``fill_rule=None`` mark the pixel centers within ``edge_band_px`` of
+their edges in ``edge_band``, where either answer is accepted.
+
+Pixels: triangles with a fixed-point edge setup are walked row by row as exact integer
+spans; the others test every candidate of their bounding box (clipped to the viewport) in
+float64. Every fragment is depth-tested (GL's LESS in draw order); the depth of the best
+other fragment is kept too, and where it is within DEPTH_TIE of the winner the pixel is a
+depth tie, where either triangle is accepted.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass, field
+
+import numba
+import numpy as np
+
+from glraster.reference import kernels
+from glraster import validate
+from glraster.types import OUTPUTS
+from glraster.geometry.clipping import near_far_extents
+from glraster.geometry.conditioning import Conditioning, triangle_conditioning
+from glraster.geometry.fill_rule import FIXED_ONE, SUBPIXEL_BITS, llvmpipe_edges  # noqa: F401 (part of this API)
+from glraster.geometry.window import window_float32
+from glraster.types import Raster
+from glraster.verify.tolerance import depth_error
+
+DEFAULT_EDGE_BAND_PX = 4.0 / FIXED_ONE
+# one parallel kernel at a time: numba's workqueue threading layer (used when OpenMP and TBB
+# are missing) must not be entered from two threads at once
+_PARALLEL_KERNEL = threading.Lock()
+# Two fragments at a pixel are a depth tie, where the GPU's float32 plane equations may order
+# them either way, when their depths differ by at most this plus both fragments' depth error
+# bounds (tolerance.depth_error: large only where an ill-conditioned sliver's plane
+# extrapolates). ~2^-17, above the depth error of well-shaped triangles (docs/tolerance.md).
+DEPTH_TIE = 2.0**-17
+
+
+@dataclass
+class ReferenceRaster(Raster):
+    """A :class:`Raster` from the reference, in float64, plus where it cannot judge.
+
+    edge_band : (H, W) bool   pixel centers within ``edge_band_px`` of an edge of a triangle
+                              whose coverage is not modeled exactly: either answer accepted
+    depth_tie : (H, W) bool   two triangles within DEPTH_TIE in depth: either may win
+    """
+
+    edge_band: np.ndarray | None = None
+    depth_tie: np.ndarray | None = None
+    setup: "TriangleSetup | None" = field(default=None, repr=False)
+
+    @property
+    def ambiguous(self) -> np.ndarray:
+        """Pixels whose coverage or winning triangle may differ between correct drivers."""
+        return self.edge_band | self.depth_tie
+
+
+@dataclass
+class TriangleSetup:
+    """Per-triangle data, float64 unless noted. T triangles.
+
+    clip   : (T, 3, 4)  clip-space vertices
+    adj    : (T, 3, 3)  rows: edge functions e_i(p) = adj[i, 0] p_x + adj[i, 1] p_y + adj[i, 2]
+    det    : (T,)       det(M); s = e / det
+    exact  : (T,) bool  coverage modeled bit for bit (llvmpipe rule, no clipping)
+    fixed  : (T, 3, 3) int64 or None   llvmpipe edges (dcdx, dcdy, c) when usable
+    fixed_ok : (T,) bool  ``fixed`` holds a valid edge setup, used for coverage
+    bbox   : (T, 4) int64 x0, x1, y0, y1 inclusive pixel range (x1 < x0: no pixels)
+    planes_crossed : (T,) int  how many of the six clip planes (x, y, z = +-w) some vertex
+             is outside of: 0 means the driver draws the triangle unclipped
+    x_plane_crossed : (T,) bool  some vertex is outside x = -w or x = +w
+    depth_plane : (T, 3)  window depth = a p_x + b p_y + c
+    culled : (T,) bool    produces no fragment (zero area)
+    conditioning : tolerance.Conditioning of the triangles (error-model inputs)
+    """
+
+    clip: np.ndarray
+    adj: np.ndarray
+    det: np.ndarray
+    exact: np.ndarray
+    fixed: np.ndarray
+    fixed_ok: np.ndarray
+    bbox: np.ndarray
+    planes_crossed: np.ndarray
+    x_plane_crossed: np.ndarray
+    depth_plane: np.ndarray
+    culled: np.ndarray
+    conditioning: Conditioning = field(repr=False)
+
+
+def setup(pos: np.ndarray, tri: np.ndarray, resolution, fill_rule: str | None) -> TriangleSetup:
+    """Per-triangle setup of the reference. pos (V, 4) float32, tri (T, 3) int32."""
+    height, width = resolution
+    clip32 = pos[tri]                                   # (T, 3, 4) float32
+    clip = clip32.astype(np.float64)
+    w = clip[..., 3]
+    hom = np.stack(
+        [(clip[..., 0] + w) * (width / 2), (clip[..., 1] + w) * (height / 2), w], axis=1
+    )                                                   # (T, 3 rows X/Y/w, 3 vertices)
+    cols = np.moveaxis(hom, 2, 1)                       # (T, vertex, xyw)
+    adj = np.cross(cols[:, [1, 2, 0]], cols[:, [2, 0, 1]])  # row i = col_{i+1} x col_{i+2}
+    det = np.einsum("ti,ti->t", adj[:, 0], cols[:, 0])
+
+    z = clip[..., 2]
+    in_front = (w > 0).all(axis=1)
+    in_depth = (np.abs(z) <= w).all(axis=1)
+    win = window_float32(clip32, resolution)            # (T, 3, 2) float32
+    with np.errstate(invalid="ignore"):
+        inside = (
+            in_front & in_depth
+            & (win[..., 0] >= 0).all(1) & (win[..., 0] <= width).all(1)
+            & (win[..., 1] >= 0).all(1) & (win[..., 1] <= height).all(1)
+        )
+        # The fixed-point model stays meaningful (and inside int64) for unclipped
+        # triangles within a wide guard band; past it only the float test is used.
+        limit = float(1 << 22)
+        modeled = in_front & in_depth & (np.abs(win) < limit).all(axis=(1, 2))
+    fixed = np.zeros((len(tri), 3, 3), np.int64)
+    fixed_ok = np.zeros(len(tri), bool)
+    if fill_rule == "llvmpipe" and modeled.any():
+        fixed[modeled], fixed_ok[modeled] = llvmpipe_edges(win[modeled])
+    exact = inside if fill_rule == "llvmpipe" else np.zeros(len(tri), bool)
+
+    x, y = clip[..., 0], clip[..., 1]
+    outside = np.stack([x > w, x < -w, y > w, y < -w, z > w, z < -w], -1).any(1)
+    # depth = z_ndc / 2 + 1/2 with z_ndc = sum_i z_i e_i(p) / det: a plane in window space
+    with np.errstate(divide="ignore", invalid="ignore"):
+        depth_plane = 0.5 * np.einsum("ti,tij->tj", z, adj) / det[:, None]
+    depth_plane[:, 2] += 0.5
+    # Nothing to rasterize: zero window area (det = 0), or llvmpipe culls the triangle
+    # because it snaps to zero area.
+    culled = (det == 0) | ~np.isfinite(depth_plane).all(1) | (exact & ~fixed_ok)
+    bbox = _bounding_boxes(clip, resolution, w, z)
+    bbox[culled] = (0, -1, 0, -1)
+    planes_crossed = outside.sum(1)
+    return TriangleSetup(
+        clip, adj, det, exact, fixed, fixed_ok & modeled, bbox, planes_crossed,
+        outside[:, :2].any(1), depth_plane, culled,
+        triangle_conditioning(clip, planes_crossed == 0, resolution),
+    )
+
+
+def _bounding_boxes(clip, resolution, w, z) -> np.ndarray:
+    """(T, 4) inclusive pixel ranges x0, x1, y0, y1 that can hold a fragment, widened by one
+    pixel for the edge band and clipped to the viewport. Triangles crossing the near or far
+    plane are clipped in clip space first; if a clipped vertex reaches w ~ 0 the whole
+    viewport is used."""
+    height, width = resolution
+    T = len(clip)
+    lo = np.full((T, 2), -np.inf)
+    hi = np.full((T, 2), np.inf)
+    simple = (w > 0).all(1) & (np.abs(z) <= w).all(1)
+    if simple.any():
+        ndc = clip[simple][..., :2] / w[simple][..., None]
+        lo[simple] = ndc.min(1)
+        hi[simple] = ndc.max(1)
+    if not simple.all():
+        crossing = np.flatnonzero(~simple)
+        part_lo, part_hi = lo[crossing], hi[crossing]
+        near_far_extents(np.ascontiguousarray(clip[crossing]), part_lo, part_hi)
+        lo[crossing], hi[crossing] = part_lo, part_hi
+    size = np.array([width, height], np.float64)
+    with np.errstate(invalid="ignore"):
+        lo_px = np.floor((lo + 1) * size / 2 - 0.5) - 1
+        hi_px = np.ceil((hi + 1) * size / 2 - 0.5) + 1
+    lo_px = np.clip(np.nan_to_num(lo_px, nan=0, posinf=size.max() + 1, neginf=-1), -1, size)
+    hi_px = np.clip(np.nan_to_num(hi_px, nan=-1, posinf=size.max() + 1, neginf=-1), -1, size)
+    lo_px = np.maximum(lo_px, 0)
+    hi_px = np.minimum(hi_px, size - 1)
+    return np.stack([lo_px[:, 0], hi_px[:, 0], lo_px[:, 1], hi_px[:, 1]], 1).astype(np.int64)
+
+
+def rasterize(
+    pos,
+    tri,
+    resolution,
+    *,
+    outputs=OUTPUTS,
+    fill_rule: str | None = "llvmpipe",
+    edge_band_px: float = DEFAULT_EDGE_BAND_PX,
+) -> ReferenceRaster:
+    """Rasterize analytically in float64, with the same conventions as :func:`glraster.rasterize`.
+
+    Parameters
+    ----------
+    pos, tri, resolution, outputs : as for :func:`glraster.rasterize`
+    fill_rule : "llvmpipe" or None
+        "llvmpipe": coverage of unclipped triangles inside the viewport follows Mesa
+        llvmpipe's fixed-point rule bit for bit. None: a point-in-triangle test at pixel
+        centers, and every triangle's edges form the edge band.
+    edge_band_px : float
+        Half-width, in pixels, of the band around edges where coverage is not judged.
+
+    Returns
+    -------
+    ReferenceRaster with float64 ``persp``/``screen``/``depth``, int32 ``tri_id``, plus
+    ``edge_band`` and ``depth_tie`` (H, W) bool.
+    """
+    names = validate.outputs(outputs)
+    if fill_rule not in ("llvmpipe", None):
+        raise ValueError(f"fill_rule must be 'llvmpipe' or None, got {fill_rule!r}")
+    if not (np.isfinite(edge_band_px) and edge_band_px >= 0):
+        raise ValueError(f"edge_band_px must be a finite number >= 0, got {edge_band_px!r}")
+    pos = validate.positions(pos)
+    tri = validate.triangles(tri, len(pos))
+    height, width = validate.resolution(resolution)
+    n = height * width
+
+    # the depth test state of reference_kernels
+    best_depth = np.full(n, np.inf)
+    best_tri = np.full(n, -1, np.int64)
+    best_error = np.zeros(n)
+    others_low = np.full(n, np.inf)
+    band = np.zeros(n, bool)
+    ts = setup(pos, tri, (height, width), fill_rule) if len(tri) else None
+    if ts is not None:
+        error = depth_error(ts)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            # lambda_k = s_k w_k = e_k(p) w_k / det: the window-space barycentrics as planes
+            screen_planes = ts.adj * (ts.clip[:, :, 3] / ts.det[:, None])[:, :, None]
+        # Covered pixels as row spans: exact integer spans for the triangles with a
+        # fixed-point setup; every bbox candidate tested in float64 for the others, which
+        # also mark the edge band where coverage is not modeled exactly. The depth test's
+        # result does not depend on the order of its fragments.
+        fixed = np.flatnonzero(ts.fixed_ok)
+        loose = np.flatnonzero(~ts.exact | ~ts.fixed_ok)
+        for spans in (
+            kernels.fixed_point_spans(fixed, ts.fixed, ts.bbox),
+            kernels.float_spans(loose, ts.adj, ts.det, ts.depth_plane, ts.bbox, ~ts.fixed_ok,
+                                ~ts.exact & ~ts.culled, edge_band_px, width, band),
+        ):
+            with _PARALLEL_KERNEL:
+                kernels.depth_test(*spans, ts.depth_plane, screen_planes, error, width,
+                                   best_depth, best_tri, best_error, others_low,
+                                   numba.get_num_threads())
+
+    covered = best_tri >= 0
+    shape = (height, width)
+    return ReferenceRaster(
+        resolution=shape,
+        mask=covered.reshape(shape),
+        edge_band=band.reshape(shape),
+        depth_tie=(covered & (others_low <= best_depth + best_error + DEPTH_TIE)).reshape(shape),
+        setup=ts,
+        info={"backend": "reference", "renderer": f"float64 (numba), fill rule {fill_rule}"},
+        **_values(ts, best_tri, shape, names),
+    )
+
+
+def edge_values(ts: TriangleSetup, t, px, py):
+    """s = M^-1 (p, 1) at pixel centers: (N, 3) float64, and the edge rows adj (N, 3, 3)."""
+    a = ts.adj[t]
+    cx = px + 0.5
+    cy = py + 0.5
+    e = a[..., 0] * cx[:, None] + a[..., 1] * cy[:, None] + a[..., 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = e / ts.det[t][:, None]
+    return s, a
+
+
+def _values(ts, best_tri, shape, names) -> dict:
+    """The requested outputs (float64, and int32 ``tri_id``) at every pixel from the
+    winning triangle ``best_tri`` (N,), computed by :func:`reference_kernels.values`."""
+    height, width = shape
+    n = height * width
+    persp = np.zeros((n, 3) if "persp" in names else (0, 3))
+    screen = np.zeros((n, 3) if "screen" in names else (0, 3))
+    depth = np.ones(n if "depth" in names else 0)
+    if ts is not None:
+        with _PARALLEL_KERNEL:
+            kernels.values(best_tri, width, ts.adj, ts.det,
+                           np.ascontiguousarray(ts.clip[..., 3]),
+                           np.ascontiguousarray(ts.clip[..., 2]), persp, screen, depth)
+    out = {}
+    if "persp" in names:
+        out["persp"] = persp.reshape(height, width, 3)
+    if "screen" in names:
+        out["screen"] = screen.reshape(height, width, 3)
+    if "depth" in names:
+        out["depth"] = depth.reshape(height, width)
+    if "tri_id" in names:
+        out["tri_id"] = best_tri.astype(np.int32).reshape(height, width)
+    return out

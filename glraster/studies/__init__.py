@@ -1,0 +1,2 @@
+"""Measurement programs: benchmark, fill limit, stress sweeps, distortion figure, pyrender
+cross-check."""

@@ -1,0 +1,438 @@
+"""Run time against error: every method on benchmark scenes, with the fill limit and pyrender.
+
+A *case* is (method, scene, resolution, triangle count). For each case the benchmark
+records, on one context:
+
+- ``first_ms``: the first call on a fresh context (shader compile, framebuffer and buffer
+  creation included);
+- ``warm_ms`` (median) and ``warm_spread_ms`` (min, max) over ``repeats`` warm calls;
+- ``fill_ms`` and ``fill_ratio``: the bare moderngl draw of the same triangles into the
+  same targets (:mod:`glraster.fill_limit`), timed interleaved with the method (A/B pairs),
+  and the median of the per-pair ratios;
+- error against the float64 reference (when the image is at most ``max_reference_pixels``):
+  max / 99.9th percentile / mean over the pixels both cover with the same triangle, and the
+  worst error / tolerance of the method's error model;
+- ``peak_host_mib``: peak host memory allocated during one warm call (tracemalloc: numpy
+  arrays and Python objects; llvmpipe's own buffers are not traced) and ``target_mib`` the
+  size of the render targets;
+- for hw, the **pyrender** peer: a depth-only render of the same mesh and camera on the
+  same driver, timed inside a subprocess (PYOPENGL_PLATFORM=egl), against glraster's
+  depth-only call.
+
+Scenes are real meshes seen through a perspective camera (so w varies and pyrender can
+render the same thing): ``terrain`` (a wavy height field, few overlaps) and ``shards``
+(randomly oriented triangles in a box, overdraw). ``headline()`` measures the figures the
+README quotes; ``skips()`` measures each "skip what is not needed" switch on and off.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+import tracemalloc
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from glraster.geometry import camera as cam
+from glraster import reference
+from glraster.reference import kernels as reference_kernels
+from glraster.verify.compare import compare
+from glraster.gpu.context import Context
+from glraster.studies.fill_limit import FillLimit
+from glraster.gpu.rasterize import METHODS, rasterize
+from glraster.verify.tolerance import ErrorModel
+
+FOVY_DEG = 50.0
+NEAR, FAR = 0.1, 20.0
+
+
+@dataclass
+class Scene:
+    """A benchmark mesh and camera.
+
+    vertices : (V, 3) float64 world positions; faces : (T, 3) int32
+    view, proj : (4, 4) float64 OpenGL matrices; pos : (V, 4) float32 clip positions
+    """
+
+    name: str
+    vertices: np.ndarray
+    faces: np.ndarray
+    view: np.ndarray
+    proj: np.ndarray
+    pos: np.ndarray
+
+
+def make_scene(name: str, count: int, aspect: float = 1.0, seed: int = 0) -> Scene:
+    """The ``name`` scene ("terrain" or "shards") with about ``count`` triangles (exactly
+    ``count`` for shards; terrain rounds to a grid, at least 1 triangle)."""
+    rng = np.random.default_rng(seed)
+    if count < 1:
+        raise ValueError(f"count must be >= 1, got {count}")
+    if name == "terrain":
+        if count == 1:
+            vertices = np.array([[-1.0, 0.0, -1.0], [1.0, 0.2, -1.0], [0.0, 0.1, 1.0]])
+            faces = np.array([[0, 1, 2]])
+        else:
+            n = max(1, int(round(np.sqrt(count / 2))))
+            xs, zs = np.meshgrid(np.linspace(-2, 2, n + 1), np.linspace(-2, 2, n + 1))
+            ys = 0.15 * np.sin(3 * xs) * np.cos(2 * zs) + 0.05 * rng.standard_normal(xs.shape)
+            vertices = np.stack([xs, ys, zs], -1).reshape(-1, 3)
+            i, j = np.meshgrid(np.arange(n), np.arange(n))
+            v00 = (j * (n + 1) + i).ravel()
+            v10, v01, v11 = v00 + 1, v00 + n + 1, v00 + n + 2
+            faces = np.concatenate([np.stack([v00, v01, v11], 1), np.stack([v00, v11, v10], 1)])
+        eye, target = (0.0, 2.2, 3.2), (0.0, -0.2, 0.0)
+    elif name == "shards":
+        centers = rng.uniform(-1.5, 1.5, (count, 1, 3))
+        size = 1.2 / max(count, 1) ** (1 / 3)
+        vertices = (centers + rng.normal(0, size, (count, 3, 3))).reshape(-1, 3)
+        faces = np.arange(3 * count).reshape(count, 3)
+        eye, target = (0.0, 0.5, 4.0), (0.0, 0.0, 0.0)
+    else:
+        raise ValueError(f"scene must be 'terrain' or 'shards', got {name!r}")
+    view = cam.look_at(eye, target)
+    proj = cam.perspective(FOVY_DEG, aspect, NEAR, FAR)
+    pos = cam.project(vertices, view=view, proj=proj)
+    return Scene(name, vertices, faces.astype(np.int32), view, proj, pos)
+
+
+@dataclass
+class CaseResult:
+    """One benchmark case (see the module docstring for every field)."""
+
+    method: str
+    scene: str
+    resolution: tuple
+    triangles: int
+    first_ms: float
+    warm_ms: float
+    warm_spread_ms: tuple
+    fill_ms: float
+    fill_ratio: float
+    peak_host_mib: float
+    target_mib: float
+    error: dict = field(default_factory=dict)
+    pyrender: dict = field(default_factory=dict)
+
+
+def _timed(fn):
+    start = time.perf_counter()
+    out = fn()
+    return time.perf_counter() - start, out
+
+
+def interleaved(fn_a, fn_b, repeats: int):
+    """Time ``fn_a`` and ``fn_b`` alternately (A B A B ...), ``repeats`` pairs after one
+    warm-up pair. Returns (times_a, times_b) in seconds, (repeats,) arrays each."""
+    fn_a(), fn_b()
+    ta, tb = [], []
+    for _ in range(repeats):
+        ta.append(_timed(fn_a)[0])
+        tb.append(_timed(fn_b)[0])
+    return np.array(ta), np.array(tb)
+
+
+def _error_stats(raster, ref, method, ctx) -> dict:
+    rep = compare(raster, ref, ErrorModel.for_method(method, ctx))
+    out = {"coverage_mismatch": rep.coverage_mismatch, "tri_id_mismatch": rep.tri_id_mismatch}
+    for name, v in rep.values.items():
+        out[name] = {"max": v.max, "p999": v.p999, "mean": v.mean,
+                     "worst_ratio": v.worst_ratio, "over_tolerance": v.over_tolerance}
+    return out
+
+
+_PYRENDER_WORKER = r"""
+import json, sys, time
+import numpy as np
+import pyrender, trimesh
+d = np.load(sys.argv[1])
+scene = pyrender.Scene()
+scene.add(pyrender.Mesh.from_trimesh(trimesh.Trimesh(d["vertices"], d["faces"], process=False), smooth=False))
+H, W = (int(x) for x in d["resolution"])
+scene.add(pyrender.PerspectiveCamera(yfov=float(d["yfov"]), znear=float(d["near"]),
+          zfar=float(d["far"]), aspectRatio=W / H), pose=d["pose"])
+t0 = time.perf_counter()
+r = pyrender.OffscreenRenderer(W, H)
+depth = r.render(scene, flags=pyrender.RenderFlags.DEPTH_ONLY)
+first = time.perf_counter() - t0
+times = []
+for _ in range(int(d["repeats"])):
+    t = time.perf_counter()
+    r.render(scene, flags=pyrender.RenderFlags.DEPTH_ONLY)
+    times.append(time.perf_counter() - t)
+r.delete()
+print(json.dumps({"first_ms": first * 1e3, "warm_ms": float(np.median(times)) * 1e3,
+                  "warm_spread_ms": [min(times) * 1e3, max(times) * 1e3],
+                  "covered": int((depth > 0).sum())}))
+"""
+
+
+def pyrender_time(scene: Scene, resolution, repeats: int = 5, timeout: float = 600) -> dict:
+    """Depth-only pyrender render of ``scene`` at ``resolution`` (H, W) in a subprocess
+    (PYOPENGL_PLATFORM=egl): {"first_ms", "warm_ms", "warm_spread_ms", "covered"}."""
+    height, width = resolution
+    with tempfile.TemporaryDirectory(prefix="glraster-bench-") as tmp:
+        src = os.path.join(tmp, "scene.npz")
+        np.savez(src, vertices=scene.vertices, faces=scene.faces.astype(np.int64),
+                 resolution=[height, width], yfov=np.radians(FOVY_DEG), near=NEAR, far=FAR,
+                 pose=np.linalg.inv(scene.view), repeats=repeats)
+        env = dict(os.environ, PYOPENGL_PLATFORM="egl")
+        proc = subprocess.run([sys.executable, "-c", _PYRENDER_WORKER, src], env=env,
+                              capture_output=True, text=True, timeout=timeout)
+    if proc.returncode != 0:
+        tail = "\n".join(proc.stderr.strip().splitlines()[-5:])
+        raise RuntimeError(f"pyrender subprocess failed:\n{tail}")
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def run_case(method, scene: Scene, resolution, *, backend="egl", repeats=5, ref=None,
+             with_pyrender=False) -> CaseResult:
+    """Measure one case on a fresh context (so that ``first_ms`` includes compiling)."""
+    ctx = Context(backend)
+    try:
+        call = lambda: rasterize(scene.pos, scene.faces, resolution, ctx=ctx, method=method)  # noqa: E731
+        first, raster = _timed(call)
+        fill = FillLimit(ctx, scene.pos, scene.faces, resolution)
+        t_method, t_fill = interleaved(call, fill.run, repeats)
+        fill.release()
+        tracemalloc.start()
+        call()
+        peak = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        height, width = resolution
+        target_bytes = height * width * (3 * 4 + 3 * 4 + 4 + 4)
+        result = CaseResult(
+            method=method, scene=scene.name, resolution=tuple(resolution),
+            triangles=len(scene.faces), first_ms=first * 1e3,
+            warm_ms=float(np.median(t_method)) * 1e3,
+            warm_spread_ms=(float(t_method.min()) * 1e3, float(t_method.max()) * 1e3),
+            fill_ms=float(np.median(t_fill)) * 1e3,
+            fill_ratio=float(np.median(t_method / t_fill)),
+            peak_host_mib=peak / 2**20, target_mib=target_bytes / 2**20,
+        )
+        if ref is not None:
+            result.error = _error_stats(raster, ref, method, ctx)
+        if with_pyrender:
+            depth_call = lambda: rasterize(scene.pos, scene.faces, resolution, ctx=ctx,  # noqa: E731
+                                           method=method, outputs=("depth",))
+            depth_call()
+            t_depth = np.array([_timed(depth_call)[0] for _ in range(repeats)])
+            peer = pyrender_time(scene, resolution, repeats)
+            peer["glraster_depth_ms"] = float(np.median(t_depth)) * 1e3
+            peer["ratio"] = peer["warm_ms"] / peer["glraster_depth_ms"]
+            result.pyrender = peer
+        return result
+    finally:
+        ctx.release()
+
+
+PRESETS = {
+    "quick": dict(methods=tuple(METHODS), scenes=("terrain",), resolutions=(256, 1024),
+                  counts=(1, 20000), repeats=5),
+    "full": dict(methods=tuple(METHODS), scenes=("terrain", "shards"),
+                 resolutions=(256, 1024, 4096), counts=(1, 1000, 20000, 1000000), repeats=7),
+}
+
+
+def run(preset="quick", *, backend="egl", max_reference_pixels=1 << 24, progress=None,
+        with_pyrender=True, summaries=True, **overrides) -> dict:
+    """Run a preset (see PRESETS; keyword arguments override its fields).
+
+    Returns {"cases": [CaseResult as dict, ...], "headline": ..., "skips": ...,
+    "reference": [...], "settings": ...}. ``progress(i, n, label)`` is called before each
+    step. ``summaries=False`` skips :func:`headline` and :func:`skips` (empty dicts).
+    """
+    if preset not in PRESETS:
+        raise ValueError(f"preset must be one of {sorted(PRESETS)}, got {preset!r}")
+    settings = dict(PRESETS[preset], **overrides)
+    unknown = set(settings["methods"]) - set(METHODS)
+    if unknown:
+        raise ValueError(f"methods has unknown names {sorted(unknown)}; choose from {sorted(METHODS)}")
+    grid = [(s, r, c) for s in settings["scenes"] for r in settings["resolutions"]
+            for c in settings["counts"]]
+    steps = len(grid) * (1 + len(settings["methods"])) + (2 if summaries else 0)
+    step = 0
+
+    def tick(label):
+        nonlocal step
+        step += 1
+        if progress:
+            progress(step, steps, label)
+
+    cases, refs = [], []
+    for scene_name, size, count in grid:
+        resolution = (size, size)
+        scene = make_scene(scene_name, count)
+        tick(f"reference {scene_name} {size}x{size} {len(scene.faces)} tris")
+        ref = None
+        if size * size <= max_reference_pixels:
+            seconds, ref = _timed(lambda: reference.rasterize(scene.pos, scene.faces, resolution))
+            refs.append({"scene": scene_name, "resolution": resolution,
+                         "triangles": len(scene.faces), "seconds": seconds,
+                         "mpix_per_s": size * size / seconds / 1e6})
+        for method in settings["methods"]:
+            tick(f"{method} {scene_name} {size}x{size} {len(scene.faces)} tris")
+            cases.append(asdict(run_case(
+                method, scene, resolution, backend=backend, repeats=settings["repeats"],
+                ref=ref, with_pyrender=with_pyrender and method == "hw")))
+        del ref
+    head, skip = {}, {}
+    if summaries:
+        tick("headline figures")
+        head = headline(backend=backend, repeats=max(settings["repeats"], 9))
+        tick("skip switches")
+        skip = skips(backend=backend, repeats=settings["repeats"])
+    return {"settings": {"preset": preset, **{k: list(v) if isinstance(v, tuple) else v
+                                               for k, v in settings.items()}},
+            "cases": cases, "reference": refs, "headline": head, "skips": skip}
+
+
+def headline(*, backend="egl", repeats=9, resolution=(1024, 1024), count=20000) -> dict:
+    """The README figures: hw vs the fill limit (interleaved A/B, median and spread of the
+    per-pair ratio, over ``repeats`` pairs), the 64x64 one-triangle warm overhead, the
+    reference throughput, and pyrender vs glraster (depth only)."""
+    scene = make_scene("terrain", count)
+    ctx = Context(backend)
+    try:
+        fill = FillLimit(ctx, scene.pos, scene.faces, resolution)
+        call = lambda: rasterize(scene.pos, scene.faces, resolution, ctx=ctx)  # noqa: E731
+        t_hw, t_fill = interleaved(call, fill.run, repeats)
+        fill.release()
+        ratio = t_hw / t_fill
+        one = make_scene("terrain", 1)
+        small = lambda: rasterize(one.pos, one.faces, (64, 64), ctx=ctx)  # noqa: E731
+        for _ in range(20):
+            small()
+        t_small = np.array([_timed(small)[0] for _ in range(200)])
+        overhead = {}
+        for method in METHODS:
+            f = lambda m=method: rasterize(one.pos, one.faces, (64, 64), ctx=ctx, method=m)  # noqa: E731
+            for _ in range(10):
+                f()
+            overhead[method] = float(np.median([_timed(f)[0] for _ in range(100)])) * 1e3
+        depth_call = lambda: rasterize(scene.pos, scene.faces, resolution, ctx=ctx,  # noqa: E731
+                                       outputs=("depth",))
+        depth_call()
+        t_depth = np.array([_timed(depth_call)[0] for _ in range(repeats)])
+    finally:
+        ctx.release()
+    reference.rasterize(scene.pos, scene.faces, resolution)  # loads the compiled kernels
+    t_ref = np.array([_timed(lambda: reference.rasterize(scene.pos, scene.faces, resolution))[0]
+                      for _ in range(5)])
+    peer = pyrender_time(scene, resolution, repeats)
+    pixels = resolution[0] * resolution[1]
+    return {
+        "scene": f"terrain {len(scene.faces)} triangles at {resolution[1]}x{resolution[0]}",
+        "hw_ms": float(np.median(t_hw)) * 1e3, "fill_ms": float(np.median(t_fill)) * 1e3,
+        "hw_over_fill": {"median": float(np.median(ratio)), "min": float(ratio.min()),
+                         "max": float(ratio.max()), "pairs": int(repeats)},
+        "overhead_64x64_ms": {"median": float(np.median(t_small)) * 1e3,
+                              "p90": float(np.percentile(t_small, 90)) * 1e3,
+                              "per_method": overhead},
+        "reference_mpix_per_s": {"median": pixels / float(np.median(t_ref)) / 1e6,
+                                 "best": pixels / float(t_ref.min()) / 1e6},
+        "pyrender": {"pyrender_depth_ms": peer["warm_ms"],
+                     "glraster_depth_ms": float(np.median(t_depth)) * 1e3,
+                     "glraster_all_outputs_ms": float(np.median(t_hw)) * 1e3,
+                     "speedup_depth_only": peer["warm_ms"] / (float(np.median(t_depth)) * 1e3)},
+    }
+
+
+def skips(*, backend="egl", repeats=5, resolution=(1024, 1024), count=20000) -> dict:
+    """Each "skip what the scene does not need" switch, on against off (median ms,
+    interleaved): output subsets, the affine path, culling, the caches, the reference's
+    span traversal (vs all pixels of the bounding boxes)."""
+    out = {}
+    scene = make_scene("terrain", count)
+    ctx = Context(backend)
+    try:
+        def ab(label, fn_on, fn_off):
+            on, off = interleaved(fn_on, fn_off, repeats)
+            out[label] = {"on_ms": float(np.median(on)) * 1e3, "off_ms": float(np.median(off)) * 1e3}
+
+        pos, tri = scene.pos, scene.faces
+        ab("outputs tri_id only vs all",
+           lambda: rasterize(pos, tri, resolution, ctx=ctx, outputs=("tri_id",)),
+           lambda: rasterize(pos, tri, resolution, ctx=ctx))
+        ortho = pos.copy()
+        ortho[:, :3] /= ortho[:, 3:4]
+        ortho[:, 3] = 1.0
+        ab("affine path (equal w)",
+           lambda: rasterize(ortho, tri, resolution, ctx=ctx),
+           lambda: rasterize(ortho, tri, resolution, ctx=ctx, affine=False))
+        # half of the triangles behind the camera or off screen
+        far = np.concatenate([pos, pos * np.array([1, 1, 1, -1], np.float32)])
+        tri2 = np.concatenate([tri, tri + len(pos)])
+        for method in ("hw", "homogeneous"):
+            ab(f"{method}: host culling (half the triangles behind the eye)",
+               lambda m=method: rasterize(far, tri2, resolution, ctx=ctx, method=m, cull=True),
+               lambda m=method: rasterize(far, tri2, resolution, ctx=ctx, method=m, cull=False))
+        ab("back-face culling (terrain, front faces kept)",
+           lambda: rasterize(pos, tri, resolution, ctx=ctx, cull_backfaces=True),
+           lambda: rasterize(pos, tri, resolution, ctx=ctx))
+    finally:
+        ctx.release()
+    # caches: a warm call against a call on a fresh context (compile + allocation)
+    first = []
+    for _ in range(3):
+        c = Context(backend)
+        first.append(_timed(lambda: rasterize(scene.pos, scene.faces, resolution, ctx=c))[0])
+        c.release()
+    c = Context(backend)
+    rasterize(scene.pos, scene.faces, resolution, ctx=c)
+    warm = [_timed(lambda: rasterize(scene.pos, scene.faces, resolution, ctx=c))[0]
+            for _ in range(3)]
+    c.release()
+    out["cached programs/framebuffers/buffers"] = {
+        "on_ms": float(np.median(warm)) * 1e3, "off_ms": float(np.median(first)) * 1e3}
+    # the reference: exact row spans (covered pixels only) against testing every candidate
+    # of the bounding boxes in float64, both compiled, coverage only
+    ts = reference.setup(scene.pos, scene.faces, resolution, "llvmpipe")
+    every = np.arange(len(ts.bbox))
+    none = np.zeros(len(every), bool)
+    band = np.zeros(resolution[0] * resolution[1], bool)
+    spans = lambda: reference_kernels.fixed_point_spans(every[ts.fixed_ok], ts.fixed, ts.bbox)  # noqa: E731
+    candidates = lambda: reference_kernels.float_spans(  # noqa: E731
+        every, ts.adj, ts.det, ts.depth_plane, ts.bbox, ~ts.culled, none, 0.0, resolution[1], band)
+    t_spans, t_candidates = interleaved(spans, candidates, repeats)
+    out["reference: row spans vs testing every bbox candidate (coverage only)"] = {
+        "on_ms": float(np.median(t_spans)) * 1e3, "off_ms": float(np.median(t_candidates)) * 1e3}
+    return out
+
+
+def pareto_plot(result: dict, path: str) -> None:
+    """Log-log scatter of warm time against max persp error (the time/error trade-off:
+    the lower-left points are Pareto-optimal), one color per method, each point labelled
+    with its resolution and triangle count. Written with matplotlib's Agg backend."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 5.5))
+    colors = dict(zip(METHODS, ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd"]))
+    for method in METHODS:
+        pts = [(c["warm_ms"], max(c["error"]["persp"]["max"], 1e-9), c)
+               for c in result["cases"] if c["method"] == method and c["error"].get("persp")]
+        if not pts:
+            continue
+        x, y = np.array([p[0] for p in pts]), np.array([p[1] for p in pts])
+        ax.scatter(x, y, color=colors[method], label=method, alpha=0.8)
+        for xi, yi, c in pts:
+            ax.annotate(f"{c['resolution'][0]}² {c['triangles']}", (xi, yi), fontsize=6,
+                        xytext=(3, 3), textcoords="offset points", color=colors[method])
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("warm time per call (ms, median)")
+    ax.set_ylabel("max |persp - reference| (floored at 1e-9)")
+    ax.set_title("glraster methods: time against error (llvmpipe)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)

@@ -1,0 +1,75 @@
+"""The HTML report as a person sees it: rendered by headless Chromium and screenshotted."""
+
+import shutil
+import subprocess
+
+import numpy as np
+import OpenImageIO as oiio
+import pytest
+
+import glraster as gr
+from glraster.conformance import check
+from glraster.conformance.html_report import HtmlReport
+
+CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
+SCENES = ["basic_perspective_triangle", "torus", "fan_offcenter", "far_from_origin_4096"]
+
+
+@pytest.fixture(scope="module")
+def report_dir(tmp_path_factory):
+    ctx = gr.Context()
+    out = tmp_path_factory.mktemp("report")
+    rep = HtmlReport(out)
+    result = check.run(ctx, SCENES, on_scene=rep.add_scene, mutants=True,
+                       mutant_pattern="tri_id_*,half_float_targets")
+    rep.finish(result)
+    assert ctx.gl_error() == "GL_NO_ERROR"
+    ctx.release()
+    return out, result
+
+
+def test_report_files_and_content(report_dir):
+    out, result = report_dir
+    html = (out / "index.html").read_text()
+    for name in SCENES:
+        assert f'id="{name}"' in html
+        for kind in ("gpu", "ref", "error", "coverage"):
+            assert (out / "img" / f"{name}_{kind}.png").is_file()
+    assert "tri_id_off_by_one" in html and "Fault injection" in html
+    assert (out / "img" / "summary.png").is_file()
+    # The 4096x4096 scene is cropped to its covered corner and reduced to <= 384 px.
+    spec = oiio.ImageInput.open(str(out / "img" / "far_from_origin_4096_gpu.png")).spec()
+    assert max(spec.width, spec.height) <= 384
+    assert "http://" not in html and "https://" not in html      # works offline
+
+
+def screenshot(url, path, tmp_path, size="1280,2000"):
+    cmd = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
+           "--no-first-run", "--disable-background-networking", "--disable-component-update",
+           "--disable-sync", f"--user-data-dir={tmp_path / 'profile'}",
+           f"--window-size={size}", f"--screenshot={path}", url]
+    subprocess.run(cmd, check=True, timeout=120, capture_output=True)
+    return oiio.ImageInput.open(str(path)).read_image("uint8")
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="chromium not installed (scripts/install-system-deps.sh)")
+def test_report_renders_in_headless_chromium(report_dir, tmp_path):
+    out, result = report_dir
+    img = screenshot((out / "index.html").as_uri(), tmp_path / "shot.png", tmp_path)
+    assert img.shape[:2] == (2000, 1280)
+    rgb = img[..., :3].astype(int)
+    # Not blank: many distinct colors and a large share of non-background pixels.
+    # (Thresholds are loose on purpose: fonts differ between machines; a blank or
+    # broken page has ~1 color and ~0 % foreground.)
+    background = np.array([250, 250, 250])
+    foreground = (np.abs(rgb - background).sum(axis=2) > 30).mean()
+    colors = len(np.unique(rgb.reshape(-1, 3) // 8, axis=0))
+    assert foreground > 0.05 and colors > 100
+    # The verdict badge is drawn: green (PASS) or red (FAIL) pixels in the title row.
+    top = rgb[:80]
+    green = ((top[..., 1] > 100) & (top[..., 0] < 80) & (top[..., 2] < 80)).sum()
+    red = ((top[..., 0] > 180) & (top[..., 1] < 70) & (top[..., 2] < 70)).sum()
+    assert (green > 100) == result.ok and (red > 100) == (not result.ok)
+    # The summary figure (an <img>) loaded: its blue/orange/green bars are visible.
+    bars = ((rgb[..., 2] > 150) & (rgb[..., 0] < 60)).sum()
+    assert bars > 200
