@@ -7,7 +7,7 @@ Per scene, for one barycentric method (``method``, default "hw"):
 2. compute the float64 reference (:func:`glraster.conformance.golden.reference_for`);
 3. :func:`glraster.compare`: coverage (exact where llvmpipe's fill rule is modeled, edge
    band elsewhere), triangle ids, and every value against its per-pixel tolerance from
-   :meth:`glraster.verify.tolerance.ErrorModel.for_method` for this method and context;
+   :meth:`glraster.verify.tolerance.glraster.gpu.methods.error_model` for this method and context;
 4. non-finite GPU values on covered pixels are failures of their own;
 5. the golden EXR must equal the reference bit for bit (:func:`glraster.conformance.golden.check_scene`),
    so the GPU is checked against the golden through the same tolerances; the largest
@@ -32,7 +32,8 @@ import numpy as np
 from glraster.conformance import golden as _golden
 from glraster.conformance import mutants as _mutants
 from glraster.verify.compare import compare, waived_pixels
-from glraster.gpu.rasterize import METHODS, rasterize
+from glraster.gpu.methods import METHODS, error_model
+from glraster.gpu.rasterize import rasterize
 from glraster.conformance.scenes import Scene, list_scenes, load_scene
 from glraster.verify.tolerance import ErrorModel
 
@@ -77,6 +78,40 @@ class SceneResult:
 
 
 @dataclass
+class Evaluation:
+    """Outcome of :func:`evaluate`.
+
+    report   : the :class:`glraster.verify.compare.Report`
+    failures : list of str, why the raster fails (empty: it passes)
+    nonfinite : covered GPU pixels with NaN/Inf in some judged output
+    waived   : output -> pixels the error model did not judge (documented deviation)
+    """
+
+    report: object
+    failures: list = field(default_factory=list)
+    nonfinite: int = 0
+    waived: dict = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return not self.failures
+
+
+@dataclass
+class SceneArtifacts:
+    """The arrays behind one scene's result, kept for reports (``run_scene(keep=True)``).
+
+    gpu    : the GPU :class:`glraster.Raster`
+    ref    : the :class:`glraster.reference.ReferenceRaster`
+    report : the :class:`glraster.verify.compare.Report` of ``gpu`` against ``ref``
+    """
+
+    gpu: object
+    ref: object
+    report: object
+
+
+@dataclass
 class MutantResult:
     """Outcome of one mutant: caught by ``caught_by`` (a scene name) or escaped."""
 
@@ -115,11 +150,10 @@ class CheckResult:
         return scenes_ok and all(m.caught for m in self.mutants) and not self.control_failures
 
 
-def evaluate(gpu, ref, ctx, model=None):
+def evaluate(gpu, ref, ctx, model=None) -> Evaluation:
     """Compare a GPU raster with the reference (:func:`glraster.compare` with the context's
     error model) and add the non-finite rule: a NaN or Inf on a covered pixel fails, except
-    in values the model waives. Returns (report, failures: list of str, nonfinite: int,
-    waived: output -> pixels not judged)."""
+    in values the model waives."""
     model = model if model is not None else ErrorModel.for_context(ctx)
     rep = compare(gpu, ref, model=model)
     failures = []
@@ -131,7 +165,7 @@ def evaluate(gpu, ref, ctx, model=None):
             continue
         nf = ~np.isfinite(a.reshape(a.shape[0] * a.shape[1], -1)[pix]).all(axis=1)
         if name in model.waived_outputs and nf.any():
-            nf &= ~waived_pixels(ref, model).reshape(-1)[pix]
+            nf &= ~waived_pixels(ref.triangles, ref.tri_id, model).reshape(-1)[pix]
         nonfinite |= nf
     n_nonfinite = int(nonfinite.sum())
     if rep.coverage_mismatch:
@@ -145,7 +179,7 @@ def evaluate(gpu, ref, ctx, model=None):
             failures.append(f"{name}: {stats.over_tolerance} pixels over tolerance (worst "
                             f"error/tolerance {stats.worst_ratio:.3g}, max error {stats.max:.3g})")
     waived = {n: v.waived for n, v in rep.values.items() if getattr(v, "waived", 0)}
-    return rep, failures, n_nonfinite, waived
+    return Evaluation(rep, failures, n_nonfinite, waived)
 
 
 def _golden_max_error(gpu, g) -> float:
@@ -173,7 +207,7 @@ def _golden_max_error(gpu, g) -> float:
 def run_scene(scene: Scene, ctx, *, method="hw", golden_dir=None, check_golden=True, keep=False,
               ref=None):
     """Check one scene rendered with ``method``. Returns (SceneResult, artifacts) where
-    artifacts is {"gpu", "ref", "report"} when ``keep`` (for reports) else None. ``ref``: the
+    artifacts is a :class:`SceneArtifacts` when ``keep`` (for reports) else None. ``ref``: the
     scene's reference raster when already computed (from
     :func:`glraster.conformance.golden.reference_for`)."""
     res = SceneResult(scene.name, scene.description, tuple(scene.resolution), len(scene.tri))
@@ -187,10 +221,9 @@ def run_scene(scene: Scene, ctx, *, method="hw", golden_dir=None, check_golden=T
         ref = ref if ref is not None else _golden.reference_for(scene)
         res.timings["reference"] = time.perf_counter() - t
         t = time.perf_counter()
-        rep, failures, nonfinite, waived = evaluate(gpu, ref, ctx,
-                                                    ErrorModel.for_method(method, ctx))
-        res.report, res.nonfinite, res.waived = rep, nonfinite, waived
-        res.failures = failures
+        ev = evaluate(gpu, ref, ctx, error_model(method, ctx))
+        res.report, res.nonfinite, res.waived = ev.report, ev.nonfinite, ev.waived
+        res.failures = ev.failures
         res.timings["compare"] = time.perf_counter() - t
         if check_golden:
             t = time.perf_counter()
@@ -203,7 +236,7 @@ def run_scene(scene: Scene, ctx, *, method="hw", golden_dir=None, check_golden=T
             res.timings["golden"] = time.perf_counter() - t
         res.status = "fail" if res.failures else "pass"
         if keep:
-            artifacts = {"gpu": gpu, "ref": ref, "report": rep}
+            artifacts = SceneArtifacts(gpu, ref, ev.report)
     except Exception as exc:  # a scene that crashes must not stop the run
         res.status = "error"
         res.error = f"{type(exc).__name__}: {exc}"
@@ -226,8 +259,7 @@ def run_mutants(ctx, candidates, references, mutant_list=None, progress=None):
     for scene in order:
         gpu = _mutants.render(None, scene.pos, scene.tri, scene.resolution, ctx=ctx,
                               outputs=scene.outputs)
-        _, failures, _, _ = evaluate(gpu, references[scene.name], ctx)
-        if failures:
+        if not evaluate(gpu, references[scene.name], ctx).ok:
             control_failures.append(scene.name)
     results = []
     for i, m in enumerate(mutant_list if mutant_list is not None else _mutants.MUTANTS):
@@ -243,7 +275,7 @@ def run_mutants(ctx, candidates, references, mutant_list=None, progress=None):
             except Exception as exc:
                 mr.error = f"{type(exc).__name__}: {exc}"
                 break
-            _, failures, _, _ = evaluate(gpu, references[scene.name], ctx)
+            failures = evaluate(gpu, references[scene.name], ctx).failures
             if failures:
                 mr.caught_by = scene.name
                 mr.reason = "; ".join(failures)
@@ -262,8 +294,9 @@ def run(ctx, names=None, *, method="hw", golden_dir=None, check_golden=True, mut
     references: optional dict name -> reference raster, used and filled in (scenes up to
     REFERENCE_CACHE_PIXELS), so that several runs (e.g. one per backend) share them.
 
-    on_scene(result, artifacts): called after each scene with its SceneResult and
-    {"gpu", "ref", "report"} (e.g. to write report images); artifacts are dropped after.
+    on_scene(result, artifacts): called after each scene with its SceneResult and its
+    :class:`SceneArtifacts` (None when the scene raised; e.g. to write report images);
+    artifacts are dropped after.
     progress(index, total, label): called before each step.
     """
     if method not in METHODS:
@@ -296,12 +329,12 @@ def run(ctx, names=None, *, method="hw", golden_dir=None, check_golden=True, mut
                              ref=cached)
         h, w = scene.resolution
         if references is not None and art is not None and h * w <= REFERENCE_CACHE_PIXELS:
-            references[name] = art["ref"]
+            references[name] = art.ref
         out.scenes.append(res)
         if on_scene:
             on_scene(res, art)
         if mutants and res.ok and art is not None and h * w <= REFERENCE_CACHE_PIXELS:
-            mutant_refs[name] = art["ref"]
+            mutant_refs[name] = art.ref
             passed.append(scene)
         del art
     if mutants:

@@ -32,7 +32,7 @@ def golden_dir(directory=None) -> Path:
     env = os.environ.get("GLRASTER_GOLDEN_DIR")
     if env:
         return Path(env)
-    package = Path(__file__).resolve().parent
+    package = Path(__file__).resolve().parent.parent  # glraster/
     source_tree = package.parent / "golden"
     return source_tree if source_tree.is_dir() else package / "golden"
 

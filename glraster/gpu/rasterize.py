@@ -1,4 +1,9 @@
-"""Rasterizing on the GPU: the :class:`Raster` result and :func:`rasterize`."""
+"""Rasterizing on the GPU: :func:`rasterize`.
+
+Validation, then what the scene does not need is skipped (culling before upload, the
+affine path when every w is equal, only the requested targets), then one draw through
+:mod:`glraster.gpu.pipeline` with the shaders of the chosen :mod:`method <glraster.gpu.methods>`.
+"""
 
 from __future__ import annotations
 
@@ -7,35 +12,23 @@ import functools
 import numpy as np
 
 from glraster import validate
-from glraster.errors import GLError
-from glraster.types import OUTPUTS, Raster
 from glraster.gpu import cull as _cull
-from glraster.gpu import homogeneous as _homogeneous
+from glraster.gpu import pipeline
 from glraster.gpu.context import Context, default_context
+from glraster.gpu.methods import METHOD_NOTES, METHODS, Method, get  # noqa: F401 (public)
 from glraster.gpu.shaders import shader_path
-
-# method name -> (vertex shader file, fragment shader file)
-METHODS = {
-    "hw": ("raster/raster.vert", "raster/raster.frag"),
-    "divw": ("raster/pull.vert", "methods/divw.frag"),
-    "homogeneous": ("raster/pull.vert", "methods/homogeneous.frag"),
-    "homogeneous64": ("raster/pull.vert", "methods/homogeneous.frag"),
-    "solve4": ("raster/pull.vert", "methods/solve4.frag"),
-}
-METHOD_NOTES = {
-    "hw": "the driver's smooth / noperspective interpolation",
-    "divw": "noperspective barycentrics divided by per-vertex w in the shader (seed 002 eq. 2.4.9)",
-    "homogeneous": "2D homogeneous edge functions per pixel, relative to a vertex, compensated float32",
-    "homogeneous64": "the same in float64 (GL 4.0 fp64)",
-    "solve4": "seed 000's 4x4 linear system per pixel, float32 Gaussian elimination",
-}
+from glraster.types import OUTPUTS, Raster
 
 # Below this many triangles host-side culling saves less than it costs (a few numpy calls,
 # ~0.1 ms); the driver drops such triangles itself, with the same result.
 CULL_MIN_TRIANGLES = 256
 
-# name -> (components, dtype) of the color target holding it
+# name -> (components, moderngl dtype) of the color target holding a float32 output
 COLOR_FORMATS = {"persp": (3, "f4"), "screen": (3, "f4"), "tri_id": (1, "i4")}
+# float64 barycentrics, read back exactly: each value as two uint32 halves
+# (unpackDouble2x32) in an RG32UI target of its own (three per output keep every texture
+# under llvmpipe's 1.5 GiB limit up to 10000x10000)
+FLOAT64_PARTS = {".b0": (2, "u4"), ".b1": (2, "u4"), ".b2": (2, "u4")}
 
 
 @functools.lru_cache(maxsize=64)
@@ -54,18 +47,47 @@ def _same_w(pos: np.ndarray, tri: np.ndarray) -> bool:
     return bool((used == used[0, 0]).all())
 
 
-def _mask_from(values: dict) -> np.ndarray:
-    """Coverage from whichever output was read back (each one identifies covered pixels).
+def color_targets(names, method: Method) -> dict:
+    """Target name -> (components, dtype) for the requested color outputs, in canonical
+    order; float64 methods split persp / screen into exact uint32 parts."""
+    colors = {}
+    for name in OUTPUTS:
+        if name not in names or name not in COLOR_FORMATS:
+            continue
+        if name != "tri_id" and method.value_dtype == "f8":
+            for suffix, fmt in FLOAT64_PARTS.items():
+                colors[name + suffix] = fmt
+        else:
+            colors[name] = COLOR_FORMATS[name]
+    return colors
 
-    tri_id >= 0; depth < 1 (a fragment must pass LESS against the cleared 1.0); the
-    barycentrics of a covered pixel sum to ~1, those of an empty one to 0.
-    """
-    if "tri_id" in values:
-        return values["tri_id"] >= 0
-    if "depth" in values:
-        return values["depth"] < 1.0
-    bary = values.get("persp", values.get("screen"))
-    return bary.sum(axis=2) > 0.5
+
+def _check_out(out, names, shape, value_dtype) -> dict:
+    """The arrays of ``out`` (a :class:`Raster`) to fill, by output name; ValueError naming
+    the field when one is missing or has the wrong shape, dtype or layout."""
+    if not isinstance(out, Raster):
+        raise ValueError(f"out must be a glraster.Raster (e.g. an earlier result), got "
+                         f"{type(out).__name__}")
+    height, width = shape
+    wanted = {"persp": ((height, width, 3), value_dtype), "screen": ((height, width, 3), value_dtype),
+              "depth": ((height, width), np.float32), "tri_id": ((height, width), np.int32),
+              "mask": ((height, width), np.bool_)}
+    arrays = {}
+    for name in (*names, "mask"):
+        array = getattr(out, name)
+        want_shape, want_dtype = wanted[name]
+        if not isinstance(array, np.ndarray):
+            raise ValueError(f"out.{name} must be an array of shape {want_shape} for the "
+                             f"requested outputs, got {type(array).__name__}")
+        if array.shape != want_shape or array.dtype != want_dtype \
+                or not array.flags.c_contiguous or not array.flags.writeable:
+            raise ValueError(
+                f"out.{name} must be a writeable C-contiguous {np.dtype(want_dtype).name} "
+                f"array of shape {want_shape}, got {array.dtype.name} {array.shape}"
+                f"{'' if array.flags.c_contiguous else ' (not C-contiguous)'}"
+                f"{'' if array.flags.writeable else ' (read-only)'}")
+        arrays[name] = array
+    return arrays
 
 
 def rasterize(
@@ -80,7 +102,7 @@ def rasterize(
     cull_backfaces: bool = False,
     cull: bool | str = "auto",
     affine: bool | None = None,
-    extra_defines: dict | None = None,
+    out: Raster | None = None,
 ) -> Raster:
     """Rasterize triangles on the GPU and read back barycentric targets.
 
@@ -96,27 +118,27 @@ def rasterize(
     outputs : sequence of {"persp", "screen", "depth", "tri_id"}
         Only these are rendered and read back; the others are None in the result.
     method : {"hw", "divw", "homogeneous", "homogeneous64", "solve4"}
-        How barycentrics are computed (see METHOD_NOTES and docs/performance.md). Coverage,
-        depth and triangle ids always come from the driver's rasterizer.
+        How barycentrics are computed (:data:`glraster.gpu.methods.METHODS`,
+        docs/performance.md). Coverage, depth and triangle ids always come from the
+        driver's rasterizer. "homogeneous64" returns float64 persp / screen.
     shader_files : (vert, frag), optional
-        Alternative shader files with the interface of ``raster.vert`` / ``raster.frag``
-        (used by fault injection); only with ``method="hw"``.
+        Alternative shader files with the interface of ``raster/raster.vert`` /
+        ``raster/raster.frag`` (used by fault injection); only with ``method="hw"``.
     cull_backfaces : bool
         Drop clockwise triangles (window space, GL's default front face is CCW).
     cull : True, False or "auto"
         Drop before upload the triangles that cannot produce a fragment (outside the view
-        volume, zero area; see :mod:`glraster.cull`). The image is the same either way.
-        "auto" culls for the methods that do per-triangle work on the host (homogeneous,
-        homogeneous64) and whenever back faces are culled; for the others llvmpipe's own
-        trivial reject is cheaper than the host test plus the id remapping (measured in
-        docs/performance.md).
+        volume, zero area; see :mod:`glraster.gpu.cull`). The image is the same either way.
+        "auto" culls for the methods with per-triangle host work (``cull_by_default``)
+        and whenever back faces are culled; for the others llvmpipe's own trivial reject
+        is cheaper than the host test plus the id remapping (docs/performance.md).
     affine : bool or None
         None: take the affine path when every used vertex has the same w (persp equals
         screen, so one interpolation and one readback serve both). False: never.
-
-    extra_defines : dict, optional
-        More ``#define``s for the method's shaders, for diagnostics (glraster.studies.stress uses
-        SPLIT64 of homogeneous.frag to read float64 results as two float32 parts).
+    out : Raster, optional
+        A raster of the same resolution holding arrays for the requested outputs and the
+        mask (e.g. an earlier result): they are filled in place, no new frame-sized
+        arrays are allocated. The returned Raster shares them.
 
     Returns
     -------
@@ -126,25 +148,26 @@ def rasterize(
         whether the affine path was taken.
     """
     names = validate.outputs(outputs)
-    if method not in METHODS:
-        raise ValueError(f"method must be one of {sorted(METHODS)}, got {method!r}")
+    m = get(method)
     if shader_files is not None and method != "hw":
         raise ValueError(f"shader_files replaces the 'hw' shaders; got method {method!r}")
     if affine not in (None, False):
         raise ValueError(f"affine must be None (automatic) or False, got {affine!r}")
+    if cull not in (True, False, "auto"):
+        raise ValueError(f"cull must be True, False or 'auto', got {cull!r}")
     ctx = ctx if ctx is not None else default_context()
     pos = validate.positions(pos)
     tri = validate.triangles(tri, len(pos))
     height, width = validate.resolution(resolution, ctx.max_texture_size)
+    value_dtype = np.float64 if m.value_dtype == "f8" else np.float32
+    fill = _check_out(out, names, (height, width), value_dtype) if out is not None else {}
 
     # -- skip what the scene does not need ----------------------------------------------
     kept = None
     info = {"backend": ctx.backend, "renderer": ctx.renderer, "method": method,
             "culled": {}, "affine": False}
-    if cull not in (True, False, "auto"):
-        raise ValueError(f"cull must be True, False or 'auto', got {cull!r}")
     if cull == "auto":
-        cull = method.startswith("homogeneous") or cull_backfaces
+        cull = m.cull_by_default or cull_backfaces
     if len(tri) >= CULL_MIN_TRIANGLES and (cull or cull_backfaces):
         culling = _cull.cull(pos, tri, (height, width), backfaces=cull_backfaces,
                              llvmpipe=ctx.is_llvmpipe, subpixel_bits=ctx.subpixel_bits)
@@ -165,94 +188,85 @@ def rasterize(
     wanted = set(names)
     if is_affine and "persp" in wanted:
         wanted = (wanted - {"persp"}) | {"screen"}
-    colors = {n: COLOR_FORMATS[n] for n in OUTPUTS if n in wanted and n in COLOR_FORMATS}
+    colors = color_targets(wanted, m)
+    needs_bary = "persp" in wanted or "screen" in wanted
 
-    if shader_files is not None:
-        vert, frag = shader_files
-    else:
-        vert, frag = METHODS[method]
-    defines = {}
-    for location, name in enumerate(colors):
-        defines[f"OUT_{name.upper()}"] = 1
-        defines[f"{name.upper()}_LOCATION"] = location
-    # hw (raster.frag, shared with the fault-injection copies) remaps on the host
-    remap_in_shader = method != "hw" and kept is not None and "tri_id" in colors
+    defines = dict(m.defines) if method != "hw" else {}
+    defines.update(pipeline.output_defines(colors))
+    # hw (raster.frag, shared with the fault-injection mutants) remaps on the host
+    remap_in_shader = m.remaps_ids and kept is not None and "tri_id" in colors
     if remap_in_shader:
         defines["REMAP"] = 1
-    if method != "hw":
-        if is_affine:
-            defines["AFFINE"] = 1
-        if method == "divw" and ("persp" in colors or "screen" in colors):
-            defines["VARY_SCREEN"] = 1
-        if method == "homogeneous64":
-            defines["FP64"] = 1
-    if extra_defines:
-        defines.update(extra_defines)
-    needs_bary = "persp" in colors or "screen" in colors
-    records = None
-    if method.startswith("homogeneous") and needs_bary and len(tri):
-        records = _homogeneous.setup(pos[tri], (height, width), fp64=method == "homogeneous64")
+    if method != "hw" and is_affine:
+        defines["AFFINE"] = 1
+    if m.varies_screen and needs_bary:
+        defines["VARY_SCREEN"] = 1
 
-    values = {}
+    per_triangle = {}
+    if m.setup is not None and needs_bary and len(tri):
+        per_triangle[2] = m.setup(pos[tri], (height, width))
+    if remap_in_shader:
+        per_triangle[3] = kept
+    vert, frag = shader_files if shader_files is not None else (m.vert, m.frag)
     with ctx:
-        mgl = ctx.mgl
         program, vao = ctx.program(_shader_path(vert), _shader_path(frag), defines)
-        if method == "solve4" and needs_bary:
-            program["u_ndc_scale"].value = (2.0 / width, 2.0 / height)
-        targets = ctx.targets((height, width), colors, depth_texture="depth" in names)
-        targets.fbo.use()
-        targets.fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-        if len(tri):
-            ctx.storage_buffer("positions", pos).bind_to_storage_buffer(0)
-            # Triangles go in batches whose index, setup and id arrays each fit one storage
-            # block; ids stay exact (tri_base, or the global ids of REMAP).
-            batch = ctx.max_storage_block_size // (3 * tri.itemsize)
-            if records is not None:
-                batch = min(batch, ctx.max_storage_block_size // records[0].nbytes)
-            if cull_backfaces:
-                mgl.enable(mgl.CULL_FACE)
-            try:
-                for number, base in enumerate(range(0, len(tri), batch)):
-                    # One buffer per batch: llvmpipe shades fragments when the binned
-                    # draw is flushed, after a later batch would have overwritten a
-                    # shared buffer that the fragment shader reads (measured).
-                    suffix = f"/{number}" if number else ""
-                    part = tri[base:base + batch]
-                    ctx.storage_buffer("indices" + suffix, part).bind_to_storage_buffer(1)
-                    if records is not None:
-                        ctx.storage_buffer("setup" + suffix, records[base:base + batch]) \
-                            .bind_to_storage_buffer(2)
-                    if remap_in_shader:
-                        ctx.storage_buffer("ids" + suffix, kept[base:base + batch]) \
-                            .bind_to_storage_buffer(3)
-                    if "tri_base" in program:
-                        program["tri_base"].value = base
-                    vao.render(mgl.TRIANGLES, vertices=3 * len(part))
-            finally:
-                if cull_backfaces:
-                    mgl.disable(mgl.CULL_FACE)
-        for name, (components, dtype) in colors.items():
-            shape = (height, width, components) if components > 1 else (height, width)
-            out = np.empty(shape, np.float32 if dtype == "f4" else np.int32)
-            targets.fbo.read_into(
-                out, components=components, attachment=targets.color[name], dtype=dtype
-            )
-            values[name] = out
-        if "depth" in names:
-            depth = np.empty((height, width), np.float32)
-            targets.fbo.read_into(depth, components=1, attachment=-1, dtype="f4")
-            values["depth"] = depth
-        error = mgl.error
-    if error != "GL_NO_ERROR":
-        raise GLError(error, "rasterizing")
+    spec = pipeline.Draw(
+        program, vao, colors, read_depth="depth" in names, per_triangle=per_triangle,
+        uniforms=m.uniforms(height, width) if m.uniforms and needs_bary else {},
+        cull_backfaces=cull_backfaces)
+
+    # caller arrays are filled directly where the target layout is the output's own
+    targets_out = {n: fill[n] for n in colors if n in fill}
+    if is_affine and "persp" in fill and "screen" not in names:
+        targets_out.pop("screen", None)
+        if m.value_dtype == "f4":
+            targets_out["screen"] = fill["persp"]
+    if "depth" in fill:
+        targets_out["depth"] = fill["depth"]
+    values = pipeline.draw(ctx, spec, pos, tri, (height, width), out=targets_out)
+
+    if m.value_dtype == "f8":
+        values = _join_float64(values, fill)
     if "tri_id" in values:
-        ids = values["tri_id"]
-        ids -= 1  # stored as index + 1 so that the clear value 0 means empty
-        if kept is not None and not remap_in_shader:
-            ids[...] = np.concatenate([[-1], kept]).astype(np.int32)[ids + 1]
+        pipeline.decode_ids(values["tri_id"], None if remap_in_shader else kept)
     if is_affine and "persp" in names:
         screen = values["screen"]
-        values["persp"] = screen if "screen" not in names else screen.copy()
-        if "screen" not in names:
+        if "screen" in names:
+            persp = fill.get("persp")
+            values["persp"] = screen.copy() if persp is None else _copy_into(persp, screen)
+        else:
+            values["persp"] = screen if "persp" not in fill else _copy_into(fill["persp"], screen)
             del values["screen"]
-    return Raster(resolution=(height, width), mask=_mask_from(values), info=info, **values)
+    mask = pipeline.coverage(values)
+    if "mask" in fill:
+        np.copyto(fill["mask"], mask)
+        mask = fill["mask"]
+    return Raster(resolution=(height, width), mask=mask, info=info, **values)
+
+
+def _copy_into(dest: np.ndarray, src: np.ndarray) -> np.ndarray:
+    if dest is not src:
+        np.copyto(dest, src)
+    return dest
+
+
+def _join_float64(values: dict, fill: dict) -> dict:
+    """Float64 persp / screen (H, W, 3) from their uint32 parts, one target per channel."""
+    joined = {n: a for n, a in values.items() if "." not in n}
+    for name in ("persp", "screen"):
+        if name + ".b0" not in values:
+            continue
+        dest = fill.get(name)
+        if dest is None:
+            dest = np.empty(values[name + ".b0"].shape[:2] + (3,), np.float64)
+        for k in range(3):
+            dest[..., k:k + 1] = _doubles(values[f"{name}.b{k}"])
+        joined[name] = dest
+    return joined
+
+
+def _doubles(words: np.ndarray) -> np.ndarray:
+    """(H, W, 2 C) uint32 (low, high) word pairs from GLSL's unpackDouble2x32 -> (H, W, C)
+    float64 with exactly those bits (independent of the host's byte order)."""
+    bits = (words[..., 1::2].astype(np.uint64) << np.uint64(32)) | words[..., 0::2]
+    return bits.view(np.float64)

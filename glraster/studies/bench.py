@@ -44,8 +44,8 @@ from glraster.reference import kernels as reference_kernels
 from glraster.verify.compare import compare
 from glraster.gpu.context import Context
 from glraster.studies.fill_limit import FillLimit
-from glraster.gpu.rasterize import METHODS, rasterize
-from glraster.verify.tolerance import ErrorModel
+from glraster.gpu.methods import METHODS, error_model
+from glraster.gpu.rasterize import rasterize
 
 FOVY_DEG = 50.0
 NEAR, FAR = 0.1, 20.0
@@ -138,7 +138,7 @@ def interleaved(fn_a, fn_b, repeats: int):
 
 
 def _error_stats(raster, ref, method, ctx) -> dict:
-    rep = compare(raster, ref, ErrorModel.for_method(method, ctx))
+    rep = compare(raster, ref, error_model(method, ctx))
     out = {"coverage_mismatch": rep.coverage_mismatch, "tri_id_mismatch": rep.tri_id_mismatch}
     for name, v in rep.values.items():
         out[name] = {"max": v.max, "p999": v.p999, "mean": v.mean,

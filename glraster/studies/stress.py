@@ -25,8 +25,8 @@ scale          every clip coordinate multiplied by 1e-30 .. 1e30 (the same image
 Truth: the barycentrics of the float32 input triangle, evaluated per pixel in
 np.longdouble (64-bit mantissa on x86) relative to the nearest vertex in front of the eye
 (see :func:`truth`), so the reference's own error (~1e-19 relative) is far below any
-float32 or float64 result judged here. homogeneous64 is read back at 48 bits (the SPLIT64
-diagnostic of shaders/homogeneous.frag), so errors down to ~1e-14 are visible.
+float32 or float64 result judged here. homogeneous64 returns float64 read back exactly, so
+errors down to the float64 rounding (~1e-16) are visible.
 
 Per sweep point and method: pixels judged, max |error| of persp and screen, and the
 normalized error max err / (eps32 (1 + |grad b| d)) with |grad b| the barycentric's
@@ -240,14 +240,6 @@ def measure(point: Point, method: str, ctx) -> dict:
               for name in ("persp", "screen")}
     tri_id = r.tri_id
     del r
-    if method == "homogeneous64" and len(pix):
-        for name, code in (("persp", 1), ("screen", 2)):
-            split = rasterize(point.pos, point.tri, point.resolution, ctx=ctx, method=method,
-                              outputs=("persp", "screen", "tri_id"), cull=False, affine=False,
-                              extra_defines={"SPLIT64": code})
-            values[name] = (split.persp.reshape(-1, 3)[pix].astype(np.float64)
-                            + split.screen.reshape(-1, 3)[pix])
-            del split
     if point.resolution[0] * point.resolution[1] > LARGE_PIXELS:
         ctx.release_targets()
     if not len(pix):

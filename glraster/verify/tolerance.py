@@ -33,6 +33,9 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from glraster.geometry.triangles import TriangleGeometry
+from glraster.types import VALUE_OUTPUTS
+
 
 EPS32 = float(np.finfo(np.float32).eps)  # 2^-23
 
@@ -56,7 +59,7 @@ class ErrorModel:
     # compensated: the barycentrics (not depth, which stays the driver's) are evaluated in
     # about twice the working precision and rounded once ("homogeneous", "homogeneous64":
     # glraster/homogeneous.py), so the position-dependent terms (|grad f| (R + kappa D)
-    # and the vertex-value term) shrink by a factor eps32. See for_method().
+    # and the vertex-value term) shrink by a factor eps32 (glraster.gpu.methods sets it per method).
     compensated: bool = False
     # persp computed from the window-space barycentrics divided by w ("divw"): it carries
     # the noperspective interpolation error too (see value_tolerance).
@@ -73,39 +76,10 @@ class ErrorModel:
             waived_outputs=(),
         )
 
-    @classmethod
-    def for_method(cls, method: str, ctx=None) -> "ErrorModel":
-        """The model for one of :data:`glraster.gpu.rasterize.METHODS` on a context.
 
-        "hw", "divw" and "solve4" interpolate or solve in plain float32 from the same
-        float32 window-space data as the driver: the driver model (:meth:`for_context`)
-        bounds them (measured: worst error / tolerance <= 0.62 on the benchmark scenes,
-        docs/performance.md). divw's persp divides the noperspective barycentrics by w,
-        so its bound adds the screen bound carried through that division
-        (``persp_from_screen``). Waived on a driver with the clipper defect: hw's screen
-        (noperspective varyings), and divw's screen and persp. solve4 and the "homogeneous" methods compute
-        barycentrics from the unclipped triangle, so nothing is waived for them;
-        "homogeneous" and "homogeneous64" evaluate compensated as well.
-        """
-        from dataclasses import replace
-
-        from glraster.gpu.rasterize import METHODS
-
-        if method not in METHODS:
-            raise ValueError(f"method must be one of {sorted(METHODS)}, got {method!r}")
-        base = cls.for_context(ctx)
-        if method in ("homogeneous", "homogeneous64"):
-            return replace(base, compensated=True, waived_outputs=())
-        if method == "solve4":
-            return replace(base, waived_outputs=())
-        if method == "divw":
-            waived = ("screen", "persp") if base.waived_outputs else ()
-            return replace(base, waived_outputs=waived, persp_from_screen=True)
-        return base
-
-
-def mesa_noperspective_clip_bug(setup) -> np.ndarray:
-    """(T,) bool: triangles whose noperspective values llvmpipe 22.3 gets wrong.
+def mesa_noperspective_clip_bug(triangles: TriangleGeometry) -> np.ndarray:
+    """(T,) bool: triangles whose noperspective values llvmpipe 22.3 gets wrong, from their
+    ``x_plane_crossed`` and ``planes_crossed`` (:class:`TriangleGeometry`).
 
     Mesa's clipper clips against x = -w, x = +w first, then y, then z. It takes the
     window-space blend factor of a new vertex from the first coordinate whose *clip-space*
@@ -114,11 +88,12 @@ def mesa_noperspective_clip_bug(setup) -> np.ndarray:
     every wrong noperspective pixel on random clipped soups belongs to a triangle that
     crosses an x plane and at least one other plane, and only those.
     """
-    return setup.x_plane_crossed & (setup.planes_crossed >= 2)
+    return triangles.x_plane_crossed & (triangles.planes_crossed >= 2)
 
 
-def depth_error(setup, model: ErrorModel = ErrorModel()) -> np.ndarray:
-    """(T, 2) float64: bounds on the driver's window-depth error on each triangle, the
+def depth_error(triangles: TriangleGeometry, model: ErrorModel = ErrorModel()) -> np.ndarray:
+    """(T, 2) float64: bounds on the driver's window-depth error on each triangle, from its
+    ``depth_plane`` and ``conditioning`` (:class:`TriangleGeometry`): the
     depth bound of :func:`value_tolerance` with |depth| <= 1: column 0 at pixel centers
     inside the triangle, column 1 outside it (covered because the fixed-point vertices
     differ from the float ones). Inside, the rounding of the vertex values and positions
@@ -126,8 +101,8 @@ def depth_error(setup, model: ErrorModel = ErrorModel()) -> np.ndarray:
     not apply; outside, the plane extrapolates and it does. Used for depth ties by the
     reference: a sliver snapped to 40x its area was measured 3.8e-4 off in depth where
     it extrapolates (1M-triangle terrain at 4096x4096)."""
-    cond = setup.conditioning
-    grad_z = np.abs(setup.depth_plane[:, 0]) + np.abs(setup.depth_plane[:, 1])
+    cond = triangles.conditioning
+    grad_z = np.abs(triangles.depth_plane[:, 0]) + np.abs(triangles.depth_plane[:, 1])
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         base = 1 + cond.S / 2 + grad_z * (cond.R + cond.kappa * cond.D)
         bound = model.ulp_factor * EPS32 * np.stack([base, base + cond.D / cond.h], 1) \
@@ -135,21 +110,44 @@ def depth_error(setup, model: ErrorModel = ErrorModel()) -> np.ndarray:
     return np.nan_to_num(bound, nan=np.inf, posinf=np.inf)
 
 
-def value_tolerance(ref, model: ErrorModel = ErrorModel()) -> dict:
-    """Per-pixel tolerances for every value output of a reference raster.
+@dataclass
+class Tolerances:
+    """Per-pixel bounds on |GPU - reference| from :func:`value_tolerance`, float64, 0 at
+    empty pixels; an output not asked for is None.
 
-    ref: ReferenceRaster computed with "tri_id" among its outputs. Returns a dict mapping
-    "persp" and "screen" to (H, W, 3) float64 and "depth" to (H, W) float64 bounds on
-    |GPU - reference|, for the outputs the reference holds; 0 at empty pixels. The
-    per-pixel bounds are evaluated by a compiled loop (:func:`_tolerances`).
+    persp, screen : (H, W, 3)    depth : (H, W)
     """
-    height, width = ref.resolution
+
+    persp: np.ndarray | None = None
+    screen: np.ndarray | None = None
+    depth: np.ndarray | None = None
+
+
+def value_tolerance(triangles: TriangleGeometry | None, tri_id: np.ndarray,
+                    outputs=VALUE_OUTPUTS, model: ErrorModel = ErrorModel()) -> Tolerances:
+    """Per-pixel tolerances of the value outputs of a raster.
+
+    triangles : the T triangles' :class:`TriangleGeometry` (the reference's
+        ``ReferenceRaster.triangles``), or None when there are none
+    tri_id : (H, W) int, the triangle seen at each pixel (index into ``triangles``), -1
+        where empty (the reference's ``tri_id``)
+    outputs : which of "persp", "screen", "depth" to bound (the others stay None)
+
+    The per-pixel bounds are evaluated by a compiled loop (:func:`_tolerances`).
+    """
+    names = tuple(outputs)
+    unknown = [o for o in names if o not in VALUE_OUTPUTS]
+    if unknown:
+        raise ValueError(f"outputs must be among {VALUE_OUTPUTS}, got {unknown}")
+    height, width = tri_id.shape
     n = height * width
-    ts = ref.setup
-    screen = np.zeros((n, 3) if ref.screen is not None else (0, 3))
-    persp = np.zeros((n, 3) if ref.persp is not None else (0, 3))
-    depth = np.zeros(n if ref.depth is not None else 0)
-    if ts is not None and ref.mask.any():
+    ts = triangles
+    tri_flat = tri_id.reshape(-1).astype(np.int64)
+    pix = np.flatnonzero(tri_flat >= 0)
+    screen = np.zeros((n, 3) if "screen" in names else (0, 3))
+    persp = np.zeros((n, 3) if "persp" in names else (0, 3))
+    depth = np.zeros(n if "depth" in names else 0)
+    if ts is not None and len(pix):
         cond = ts.conditioning
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
             # inf (an unmeasurable clipped polygon) times 0 must stay inf, not NaN
@@ -157,21 +155,18 @@ def value_tolerance(ref, model: ErrorModel = ErrorModel()) -> dict:
             # The gradient's numerator (e.g. df01 dy20 - dy01 df20) rounds each vertex
             # value f_v: an error of eps32 |f_v| / h per pixel of distance, over up to D px.
             span = np.nan_to_num(cond.D / cond.h, nan=np.inf)
-        _tolerances(np.flatnonzero(ref.mask), ref.tri_id.reshape(-1).astype(np.int64), width,
+        _tolerances(pix, tri_flat, width,
                     ts.adj, ts.det, np.ascontiguousarray(ts.clip, dtype=np.float64), reach,
                     span, cond.S, cond.N, cond.wmin, model.ulp_factor * EPS32,
                     model.position_error_px,
                     # compensated evaluation: the position terms carry eps32^2
                     EPS32 if model.compensated else 1.0, model.persp_from_screen,
                     screen, persp, depth)
-    out = {}
-    if ref.screen is not None:
-        out["screen"] = screen.reshape(height, width, 3)
-    if ref.persp is not None:
-        out["persp"] = persp.reshape(height, width, 3)
-    if ref.depth is not None:
-        out["depth"] = depth.reshape(height, width)
-    return out
+    return Tolerances(
+        persp=persp.reshape(height, width, 3) if "persp" in names else None,
+        screen=screen.reshape(height, width, 3) if "screen" in names else None,
+        depth=depth.reshape(height, width) if "depth" in names else None,
+    )
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -187,7 +182,7 @@ def _tolerances(pix, tri_id, width, adj, det, clip, reach, span, S, N, wmin, uni
                 shrink, persp_from_screen, screen_tol, persp_tol, depth_tol):
     """Fill the bounds of :func:`value_tolerance` at the covered pixels ``pix`` (K,) of
     ``tri_id`` (H*W,): screen_tol and persp_tol (H*W, 3), depth_tol (H*W,), each skipped
-    when empty. adj (T, 3, 3), det (T,), clip (T, 3, 4) from the reference setup; reach =
+    when empty. adj (T, 3, 3), det (T,), clip (T, 3, 4) from the TriangleGeometry; reach =
     R + kappa D, span = D / h, S, N, wmin (T,) from :func:`triangle_conditioning`."""
     s = np.empty(3)
     grad = np.empty(3)

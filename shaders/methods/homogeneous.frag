@@ -13,23 +13,25 @@
 // accurate as if computed in twice the working precision and rounded once: the error does
 // not grow with the distance from the framebuffer origin nor with the distance from a.
 //
-// Per-triangle record (SETUP_STRIDE values of type REAL, see glraster/raster.py):
+// Per-triangle record (SETUP_STRIDE values of type REAL, see glraster/gpu/homogeneous.py):
 //   [0, 2)   anchor a (x, y), window pixels
 //   [2, 5)   d s_i / dx high      [5, 8)   d s_i / dx low
 //   [8, 11)  d s_i / dy high      [11, 14) d s_i / dy low
 //   [14, 17) s_i(a) high          [17, 20) s_i(a) low
 //   [20, 23) w_i / k  (s is stored scaled by k = max |w_i|, so screen_i = (k s_i)(w_i / k))
 //
-// Host defines: FP64 (evaluate in double precision: GL 4.0 / ARB_gpu_shader_fp64);
-// SPLIT64 = 1 or 2 (with FP64, persp and screen requested: write persp (1) or screen (2)
-// as float32 high part in the persp target and low part in the screen target);
+// Host defines: FP64 (evaluate in double precision: GL 4.0 / ARB_gpu_shader_fp64, and
+// write persp / screen as float64, exactly: the unpackDouble2x32 words of b_k in a uvec2
+// target of its own, OUT_PERSP_B0 .. OUT_SCREEN_B2 at PERSP_B0_LOCATION ...);
 // OUT_PERSP, OUT_SCREEN, OUT_TRI_ID, *_LOCATION; AFFINE; REMAP (see divw.frag).
 
 #ifdef FP64
 #define REAL double
+#define VEC3 dvec3
 #define SPLITTER 134217729.0lf  // 2^27 + 1
 #else
 #define REAL float
+#define VEC3 vec3
 #define SPLITTER 4097.0         // 2^12 + 1
 #endif
 #define SETUP_STRIDE 24
@@ -39,11 +41,26 @@ layout(std430, binding = 2) readonly buffer Setup { REAL setup[]; };
 layout(std430, binding = 3) readonly buffer Ids { int ids[]; };
 #endif
 
+#ifdef FP64
+#ifdef OUT_PERSP_B0
+layout(location = PERSP_B0_LOCATION) out uvec2 out_persp_b0;  // (low, high) words of b0
+layout(location = PERSP_B1_LOCATION) out uvec2 out_persp_b1;
+layout(location = PERSP_B2_LOCATION) out uvec2 out_persp_b2;
+#define OUT_PERSP
+#endif
+#ifdef OUT_SCREEN_B0
+layout(location = SCREEN_B0_LOCATION) out uvec2 out_screen_b0;
+layout(location = SCREEN_B1_LOCATION) out uvec2 out_screen_b1;
+layout(location = SCREEN_B2_LOCATION) out uvec2 out_screen_b2;
+#define OUT_SCREEN
+#endif
+#else
 #ifdef OUT_PERSP
 layout(location = PERSP_LOCATION) out vec3 out_persp;
 #endif
 #ifdef OUT_SCREEN
 layout(location = SCREEN_LOCATION) out vec3 out_screen;
+#endif
 #endif
 #ifdef OUT_TRI_ID
 layout(location = TRI_ID_LOCATION) out int out_tri_id;
@@ -105,34 +122,36 @@ void main() {
     REAL w0 = setup[base + 20], w1 = setup[base + 21], w2 = setup[base + 22];
 #ifdef AFFINE
     // every w equal: w_i / k = 1 and sum s_i = 1, so screen = persp = s
-    vec3 screen = vec3(s0, s1, s2);
+    VEC3 screen = VEC3(s0, s1, s2);
 #else
-    vec3 screen = vec3(s0 * w0, s1 * w1, s2 * w2);
+    VEC3 screen = VEC3(s0 * w0, s1 * w1, s2 * w2);
 #endif
 #endif
-#if defined(FP64) && defined(SPLIT64)
-    // Diagnostics (glraster/stress.py): the float64 result of one quantity as float32
-    // high part (persp target) + low part (screen target), 48 significant bits.
-#if SPLIT64 == 1
-    REAL total = s0 + s1 + s2;
-    dvec3 full = dvec3(s0 / total, s1 / total, s2 / total);
+#ifdef OUT_PERSP
+#ifdef AFFINE
+    VEC3 persp = screen;
 #else
-    dvec3 full = dvec3(s0 * w0, s1 * w1, s2 * w2);
+    REAL total = s0 + s1 + s2;  // k / w_p
+    VEC3 persp = VEC3(s0 / total, s1 / total, s2 / total);
 #endif
-    vec3 high = vec3(full);
-    out_persp = high;
-    out_screen = vec3(full - dvec3(high));
+#endif
+#ifdef FP64
+#ifdef OUT_SCREEN
+    out_screen_b0 = unpackDouble2x32(screen.x);
+    out_screen_b1 = unpackDouble2x32(screen.y);
+    out_screen_b2 = unpackDouble2x32(screen.z);
+#endif
+#ifdef OUT_PERSP
+    out_persp_b0 = unpackDouble2x32(persp.x);
+    out_persp_b1 = unpackDouble2x32(persp.y);
+    out_persp_b2 = unpackDouble2x32(persp.z);
+#endif
 #else
 #ifdef OUT_SCREEN
     out_screen = screen;
 #endif
 #ifdef OUT_PERSP
-#ifdef AFFINE
-    out_persp = screen;
-#else
-    REAL total = s0 + s1 + s2;  // k / w_p
-    out_persp = vec3(s0 / total, s1 / total, s2 / total);
-#endif
+    out_persp = persp;
 #endif
 #endif
 #ifdef OUT_TRI_ID

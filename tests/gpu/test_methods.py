@@ -1,5 +1,5 @@
 """Every barycentric method of rasterize() against the float64 reference, within its
-documented error model (ErrorModel.for_method), on both backends."""
+documented error model (glraster.gpu.methods.error_model), on both backends."""
 
 from __future__ import annotations
 
@@ -10,8 +10,7 @@ import glraster as gr
 from glraster import reference
 from glraster.geometry import synthetic
 from glraster.verify.compare import compare
-from glraster.gpu.rasterize import METHODS
-from glraster.verify.tolerance import ErrorModel
+from glraster.gpu.methods import METHODS, error_model
 
 RES = (96, 128)
 
@@ -39,10 +38,10 @@ def references():
 @pytest.mark.parametrize("method", sorted(METHODS))
 def test_method_matches_reference_within_its_model(ctx, references, method, scene):
     """Coverage and ids come from the driver for every method: exact outside the edge band.
-    Values: within ErrorModel.for_method (per-pixel bounds, see glraster/tolerance.py)."""
+    Values: within glraster.gpu.methods.error_model (per-pixel bounds, see glraster/verify/tolerance.py)."""
     pos, tri = SCENES[scene]
     r = gr.rasterize(pos, tri, RES, ctx=ctx, method=method)
-    rep = compare(r, references[scene], ErrorModel.for_method(method, ctx))
+    rep = compare(r, references[scene], error_model(method, ctx))
     assert rep.ok(), f"{method} on {scene}:\n{rep.summary()}"
     assert r.info["method"] == method
 
@@ -53,7 +52,7 @@ def test_compensated_methods_are_accurate_to_a_few_float32_ulps(ctx, references,
     4 ulps of 1 (4.8e-7), where hw reaches ~1e-4 on the small triangles."""
     for scene, (pos, tri) in SCENES.items():
         r = gr.rasterize(pos, tri, RES, ctx=ctx, method=method, outputs=("persp", "screen", "tri_id"))
-        rep = compare(r, references[scene], ErrorModel.for_method(method, ctx))
+        rep = compare(r, references[scene], error_model(method, ctx))
         for name in ("persp", "screen"):
             assert rep.values[name].max <= 4 * 2.0**-23, (scene, name, rep.values[name])
 
@@ -90,7 +89,7 @@ def test_near_plane_crossing_gives_the_unclipped_formula(ctx, method):
     tri = np.array([[0, 1, 2]], np.int32)
     ref = reference.rasterize(pos, tri, (48, 48))
     r = gr.rasterize(pos, tri, (48, 48), ctx=ctx, method=method)
-    rep = compare(r, ref, ErrorModel.for_method(method, ctx))
+    rep = compare(r, ref, error_model(method, ctx))
     assert rep.covered_gpu > 0
     assert rep.ok(), rep.summary()
     if method == "divw" and ctx.is_llvmpipe:
@@ -112,7 +111,7 @@ def test_affine_path_is_taken_when_every_w_is_equal(ctx):
         assert np.array_equal(r.persp, r.screen)
         assert r.persp is not r.screen  # separate arrays: writing one leaves the other
         ref = reference.rasterize(pos, tri, RES)
-        rep = compare(r, ref, ErrorModel.for_method(method, ctx))
+        rep = compare(r, ref, error_model(method, ctx))
         assert rep.ok(), f"{method}\n{rep.summary()}"
 
 
@@ -142,7 +141,7 @@ def test_invalid_method_arguments_name_the_argument():
     with pytest.raises(ValueError, match="affine must be"):
         gr.rasterize(pos, tri, (8, 8), affine=True)
     with pytest.raises(ValueError, match="method must be one of"):
-        ErrorModel.for_method("exact")
+        error_model("exact")
 
 
 @pytest.mark.parametrize("method", sorted(METHODS))

@@ -39,7 +39,7 @@ def test_homogeneous_keeps_the_normalized_error_below_16(ctx, sweep):
 
 @pytest.mark.parametrize("sweep", ["origin", "origin_w1", "aspect", "w_ratio", "near"])
 def test_homogeneous64_error_stays_below_1e_12(ctx, sweep):
-    """Read back at 48 bits (SPLIT64), the float64 method's error stays below 1e-12 up to
+    """Returned as float64 (read back exactly), the float64 method's error stays below 1e-12 up to
     aspect 1e6 (measured ~1e-15)."""
     values, points = stress.sweep_points(sweep)
     for value, point in zip(values[::2], points[::2]):

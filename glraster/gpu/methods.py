@@ -1,0 +1,119 @@
+"""The method registry: how a covered pixel's barycentrics are computed on the GPU.
+
+Coverage, depth and triangle ids always come from the driver's rasterizer; a method decides
+only how ``persp`` and ``screen`` are obtained. One :class:`Method` record per method holds
+everything that differs between them (shader files, defines, host-side setup, culling
+default, read-back format, error-model traits and waivers), so adding a method touches
+this file and its shader only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Callable
+
+import numpy as np
+
+from glraster.gpu import homogeneous as _homogeneous
+from glraster.verify.tolerance import ErrorModel
+
+
+@dataclass(frozen=True)
+class Method:
+    """One way to compute barycentrics.
+
+    name, note      : identifier and one-line description
+    vert, frag      : shader files relative to ``shaders/``
+    defines         : ``#define``s the method always sets
+    setup           : host-side per-triangle setup ``setup(clip (T, 3, 4) float32,
+                      (H, W)) -> (T, STRIDE) array`` bound as storage buffer 2, or None
+    cull_by_default : ``cull="auto"`` culls before upload (worth it when ``setup`` does
+                      per-triangle host work)
+    remaps_ids      : the shader writes caller triangle ids from a storage buffer of kept
+                      indices (binding 3) when triangles were culled; else the host remaps
+    varies_screen   : the vertex shader passes the noperspective unit vectors (divw)
+    value_dtype     : dtype of the returned persp / screen ("f4" float32, "f8" float64,
+                      read back exactly as two uint32 halves per value)
+    uniforms        : ``uniforms(height, width) -> {name: value}`` set before drawing
+    compensated, persp_from_screen : error-model traits (see ErrorModel)
+    clip_defect_outputs : outputs computed from the driver's noperspective varyings, which
+                      a driver with Mesa's clipper defect gets wrong (waived there)
+    """
+
+    name: str
+    note: str
+    vert: str
+    frag: str
+    defines: dict = field(default_factory=dict)
+    setup: Callable | None = None
+    cull_by_default: bool = False
+    remaps_ids: bool = True
+    varies_screen: bool = False
+    value_dtype: str = "f4"
+    uniforms: Callable | None = None
+    compensated: bool = False
+    persp_from_screen: bool = False
+    clip_defect_outputs: tuple[str, ...] = ()
+
+    def error_model(self, ctx=None) -> ErrorModel:
+        """The per-pixel error model for this method on a context (None: llvmpipe).
+
+        The driver model (:meth:`ErrorModel.for_context`) bounds every method that
+        interpolates or solves in float32 from the driver's float32 window-space data;
+        the compensated methods shrink its position terms; outputs built on the driver's
+        noperspective varyings are waived where the driver has the clipper defect.
+        """
+        base = ErrorModel.for_context(ctx)
+        waived = self.clip_defect_outputs if base.waived_outputs else ()
+        return replace(base, waived_outputs=waived, compensated=self.compensated,
+                       persp_from_screen=self.persp_from_screen)
+
+
+def _homogeneous_setup(fp64: bool):
+    def setup(clip, resolution):
+        return _homogeneous.setup(clip, resolution, fp64=fp64)
+    return setup
+
+
+def _solve4_uniforms(height, width):
+    return {"u_ndc_scale": (2.0 / width, 2.0 / height)}
+
+
+METHODS: dict[str, Method] = {m.name: m for m in (
+    Method("hw", "the driver's smooth / noperspective interpolation",
+           "raster/raster.vert", "raster/raster.frag",
+           remaps_ids=False, clip_defect_outputs=("screen",)),
+    Method("divw", "noperspective barycentrics divided by per-vertex w in the shader "
+                   "(seed 002 eq. 2.4.9)",
+           "raster/pull.vert", "methods/divw.frag", varies_screen=True,
+           persp_from_screen=True, clip_defect_outputs=("screen", "persp")),
+    Method("homogeneous", "2D homogeneous edge functions per pixel, relative to a vertex, "
+                          "compensated float32",
+           "raster/pull.vert", "methods/homogeneous.frag", setup=_homogeneous_setup(False),
+           cull_by_default=True, compensated=True),
+    Method("homogeneous64", "the same in float64 (GL 4.0 fp64), returned as float64",
+           "raster/pull.vert", "methods/homogeneous.frag", defines={"FP64": 1},
+           setup=_homogeneous_setup(True), cull_by_default=True, value_dtype="f8",
+           compensated=True),
+    Method("solve4", "seed 000's 4x4 linear system per pixel, float32 Gaussian elimination",
+           "raster/pull.vert", "methods/solve4.frag", uniforms=_solve4_uniforms),
+)}
+METHOD_NOTES = {name: m.note for name, m in METHODS.items()}
+
+
+def get(name) -> Method:
+    """The registered method called ``name`` (ValueError naming the choices otherwise)."""
+    method = METHODS.get(name) if isinstance(name, str) else None
+    if method is None:
+        raise ValueError(f"method must be one of {sorted(METHODS)}, got {name!r}")
+    return method
+
+
+def error_model(method: str, ctx=None) -> ErrorModel:
+    """:meth:`Method.error_model` of the method called ``method``."""
+    return get(method).error_model(ctx)
+
+
+def value_numpy_dtype(method: Method):
+    """The NumPy dtype of persp / screen returned by ``method``."""
+    return np.float64 if method.value_dtype == "f8" else np.float32

@@ -1,0 +1,152 @@
+"""The one draw pipeline: render targets, batched draws, readback and id decoding.
+
+:func:`draw` renders T triangles pulled from storage buffers (positions at binding 0,
+indices at binding 1, optional per-triangle buffers at bindings 2, 3, ...) with
+``glDrawArrays(3 T)`` into float / integer color targets and a 32-bit float depth
+buffer, and reads back what was asked. :func:`glraster.rasterize`, the fault-injection
+mutants and the differentiable ops all draw through it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from glraster.errors import GLError
+
+# moderngl dtype name -> NumPy dtype of a read-back target
+NUMPY_DTYPES = {"f4": np.float32, "f2": np.float16, "i4": np.int32, "u4": np.uint32}
+
+
+@dataclass
+class Draw:
+    """What to draw and where.
+
+    program, vao : the linked program and its attribute-less vertex array (Context.program)
+    colors       : target name -> (components, moderngl dtype), in attachment order (the
+                   shader writes target k at ``layout(location = k)``)
+    read_depth   : read back window depth (a depth texture instead of a renderbuffer)
+    per_triangle : storage binding -> (T, ...) C-contiguous array, split into the same
+                   batches as the indices (setup records, kept ids)
+    uniforms     : name -> value, set once before drawing
+    cull_backfaces : enable GL_CULL_FACE (CCW front faces) for this draw
+    depth_test   : False disables GL_DEPTH_TEST (which also stops depth writes)
+    """
+
+    program: object
+    vao: object
+    colors: dict
+    read_depth: bool = False
+    per_triangle: dict = field(default_factory=dict)
+    uniforms: dict = field(default_factory=dict)
+    cull_backfaces: bool = False
+    depth_test: bool = True
+
+
+def draw(ctx, spec: Draw, pos: np.ndarray, tri: np.ndarray, resolution, *,
+         out: dict | None = None, during: str = "rasterizing") -> dict:
+    """Render ``tri`` (T, 3) int32 over ``pos`` (V, 4) float32 at ``resolution`` (H, W).
+
+    Returns target name -> array read back: (H, W, C) for C > 1 components, else (H, W),
+    of the target's NumPy dtype, plus "depth" (H, W) float32 when ``spec.read_depth``.
+    Arrays given in ``out`` (same names, shapes and dtypes) are filled instead of new ones.
+    Raises :class:`GLError` if the driver reports an error.
+    """
+    height, width = resolution
+    out = out or {}
+    values = {}
+    with ctx:
+        mgl = ctx.mgl
+        program = spec.program
+        for name, value in spec.uniforms.items():
+            program[name].value = value
+        targets = ctx.targets((height, width), spec.colors, depth_texture=spec.read_depth)
+        targets.fbo.use()
+        targets.fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        if len(tri):
+            _draw_batches(ctx, spec, pos, tri)
+        for name, (components, dtype) in spec.colors.items():
+            shape = (height, width, components) if components > 1 else (height, width)
+            array = out.get(name)
+            if array is None:
+                array = np.empty(shape, NUMPY_DTYPES[dtype])
+            targets.fbo.read_into(array, components=components,
+                                  attachment=targets.color[name], dtype=dtype)
+            values[name] = array
+        if spec.read_depth:
+            depth = out.get("depth")
+            if depth is None:
+                depth = np.empty((height, width), np.float32)
+            targets.fbo.read_into(depth, components=1, attachment=-1, dtype="f4")
+            values["depth"] = depth
+        error = mgl.error
+    if error != "GL_NO_ERROR":
+        raise GLError(error, during)
+    return values
+
+
+def _draw_batches(ctx, spec: Draw, pos, tri) -> None:
+    """The draw calls: triangles go in batches whose index and per-triangle arrays each fit
+    one storage block; ``tri_base`` keeps the ids written by the shader global."""
+    mgl = ctx.mgl
+    ctx.storage_buffer("positions", pos).bind_to_storage_buffer(0)
+    batch = ctx.max_storage_block_size // (3 * tri.itemsize)
+    for array in spec.per_triangle.values():
+        batch = min(batch, ctx.max_storage_block_size // max(array[0].nbytes, 1))
+    if spec.cull_backfaces:
+        mgl.enable(mgl.CULL_FACE)
+    if not spec.depth_test:
+        mgl.disable(mgl.DEPTH_TEST)
+    try:
+        for number, base in enumerate(range(0, len(tri), batch)):
+            # One buffer per batch: llvmpipe shades fragments when the binned draw is
+            # flushed, after a later batch would have overwritten a shared buffer that the
+            # fragment shader reads (measured).
+            suffix = f"/{number}" if number else ""
+            part = tri[base:base + batch]
+            ctx.storage_buffer("indices" + suffix, part).bind_to_storage_buffer(1)
+            for binding, array in spec.per_triangle.items():
+                ctx.storage_buffer(f"binding{binding}{suffix}", array[base:base + batch]) \
+                    .bind_to_storage_buffer(binding)
+            if "tri_base" in spec.program:
+                spec.program["tri_base"].value = base
+            spec.vao.render(mgl.TRIANGLES, vertices=3 * len(part))
+    finally:
+        if spec.cull_backfaces:
+            mgl.disable(mgl.CULL_FACE)
+        if not spec.depth_test:
+            mgl.enable(mgl.DEPTH_TEST)
+
+
+def output_defines(colors: dict) -> dict:
+    """``OUT_<NAME>`` and ``<NAME>_LOCATION`` defines for the targets of ``colors`` (names
+    are upper-cased, dots become underscores), locations in attachment order."""
+    defines = {}
+    for location, name in enumerate(colors):
+        key = name.upper().replace(".", "_")
+        defines[f"OUT_{key}"] = 1
+        defines[f"{key}_LOCATION"] = location
+    return defines
+
+
+def decode_ids(ids: np.ndarray, kept: np.ndarray | None = None) -> np.ndarray:
+    """Triangle ids in place: targets hold index + 1 (the clear value 0 means empty), so
+    subtract one; with ``kept`` (K,) the drawn triangles were ``tri[kept]`` and ids are
+    mapped back to the caller's indexing. Empty pixels become -1."""
+    ids -= 1
+    if kept is not None:
+        ids[...] = np.concatenate([[-1], kept]).astype(np.int32)[ids + 1]
+    return ids
+
+
+def coverage(values: dict) -> np.ndarray:
+    """(H, W) bool coverage from whichever output was read back (each identifies covered
+    pixels): tri_id >= 0; depth < 1 (a fragment must pass LESS against the cleared 1.0);
+    barycentrics of a covered pixel sum to ~1, those of an empty one to 0."""
+    if "tri_id" in values:
+        return values["tri_id"] >= 0
+    if "depth" in values:
+        return values["depth"] < 1.0
+    bary = values.get("persp", values.get("screen"))
+    return bary.sum(axis=2) > 0.5
