@@ -1,23 +1,36 @@
 """Fault injection: deliberately wrong variants of the rasterization shaders.
 
-Each :class:`Mutant` is a copy of ``shaders/raster.vert`` / ``raster.frag`` with one fault
-(files in ``shaders/mutants/``), possibly with a host-side change that a shader cannot
-express (half-float render targets, the depth test switched off, a uniform). ``glraster
-check --mutants`` renders the catalog with every mutant and expects each one to be caught
-(some scene fails its comparison with the reference); the real shaders, run through the
-same path, must pass everywhere.
+Each :class:`Mutant` is the real ``shaders/raster/raster.vert`` / ``raster.frag`` with one
+fault, written as a few :class:`Patch` replacements (old text -> new text) that are applied
+to the current real shader text whenever the mutant is rendered, so a mutant cannot drift
+from the shaders it mutates. Each replacement must match exactly once (else a ValueError
+names the mutant, the file and the text) and keep the number of lines, so that the mutated
+source has the real file's line numbers. A mutant may also carry a host-side change that a
+shader cannot express (half-float render targets, the depth test switched off, a uniform).
+``glraster check --mutants`` renders the catalog with every mutant and expects each one to be
+caught (some scene fails its comparison with the reference); the real shaders, run through
+the same path, must pass everywhere.
 
-Mutants that need no host change render through :func:`glraster.gpu.rasterize.rasterize` with
-``shader_files``; the others go through :func:`render`, which mirrors that function with
-the host changes applied to its own framebuffer and restores the context state.
+The mutated sources are written to a per-process temporary folder
+(``<tmp>/glraster-mutants-*/<mutant>/raster.vert``, ending with a comment that names the
+mutant) because the draw paths compile shader files; a compile error names that file, whose
+line N is line N of the real shader. Mutants that need no host change render through
+:func:`glraster.gpu.rasterize.rasterize` with ``shader_files``; the others go through
+:func:`render`, which mirrors that function with the host changes applied to its own
+framebuffer and restores the context state.
 """
 
 from __future__ import annotations
 
+import atexit
+import shutil
+import tempfile
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
+from glraster.gpu import pipeline as _pipeline
 from glraster.gpu import rasterize as _raster
 from glraster import validate
 from glraster.errors import GLError
@@ -25,6 +38,20 @@ from glraster.types import OUTPUTS
 from glraster.gpu.shaders import shader_dir
 
 REAL_SHADERS = ("raster/raster.vert", "raster/raster.frag")
+VERT, FRAG = REAL_SHADERS
+
+
+@dataclass(frozen=True)
+class Patch:
+    """Replace ``old`` by ``new`` in the real shader ``file`` (relative to ``shaders/``).
+
+    ``old`` must occur exactly once in the file's text (as left by the mutant's earlier
+    patches of the same file) and ``new`` must have as many line breaks as ``old``.
+    """
+
+    file: str
+    old: str
+    new: str
 
 
 @dataclass(frozen=True)
@@ -33,7 +60,8 @@ class Mutant:
 
     name        : identifier (used by ``--mutants NAME``)
     fault       : what is wrong, in one sentence
-    vert, frag  : shader file names relative to ``shaders/`` (``raster.*`` when unchanged)
+    patches     : :class:`Patch` replacements on ``raster/raster.vert`` / ``raster.frag``,
+                  applied in order (none: the real shaders)
     target_dtype: color target dtype for the barycentric outputs ("f4" real, "f2" = half)
     depth_test  : False switches GL_DEPTH_TEST off (which also stops depth writes)
     rotate_180  : the vertex shader renders the image rotated by 180 degrees; the host
@@ -43,45 +71,154 @@ class Mutant:
 
     name: str
     fault: str
-    vert: str = REAL_SHADERS[0]
-    frag: str = REAL_SHADERS[1]
+    patches: tuple[Patch, ...] = ()
     target_dtype: str = "f4"
     depth_test: bool = True
     rotate_180: bool = False
     viewport_uniform: bool = False
     expected: tuple = field(default_factory=tuple)  # scenes that should catch it (documentation)
 
+    def __post_init__(self):
+        for p in self.patches:
+            where = f"mutant {self.name!r}, {p.file}, replacing {p.old!r}"
+            if p.file not in REAL_SHADERS:
+                raise ValueError(f"{where}: can only patch {' or '.join(REAL_SHADERS)}")
+            if not p.old or p.old == p.new:
+                raise ValueError(f"{where}: the old text must be non-empty and differ from the new")
+            if p.old.count("\n") != p.new.count("\n"):
+                raise ValueError(f"{where}: the new text must have as many lines as the old "
+                                 f"(so that compile errors keep the real file's line numbers)")
+
     @property
     def needs_host_changes(self) -> bool:
         return (self.target_dtype != "f4" or not self.depth_test or self.rotate_180
                 or self.viewport_uniform)
 
-    def shader_files(self) -> tuple:
-        d = shader_dir()
-        return (str(d / self.vert), str(d / self.frag))
+    @property
+    def patched_files(self) -> tuple[str, ...]:
+        """The real shader files this mutant changes, in REAL_SHADERS order."""
+        return tuple(f for f in REAL_SHADERS if any(p.file == f for p in self.patches))
 
+    def source(self, file: str) -> str:
+        """The current text of the real shader ``file`` with this mutant's patches applied.
+
+        Raises ValueError naming the mutant, the file and the text when a replacement does
+        not match exactly once.
+        """
+        text = (shader_dir() / file).read_text()
+        return apply_patches(self.name, file, text,
+                             [p for p in self.patches if p.file == file])
+
+    def shader_files(self) -> tuple:
+        """(vert, frag) paths to compile: the real file for an unpatched stage, else the
+        mutated source written to this process's temporary mutant folder."""
+        d = shader_dir()
+        return tuple(str(_write_generated(self, f) if f in self.patched_files else d / f)
+                     for f in REAL_SHADERS)
+
+
+def apply_patches(name: str, file: str, text: str, patches) -> str:
+    """``text`` (of shader ``file``) with ``patches`` applied in order, each of whose old
+    text must occur exactly once; the error names mutant ``name``, the file and the text."""
+    for p in patches:
+        count = text.count(p.old)
+        if count != 1:
+            found = "does not occur" if count == 0 else f"occurs {count} times"
+            raise ValueError(f"mutant {name!r}: the text to replace {p.old!r} {found} in "
+                             f"{file} (it must occur exactly once); update the patch to the "
+                             f"current shader")
+        text = text.replace(p.old, p.new)
+    return text
+
+
+_generated: dict[Path, str] = {}  # path -> text written there by this process
+_generated_root: list[Path] = []
+
+
+def _write_generated(mutant: Mutant, file: str) -> Path:
+    """Write ``mutant``'s version of ``file`` (unchanged lines, then a trailing comment that
+    names the mutant) and return its path; rewritten only when the text changes."""
+    if not _generated_root:
+        root = Path(tempfile.mkdtemp(prefix="glraster-mutants-"))
+        atexit.register(shutil.rmtree, root, ignore_errors=True)
+        _generated_root.append(root)
+    text = mutant.source(file)
+    text += ("" if text.endswith("\n") else "\n") + (
+        f"// MUTANT {mutant.name}: {mutant.fault}.\n"
+        f"// Generated by glraster.conformance.mutants from shaders/{file}; every line above "
+        f"has the line number it has there.\n")
+    path = _generated_root[0] / mutant.name / Path(file).name
+    if _generated.get(path) != text:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+        _generated[path] = text
+    return path
+
+
+# Declarations the mutants add share a line with ``void main() {`` or an existing statement,
+# so that no line is added.
+_MAIN = "void main() {"
+_POSITION = "gl_Position = positions[indices[gl_VertexID]];"
+_PERSP_OUT, _PERSP_IN = "smooth out vec3 v_persp;", "smooth in vec3 v_persp;"
+_SCREEN_OUT, _SCREEN_IN = "noperspective out vec3 v_screen;", "noperspective in vec3 v_screen;"
 
 MUTANTS: tuple[Mutant, ...] = (
-    Mutant("swap_interpolation", "smooth and noperspective qualifiers swapped",
-           vert="mutants/swap_interpolation.vert", frag="mutants/swap_interpolation.frag"),
+    Mutant("swap_interpolation", "smooth and noperspective qualifiers swapped", patches=(
+        Patch(VERT, _PERSP_OUT, "noperspective out vec3 v_persp;"),
+        Patch(VERT, _SCREEN_OUT, "smooth out vec3 v_screen;"),
+        Patch(FRAG, _PERSP_IN, "noperspective in vec3 v_persp;"),
+        Patch(FRAG, _SCREEN_IN, "smooth in vec3 v_screen;"),
+    )),
     Mutant("flat_persp", "perspective barycentrics declared flat (provoking vertex value)",
-           vert="mutants/flat_persp.vert", frag="mutants/flat_persp.frag"),
+           patches=(
+        Patch(VERT, _PERSP_OUT, "flat out vec3 v_persp;"),
+        Patch(FRAG, _PERSP_IN, "flat in vec3 v_persp;"),
+    )),
     Mutant("pixel_corner_sampling", "varyings sampled at the pixel corner instead of the center",
-           frag="mutants/pixel_corner_sampling.frag"),
+           patches=(
+        Patch(FRAG, "out_persp = v_persp;", "out_persp = interpolateAtOffset(v_persp, vec2(-0.5));"),
+        Patch(FRAG, "out_screen = v_screen;",
+              "out_screen = interpolateAtOffset(v_screen, vec2(-0.5));"),
+    )),
     Mutant("no_half_pixel_center", "geometry shifted by half a pixel (corners taken as centers)",
-           vert="mutants/no_half_pixel_center.vert", viewport_uniform=True),
-    Mutant("z_for_w", "perspective correction divides by clip z instead of clip w",
-           vert="mutants/z_for_w.vert", frag="mutants/z_for_w.frag"),
+           viewport_uniform=True, patches=(
+        Patch(VERT, _MAIN, "uniform vec2 u_viewport;  " + _MAIN),  # (width, height) in pixels
+        Patch(VERT, _POSITION,
+              _POSITION + " gl_Position.xy += gl_Position.w / u_viewport;  // +0.5 px"),
+    )),
+    Mutant("z_for_w", "perspective correction divides by clip z instead of clip w", patches=(
+        Patch(VERT, _PERSP_OUT,
+              "noperspective out vec3 v_persp_num; noperspective out float v_persp_den;"),
+        Patch(VERT, "v_persp = unit;",
+              "v_persp_num = unit / gl_Position.z; v_persp_den = 1.0 / gl_Position.z;"),
+        Patch(FRAG, _PERSP_IN,
+              "noperspective in vec3 v_persp_num; noperspective in float v_persp_den;"),
+        Patch(FRAG, "out_persp = v_persp;", "out_persp = v_persp_num / v_persp_den;"),
+    )),
     Mutant("vertex_order_rotated", "barycentrics assigned to the vertices in rotated order",
-           vert="mutants/vertex_order_rotated.vert"),
-    Mutant("tri_id_off_by_one", "triangle id written one too high",
-           frag="mutants/tri_id_off_by_one.frag"),
+           patches=(
+        Patch(VERT, "vec3(corner == 0, corner == 1, corner == 2)",
+              "vec3(corner == 1, corner == 2, corner == 0)"),
+    )),
+    Mutant("tri_id_off_by_one", "triangle id written one too high", patches=(
+        Patch(FRAG, "tri_base + gl_PrimitiveID + 1;", "tri_base + gl_PrimitiveID + 2;"),
+    )),
     Mutant("edge_discard", "fragments centered exactly on an edge are discarded "
-                           "(missing pixels on shared edges)",
-           vert="mutants/edge_discard.vert", frag="mutants/edge_discard.frag"),
+                           "(missing pixels on shared edges)", patches=(
+        # v_edge: window-space barycentrics, always; dist: distance of the center to the
+        # nearest edge in pixels, b / |grad b|
+        Patch(VERT, _MAIN, "noperspective out vec3 v_edge;  " + _MAIN),
+        Patch(VERT, _POSITION, _POSITION + " v_edge = unit;"),
+        Patch(FRAG, _MAIN, "noperspective in vec3 v_edge;  " + _MAIN
+              + " vec3 dist = v_edge / max(fwidth(v_edge), vec3(1e-30));"
+                " if (min(dist.x, min(dist.y, dist.z)) < 1e-3) discard;"),
+    )),
     Mutant("fill_rule_top_right", "top-right tie rule instead of the driver's bottom-left "
                                   "(pixels on shared edges go to the other triangle)",
-           vert="mutants/fill_rule_top_right.vert", rotate_180=True),
+           rotate_180=True, patches=(
+        # rotate the image 180 degrees; the runner rotates it back
+        Patch(VERT, _POSITION, _POSITION + " gl_Position.xy = -gl_Position.xy;"),
+    )),
     Mutant("half_float_targets", "barycentric targets are 16-bit floats instead of 32-bit",
            target_dtype="f2"),
     Mutant("depth_test_dropped", "depth test disabled: the last triangle drawn wins",
@@ -178,6 +315,6 @@ def render(mutant: Mutant | None, pos, tri, resolution, *, ctx, outputs=OUTPUTS)
         values["tri_id"] -= 1
     if m.rotate_180:
         values = {k: np.ascontiguousarray(v[::-1, ::-1]) for k, v in values.items()}
-    return _raster.Raster(resolution=(height, width), mask=_raster._mask_from(values),
+    return _raster.Raster(resolution=(height, width), mask=_pipeline.coverage(values),
                           info={"backend": ctx.backend, "renderer": ctx.renderer,
                                 "method": f"mutant:{m.name}"}, **values)

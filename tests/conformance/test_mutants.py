@@ -1,6 +1,7 @@
 """Fault injection: every mutant is caught by some scene; the real shaders raise no alarm."""
 
 import re
+from pathlib import Path
 
 import pytest
 
@@ -23,28 +24,103 @@ def references():
 def test_at_least_eight_mutants_with_distinct_faults():
     assert len(mutants.MUTANTS) >= 8
     assert len({m.name for m in mutants.MUTANTS}) == len(mutants.MUTANTS)
-    assert len({(m.vert, m.frag, m.target_dtype, m.depth_test) for m in mutants.MUTANTS}) \
+    assert len({(m.patches, m.target_dtype, m.depth_test) for m in mutants.MUTANTS}) \
         == len(mutants.MUTANTS)
 
 
 @pytest.mark.parametrize("m", mutants.MUTANTS, ids=lambda m: m.name)
-def test_mutant_files_are_marked_copies_of_the_real_shaders(m):
+def test_each_patch_applies_exactly_once_to_the_current_shaders(m):
     d = shader_dir()
-    for changed, real in ((m.vert, "raster/raster.vert"), (m.frag, "raster/raster.frag")):
-        text = (d / changed).read_text()
-        assert text.startswith("#version 450 core")
-        if changed != real:
-            assert "MUTANT" in text
-            real_text = (d / real).read_text()
-            assert text != real_text
-            # Derived from the current real shader: the fault replaces a few lines, the
-            # rest (interface, defines, uniforms) is unchanged.
-            kept = set(text.splitlines())
-            lost = [ln for ln in real_text.splitlines() if ln not in kept]
-            assert len(lost) <= 2, f"{changed} is stale against {real}: {lost}"
-            interface = [ln for ln in lost if ln.lstrip().startswith(
-                ("layout", "uniform", "#", "readonly", "buffer"))]
-            assert not interface, f"{changed} lost interface lines of {real}: {interface}"
+    for file in mutants.REAL_SHADERS:
+        text = (d / file).read_text()
+        for p in (p for p in m.patches if p.file == file):
+            assert text.count(p.old) == 1, (m.name, file, p.old)
+            text = text.replace(p.old, p.new)
+        assert m.source(file) == text
+
+
+@pytest.mark.parametrize("m", mutants.MUTANTS, ids=lambda m: m.name)
+def test_mutated_source_differs_from_the_real_one_only_where_patched(m):
+    d = shader_dir()
+    for file in mutants.REAL_SHADERS:
+        real, mutated = (d / file).read_text(), m.source(file)
+        patches = [p for p in m.patches if p.file == file]
+        if not patches:
+            assert file not in m.patched_files and mutated == real
+            continue
+        assert mutated != real and mutated.startswith("#version 450 core")
+        # Same lines, so that a compile error's line number is the real file's.
+        real_lines, mutated_lines = real.splitlines(), mutated.splitlines()
+        assert len(mutated_lines) == len(real_lines)
+        changed = [i for i, (a, b) in enumerate(zip(real_lines, mutated_lines)) if a != b]
+        # Every changed line is one that a patch's old text covers.
+        covered = set()
+        for p in patches:
+            start = real[:real.index(p.old)].count("\n") if p.old in real else None
+            if start is not None:
+                covered |= set(range(start, start + p.old.count("\n") + 1))
+        assert changed and set(changed) <= covered, (file, changed, covered)
+        # Undoing the replacements (in reverse order) gives back the real text exactly.
+        undone = mutated
+        for p in reversed(patches):
+            assert undone.count(p.new) == 1
+            undone = undone.replace(p.new, p.old)
+        assert undone == real
+
+
+@pytest.mark.parametrize("m", [m for m in mutants.MUTANTS if m.patches], ids=lambda m: m.name)
+def test_generated_shader_files_keep_the_real_line_numbers(m):
+    d = shader_dir()
+    files = dict(zip(mutants.REAL_SHADERS, m.shader_files()))
+    for file, path in files.items():
+        if file not in m.patched_files:
+            assert path == str(d / file)
+            continue
+        text = Path(path).read_text()
+        assert m.name in path and Path(path).name == Path(file).name
+        body = m.source(file)
+        assert text.startswith(body)
+        assert f"MUTANT {m.name}" in text[len(body):]
+    assert m.shader_files() == tuple(files.values())  # stable paths: one cached program
+
+
+def test_patches_matching_zero_or_two_times_raise_naming_the_mutant():
+    frag = mutants.FRAG
+    missing = mutants.Mutant("stale_patch", "x", patches=(
+        mutants.Patch(frag, "out_tri_id = gl_PrimitiveID;", "out_tri_id = 0;"),))
+    with pytest.raises(ValueError, match=r"'stale_patch'.*'out_tri_id = gl_PrimitiveID;' "
+                                         r"does not occur in raster/raster.frag"):
+        missing.source(frag)
+    with pytest.raises(ValueError, match="stale_patch"):
+        missing.shader_files()
+    twice = mutants.Mutant("ambiguous_patch", "x", patches=(
+        mutants.Patch(frag, "#ifdef OUT_PERSP", "#ifdef OUT_SCREEN"),))
+    with pytest.raises(ValueError, match=r"'ambiguous_patch'.*'#ifdef OUT_PERSP' occurs 2 "
+                                         r"times in raster/raster.frag"):
+        twice.source(frag)
+    # A later patch is matched against the text the earlier ones left.
+    text = "a b"
+    assert mutants.apply_patches("m", "f", text, [mutants.Patch(frag, "a", "b")]) == "b b"
+    with pytest.raises(ValueError, match="'b' occurs 2 times in f"):
+        mutants.apply_patches("m", "f", text, [mutants.Patch(frag, "a", "b"),
+                                               mutants.Patch(frag, "b", "c")])
+
+
+def test_patches_that_add_lines_or_name_other_files_are_refused():
+    with pytest.raises(ValueError, match="'adds_a_line'.*as many lines"):
+        mutants.Mutant("adds_a_line", "x", patches=(
+            mutants.Patch(mutants.VERT, "void main() {", "uniform float u;\nvoid main() {"),))
+    with pytest.raises(ValueError, match="'other_file'.*can only patch"):
+        mutants.Mutant("other_file", "x", patches=(
+            mutants.Patch("methods/divw.frag", "a", "b"),))
+    with pytest.raises(ValueError, match="'no_op'.*differ"):
+        mutants.Mutant("no_op", "x", patches=(mutants.Patch(mutants.VERT, "a", "a"),))
+
+
+def test_no_full_shader_copies_left():
+    d = shader_dir()
+    assert not (d / "mutants").exists() or not [
+        f for f in (d / "mutants").iterdir() if f.suffix in (".vert", ".frag")]
 
 
 def test_every_mutant_is_caught_and_the_control_passes(ctx, references):
@@ -62,7 +138,7 @@ def test_fill_rule_mutant_changes_only_tie_pixels(ctx, references):
     # on an edge change owner. That is what makes it a pure fill-rule fault.
     s = load_scene("quad_shared_diagonal")
     gpu = mutants.render(mutants.get("fill_rule_top_right"), s.pos, s.tri, s.resolution, ctx=ctx)
-    rep, failures, _, _ = check.evaluate(gpu, references[s.name], ctx)
+    rep = check.evaluate(gpu, references[s.name], ctx).report
     assert rep.tri_id_mismatch > 0 or rep.coverage_mismatch > 0
     assert all(v.over_tolerance == 0 for v in rep.values.values())
 
