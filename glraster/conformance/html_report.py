@@ -134,7 +134,7 @@ class HtmlReport:
         """Write the four images of one scene (nothing when the scene raised)."""
         if art is None:
             return
-        gpu, ref, rep = art["gpu"], art["ref"], art["report"]
+        gpu, ref, rep = art.gpu, art.ref, art.report
         y0, y1, x0, x1 = _crop_window(gpu.mask | ref.mask)
         f = _factor((y1 - y0, x1 - x0))
         sl = (slice(y0, y1), slice(x0, x1))
@@ -152,9 +152,8 @@ class HtmlReport:
         save("gpu", bary_rgb(gpu_b[sl] if gpu_b is not None else None, gpu.mask[sl]))
         save("ref", bary_rgb(ref_b[sl] if ref_b is not None else None, ref.mask[sl]))
         ratio = np.zeros((y1 - y0, x1 - x0))
-        for key, m in rep.maps.items():
-            if key.endswith("_ratio"):
-                ratio = np.maximum(ratio, np.nan_to_num(m[sl], nan=np.inf))
+        for name in rep.maps.outputs:
+            ratio = np.maximum(ratio, np.nan_to_num(rep.maps.ratio(name)[sl], nan=np.inf))
         compared = gpu.mask[sl] & ref.mask[sl]
         heat = heat_rgb(ratio, compared)
         save("error", heat, _pool_heat(ratio, compared, f) if f > 1 else None)

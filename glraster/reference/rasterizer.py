@@ -42,8 +42,9 @@ from glraster.reference import kernels
 from glraster import validate
 from glraster.types import OUTPUTS
 from glraster.geometry.clipping import near_far_extents
-from glraster.geometry.conditioning import Conditioning, triangle_conditioning
+from glraster.geometry.conditioning import triangle_conditioning
 from glraster.geometry.fill_rule import FIXED_ONE, SUBPIXEL_BITS, llvmpipe_edges  # noqa: F401 (part of this API)
+from glraster.geometry.triangles import TriangleGeometry
 from glraster.geometry.window import window_float32
 from glraster.types import Raster
 from glraster.verify.tolerance import depth_error
@@ -66,11 +67,15 @@ class ReferenceRaster(Raster):
     edge_band : (H, W) bool   pixel centers within ``edge_band_px`` of an edge of a triangle
                               whose coverage is not modeled exactly: either answer accepted
     depth_tie : (H, W) bool   two triangles within DEPTH_TIE in depth: either may win
+    triangles : TriangleGeometry or None   per-triangle geometry of the T input triangles
+                              (indexed by ``tri_id``), the input of the error model
+                              (:func:`glraster.verify.tolerance.value_tolerance`); None
+                              when there are no triangles
     """
 
     edge_band: np.ndarray | None = None
     depth_tie: np.ndarray | None = None
-    setup: "TriangleSetup | None" = field(default=None, repr=False)
+    triangles: TriangleGeometry | None = field(default=None, repr=False)
 
     @property
     def ambiguous(self) -> np.ndarray:
@@ -79,36 +84,31 @@ class ReferenceRaster(Raster):
 
 
 @dataclass
-class TriangleSetup:
-    """Per-triangle data, float64 unless noted. T triangles.
+class TriangleSetup(TriangleGeometry):
+    """The reference's per-triangle setup: the :class:`TriangleGeometry` (clip, adj, det,
+    depth_plane, planes_crossed, x_plane_crossed, conditioning), plus what only the
+    rasterizer's own loops use. T triangles.
 
-    clip   : (T, 3, 4)  clip-space vertices
-    adj    : (T, 3, 3)  rows: edge functions e_i(p) = adj[i, 0] p_x + adj[i, 1] p_y + adj[i, 2]
-    det    : (T,)       det(M); s = e / det
     exact  : (T,) bool  coverage modeled bit for bit (llvmpipe rule, no clipping)
-    fixed  : (T, 3, 3) int64 or None   llvmpipe edges (dcdx, dcdy, c) when usable
+    fixed  : (T, 3, 3) int64   llvmpipe edges (dcdx, dcdy, c) where ``fixed_ok``
     fixed_ok : (T,) bool  ``fixed`` holds a valid edge setup, used for coverage
     bbox   : (T, 4) int64 x0, x1, y0, y1 inclusive pixel range (x1 < x0: no pixels)
-    planes_crossed : (T,) int  how many of the six clip planes (x, y, z = +-w) some vertex
-             is outside of: 0 means the driver draws the triangle unclipped
-    x_plane_crossed : (T,) bool  some vertex is outside x = -w or x = +w
-    depth_plane : (T, 3)  window depth = a p_x + b p_y + c
     culled : (T,) bool    produces no fragment (zero area)
-    conditioning : tolerance.Conditioning of the triangles (error-model inputs)
     """
 
-    clip: np.ndarray
-    adj: np.ndarray
-    det: np.ndarray
     exact: np.ndarray
     fixed: np.ndarray
     fixed_ok: np.ndarray
     bbox: np.ndarray
-    planes_crossed: np.ndarray
-    x_plane_crossed: np.ndarray
-    depth_plane: np.ndarray
     culled: np.ndarray
-    conditioning: Conditioning = field(repr=False)
+
+    def geometry(self) -> TriangleGeometry:
+        """The public part, sharing its arrays (no copy)."""
+        return TriangleGeometry(
+            clip=self.clip, adj=self.adj, det=self.det, depth_plane=self.depth_plane,
+            planes_crossed=self.planes_crossed, x_plane_crossed=self.x_plane_crossed,
+            conditioning=self.conditioning,
+        )
 
 
 def setup(pos: np.ndarray, tri: np.ndarray, resolution, fill_rule: str | None) -> TriangleSetup:
@@ -157,9 +157,10 @@ def setup(pos: np.ndarray, tri: np.ndarray, resolution, fill_rule: str | None) -
     bbox[culled] = (0, -1, 0, -1)
     planes_crossed = outside.sum(1)
     return TriangleSetup(
-        clip, adj, det, exact, fixed, fixed_ok & modeled, bbox, planes_crossed,
-        outside[:, :2].any(1), depth_plane, culled,
-        triangle_conditioning(clip, planes_crossed == 0, resolution),
+        clip=clip, adj=adj, det=det, depth_plane=depth_plane, planes_crossed=planes_crossed,
+        x_plane_crossed=outside[:, :2].any(1),
+        conditioning=triangle_conditioning(clip, planes_crossed == 0, resolution),
+        exact=exact, fixed=fixed, fixed_ok=fixed_ok & modeled, bbox=bbox, culled=culled,
     )
 
 
@@ -264,14 +265,16 @@ def rasterize(
         mask=covered.reshape(shape),
         edge_band=band.reshape(shape),
         depth_tie=(covered & (others_low <= best_depth + best_error + DEPTH_TIE)).reshape(shape),
-        setup=ts,
+        triangles=ts.geometry() if ts is not None else None,
         info={"backend": "reference", "renderer": f"float64 (numba), fill rule {fill_rule}"},
         **_values(ts, best_tri, shape, names),
     )
 
 
-def edge_values(ts: TriangleSetup, t, px, py):
-    """s = M^-1 (p, 1) at pixel centers: (N, 3) float64, and the edge rows adj (N, 3, 3)."""
+def edge_values(ts: TriangleGeometry, t, px, py):
+    """s = M^-1 (p, 1) at pixel centers (px, py) (N,) of triangles t (N,): (N, 3) float64,
+    and the edge rows adj (N, 3, 3). ``ts``: a :class:`TriangleGeometry` (e.g.
+    ``ReferenceRaster.triangles``) or the setup."""
     a = ts.adj[t]
     cx = px + 0.5
     cy = py + 0.5

@@ -41,6 +41,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from glraster import validate
 from glraster.geometry import camera as cam
 from glraster.interpolate import interpolate
 from glraster.geometry.mesh import Mesh, load_mesh
@@ -108,11 +109,11 @@ def pyrender_depth(vertices, faces, K, resolution, view, near: float, far: float
         info: {"renderer", "gl_version", "sample_positions": [[sx, sy], ...]} with sample
         positions in [0, 1) from the pixel's lower-left corner.
     """
-    K = cam._check_K(K)
+    K = validate.intrinsics(K)
     if K[0, 1] != 0.0:
         raise ValueError(f"K must have zero skew for pyrender's IntrinsicsCamera, got {K[0, 1]}")
-    H, W = cam._size("resolution[0]", resolution[0]), cam._size("resolution[1]", resolution[1])
-    view = cam._array("view", view, (4, 4))
+    H, W = validate.positive_int("resolution[0]", resolution[0]), validate.positive_int("resolution[1]", resolution[1])
+    view = validate.float_array("view", view, (4, 4))
     if platform not in ("egl", "osmesa"):
         raise ValueError(f"platform must be 'egl' or 'osmesa', got {platform!r}")
     with tempfile.TemporaryDirectory(prefix="glraster-pyrender-") as tmp:
@@ -280,7 +281,7 @@ def _against_reference(mesh, view, proj, resolution, near, far, d_py, keep):
     if not sel.any():
         return float("nan"), float("nan"), float("nan")
     rel = np.abs(d_py - z)[sel] / z[sel]
-    tol = value_tolerance(ref)["depth"][sel]
+    tol = value_tolerance(ref.triangles, ref.tri_id, ("depth",)).depth[sel]
     bound = (tol + 2.0 ** -24) * z[sel] * (far - near) / (near * far) \
         + 4 * float(np.finfo(np.float32).eps)
     return float(np.median(rel)), float(rel.max()), float((rel / bound).max())
@@ -308,12 +309,12 @@ def crosscheck_pyrender(mesh=None, *, resolution=(240, 320), K=None, view=None,
         :class:`CrosscheckReport`.
     """
     mesh = default_mesh() if mesh is None else load_mesh(mesh)
-    H, W = cam._size("resolution[0]", resolution[0]), cam._size("resolution[1]", resolution[1])
+    H, W = validate.positive_int("resolution[0]", resolution[0]), validate.positive_int("resolution[1]", resolution[1])
     dK, dview, dnear, dfar = default_camera(mesh, (H, W))
-    K = dK if K is None else cam._check_K(K)
-    view = dview if view is None else cam._array("view", view, (4, 4))
-    near = dnear if near is None else cam._scalar("near", near, positive=True)
-    far = dfar if far is None else cam._scalar("far", far, positive=True)
+    K = dK if K is None else validate.intrinsics(K)
+    view = dview if view is None else validate.float_array("view", view, (4, 4))
+    near = dnear if near is None else validate.real("near", near, positive=True)
+    far = dfar if far is None else validate.real("far", far, positive=True)
     if margin < 0:
         raise ValueError(f"margin must be >= 0, got {margin}")
 

@@ -6,10 +6,49 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from glraster.geometry.triangles import TriangleGeometry
 from glraster.types import VALUE_OUTPUTS
 from glraster.verify.tolerance import ErrorModel, mesa_noperspective_clip_bug, value_tolerance
 
 
+@dataclass
+class ErrorMaps:
+    """Per-pixel maps of one comparison, for reports. Arrays are (H, W), indexed ``[y, x]``
+    with row 0 at the bottom, like the rasters.
+
+    coverage : int8, GPU coverage minus reference coverage (-1, 0 or 1)
+    persp_error, screen_error, depth_error : float64, |GPU - reference| (max over the
+        channels) at the judged pixels, 0 elsewhere; None for an output not compared
+    persp_ratio, screen_ratio, depth_ratio : float64, error / per-pixel tolerance (max
+        over the channels; 0 where the error is 0) at the judged pixels, 0 elsewhere
+    """
+
+    coverage: np.ndarray
+    persp_error: np.ndarray | None = None
+    persp_ratio: np.ndarray | None = None
+    screen_error: np.ndarray | None = None
+    screen_ratio: np.ndarray | None = None
+    depth_error: np.ndarray | None = None
+    depth_ratio: np.ndarray | None = None
+
+    @property
+    def outputs(self) -> tuple[str, ...]:
+        """The compared value outputs (those with maps), in canonical order."""
+        return tuple(n for n in VALUE_OUTPUTS if getattr(self, f"{n}_ratio") is not None)
+
+    def error(self, output: str) -> np.ndarray | None:
+        """The error map of ``output`` ("persp", "screen" or "depth")."""
+        return getattr(self, f"{_value_output(output)}_error")
+
+    def ratio(self, output: str) -> np.ndarray | None:
+        """The error / tolerance map of ``output`` ("persp", "screen" or "depth")."""
+        return getattr(self, f"{_value_output(output)}_ratio")
+
+
+def _value_output(name: str) -> str:
+    if name not in VALUE_OUTPUTS:
+        raise ValueError(f"output must be one of {VALUE_OUTPUTS}, got {name!r}")
+    return name
 
 
 @dataclass
@@ -42,6 +81,8 @@ class Report:
     coverage_mismatch_in_band : the same inside the edge band or a depth tie (accepted)
     tri_id_mismatch : pixels both cover with different triangles, outside the ambiguous pixels
     values : output name -> ValueStats
+    model : the ErrorModel the values were judged with
+    maps : the per-pixel :class:`ErrorMaps`
     """
 
     resolution: tuple
@@ -52,7 +93,7 @@ class Report:
     tri_id_mismatch: int
     values: dict = field(default_factory=dict)
     model: ErrorModel = ErrorModel()
-    maps: dict = field(default_factory=dict, repr=False)
+    maps: ErrorMaps | None = field(default=None, repr=False)
 
     def ok(self, max_coverage_mismatch: int = 0) -> bool:
         """True when coverage outside the band matches (up to ``max_coverage_mismatch``),
@@ -92,13 +133,18 @@ def _row_max(values: np.ndarray) -> np.ndarray:
     return out
 
 
-def waived_pixels(ref, model: ErrorModel) -> np.ndarray:
+def waived_pixels(triangles: TriangleGeometry | None, tri_id: np.ndarray,
+                  model: ErrorModel) -> np.ndarray:
     """(H, W) bool: pixels where ``model`` does not judge the outputs in
     ``model.waived_outputs`` (the triangles of
-    :func:`~glraster.verify.tolerance.mesa_noperspective_clip_bug`)."""
-    out = np.zeros(ref.mask.shape, bool)
-    if model.waived_outputs and ref.setup is not None:
-        out[ref.mask] = mesa_noperspective_clip_bug(ref.setup)[ref.tri_id[ref.mask]]
+    :func:`~glraster.verify.tolerance.mesa_noperspective_clip_bug`).
+
+    triangles : the T triangles' :class:`TriangleGeometry` (``ReferenceRaster.triangles``),
+        or None; tri_id : (H, W) int, the triangle at each pixel, -1 where empty."""
+    out = np.zeros(tri_id.shape, bool)
+    if model.waived_outputs and triangles is not None:
+        covered = tri_id >= 0
+        out[covered] = mesa_noperspective_clip_bug(triangles)[tri_id[covered]]
     return out
 
 
@@ -108,8 +154,9 @@ def compare(gpu, ref, model: ErrorModel | None = None) -> Report:
     Coverage is compared everywhere; pixels in ``ref.edge_band`` or ``ref.depth_tie`` may
     differ. Values are compared where both sides cover the same triangle, each against its
     per-pixel tolerance from ``model`` (default: the error model for llvmpipe, see
-    :mod:`glraster.tolerance`). ``report.maps`` holds the per-pixel error and tolerance
-    arrays ((H, W) max over channels) and the coverage difference for reports.
+    :mod:`glraster.verify.tolerance`), computed from ``ref.triangles`` and ``ref.tri_id``.
+    ``report.maps`` (:class:`ErrorMaps`) holds the per-pixel error and error / tolerance
+    ((H, W) max over channels) and the coverage difference for reports.
     """
     if tuple(gpu.resolution) != tuple(ref.resolution):
         raise ValueError(
@@ -127,18 +174,18 @@ def compare(gpu, ref, model: ErrorModel | None = None) -> Report:
         same &= gpu.tri_id == ref.tri_id
         tri_mismatch = int((both & ~same & ~ambiguous).sum())
     same &= ~ref.depth_tie
-    maps = {"coverage": gpu.mask.astype(np.int8) - ref.mask.astype(np.int8)}
+    maps = ErrorMaps(coverage=gpu.mask.astype(np.int8) - ref.mask.astype(np.int8))
 
-    tolerances = value_tolerance(ref, model)
+    compared = tuple(n for n in VALUE_OUTPUTS
+                     if getattr(gpu, n) is not None and getattr(ref, n) is not None)
+    tolerances = value_tolerance(ref.triangles, ref.tri_id, compared, model)
     values = {}
-    for name in VALUE_OUTPUTS:
+    for name in compared:
         g, r = getattr(gpu, name), getattr(ref, name)
-        if g is None or r is None:
-            continue
         judged = same
         waived = 0
         if name in model.waived_outputs:
-            not_judged = waived_pixels(ref, model)
+            not_judged = waived_pixels(ref.triangles, ref.tri_id, model)
             judged = same & ~not_judged
             waived = int((same & not_judged).sum())
         # Only the judged pixels are touched: big frames stay cheap.
@@ -146,7 +193,7 @@ def compare(gpu, ref, model: ErrorModel | None = None) -> Report:
         n = judged.size
         g_val = g.reshape(n, -1)[idx].astype(np.float64)
         r_val = r.reshape(n, -1)[idx]
-        tol = tolerances[name].reshape(n, -1)[idx]
+        tol = getattr(tolerances, name).reshape(n, -1)[idx]
         # NaN or Inf from the GPU is an infinite error, never "within tolerance".
         err = np.where(np.isfinite(g_val), np.abs(g_val - r_val), np.inf)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -164,7 +211,7 @@ def compare(gpu, ref, model: ErrorModel | None = None) -> Report:
         for key, per_pixel in (("error", err_px), ("ratio", ratio_px)):
             full = np.zeros(n)
             full[idx] = per_pixel
-            maps[f"{name}_{key}"] = full.reshape(judged.shape)
+            setattr(maps, f"{name}_{key}", full.reshape(judged.shape))
     return Report(
         resolution=tuple(ref.resolution),
         covered_gpu=int(gpu.mask.sum()),

@@ -29,7 +29,7 @@ def test_every_catalog_scene_passes_with_every_method(ctx, method):
     # once, by the hw run above (they hold the reference, not a method's output).
     rendered_with = set()
     result = check.run(ctx, method=method, check_golden=False, references=REFERENCES,
-                       on_scene=lambda res, art: rendered_with.add(art["gpu"].info["method"]))
+                       on_scene=lambda res, art: rendered_with.add(art.gpu.info["method"]))
     assert rendered_with == {method}
     failing = [f"{s.name}: {'; '.join(s.failures)}" for s in result.scenes if not s.ok]
     assert not failing, f"{ctx.backend} {method}:\n" + "\n".join(failing)
@@ -60,8 +60,8 @@ def test_nan_values_fail_even_where_the_tolerance_model_cannot_see_them(ctx):
     ref = golden.reference_for(s)
     ys, xs = np.nonzero(gpu.mask)
     gpu.persp[ys[0], xs[0]] = np.nan
-    _, failures, nonfinite, _ = check.evaluate(gpu, ref, ctx)
-    assert nonfinite == 1 and any("NaN" in f for f in failures)
+    ev = check.evaluate(gpu, ref, ctx)
+    assert ev.nonfinite == 1 and any("NaN" in f for f in ev.failures) and not ev.ok
 
 
 def test_waived_pixels_are_counted_and_are_a_real_driver_deviation(ctx):
@@ -72,16 +72,16 @@ def test_waived_pixels_are_counted_and_are_a_real_driver_deviation(ctx):
     s = load_scene("fan_offcenter")
     gpu = gr.rasterize(s.pos, s.tri, s.resolution, ctx=ctx)
     ref = golden.reference_for(s)
-    _, failures, _, waived = check.evaluate(gpu, ref, ctx)
+    ev = check.evaluate(gpu, ref, ctx)
     if not ctx.is_llvmpipe:
         pytest.skip("the waiver applies to llvmpipe only")
-    assert not failures and waived.get("screen", 0) > 0
+    assert ev.ok and ev.waived.get("screen", 0) > 0
     strict = ErrorModel(waived_outputs=())
-    _, strict_failures, _, _ = check.evaluate(gpu, ref, ctx, model=strict)
+    strict_failures = check.evaluate(gpu, ref, ctx, model=strict).failures
     assert any(f.startswith("screen") or "NaN" in f for f in strict_failures)
     # Every waived pixel belongs to a triangle crossing at least two clip planes.
-    crossed = ref.setup.planes_crossed[ref.tri_id[ref.mask]]
-    assert waived["screen"] <= int((crossed >= 2).sum())
+    crossed = ref.triangles.planes_crossed[ref.tri_id[ref.mask]]
+    assert ev.waived["screen"] <= int((crossed >= 2).sum())
 
 
 def _parser():

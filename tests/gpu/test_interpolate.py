@@ -151,7 +151,7 @@ def test_gpu_and_reference_view_depth_agree():
     # d = sum b_i w_i / sum b_i moves by sum db_i (w_i - d) for errors db_i of the weights;
     # value_tolerance bounds |db_i| per pixel, and the float32 result adds one rounding
     # (2 eps32 of margin).
-    tol = value_tolerance(ref)["persp"]
+    tol = value_tolerance(ref.triangles, ref.tri_id, ("persp",)).persp
     w_corner = w[F[np.maximum(ref.tri_id, 0)]]
     bound = ((tol * np.abs(w_corner - d_ref[..., None])).sum(-1)
              + 2 * np.finfo(np.float32).eps * d_ref)

@@ -132,9 +132,9 @@ def test_equal_w_makes_persp_equal_screen(ctx):
     # In the reference they are the same numbers up to float64 rounding.
     np.testing.assert_allclose(ref.persp, ref.screen, rtol=0, atol=1e-12)
     # On the GPU each is within its own tolerance of that common value.
-    tol = value_tolerance(ref)
+    tol = value_tolerance(ref.triangles, ref.tri_id, ("persp", "screen"))
     both = gpu.mask & ref.mask & ~ref.depth_tie
-    assert (np.abs(gpu.persp - gpu.screen)[both] <= (tol["persp"] + tol["screen"])[both]).all()
+    assert (np.abs(gpu.persp - gpu.screen)[both] <= (tol.persp + tol.screen)[both]).all()
 
 
 def test_depth_order_nearest_wins_and_ties_keep_the_earlier(ctx):

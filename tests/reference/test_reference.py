@@ -134,10 +134,10 @@ def test_where_a_snapped_sliver_extrapolates_its_depth_it_is_a_depth_tie():
     pos = np.concatenate([clip(sliver, depth), clip(floor, np.full(4, 0.9843))]).astype(np.float32)
     tri = [[0, 1, 2], [3, 4, 5], [3, 5, 6]]
     ref = gr.reference.rasterize(pos, tri, res)
-    s, _ = gr.reference.edge_values(ref.setup, np.zeros(res[0] * res[1], int),
+    s, _ = gr.reference.edge_values(ref.triangles, np.zeros(res[0] * res[1], int),
                                     np.tile(np.arange(res[1]), res[0]),
                                     np.repeat(np.arange(res[0]), res[1]))
-    reach = np.abs(s * ref.setup.clip[0, :, 3]).sum(1).reshape(res)   # sum |lambda|
+    reach = np.abs(s * ref.triangles.clip[0, :, 3]).sum(1).reshape(res)   # sum |lambda|
     on_sliver = ref.mask & (ref.tri_id == 0)
     outside = on_sliver & (reach > 1 + 1e-6)
     assert outside.any() and reach[outside].max() > 5

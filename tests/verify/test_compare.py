@@ -41,7 +41,7 @@ def test_a_float32_copy_of_the_reference_passes(scene):
 def test_a_value_beyond_its_tolerance_fails(scene):
     _, _, ref = scene
     gpu = as_gpu(ref)
-    tol = value_tolerance(ref)["screen"]
+    tol = value_tolerance(ref.triangles, ref.tri_id, ("screen",)).screen
     ys, xs = np.nonzero(ref.mask & ~ref.depth_tie)
     y, x = ys[0], xs[0]
     gpu.screen[y, x, 1] += np.float32(3 * tol[y, x, 1])
@@ -49,7 +49,7 @@ def test_a_value_beyond_its_tolerance_fails(scene):
     assert not report.ok()
     assert report.values["screen"].over_tolerance == 1
     assert report.values["screen"].worst_ratio == pytest.approx(3, rel=0.01)
-    assert report.maps["screen_ratio"][y, x] == report.values["screen"].worst_ratio
+    assert report.maps.screen_ratio[y, x] == report.values["screen"].worst_ratio
 
 
 def test_coverage_and_id_mismatches_are_counted(scene):
@@ -87,7 +87,7 @@ def test_tolerance_grows_with_distance_from_the_origin_and_the_center():
         y = (np.array([2.2, 3.1, 9.4]) / 16) * 2 - 1
         pos = np.stack([x, y, np.zeros(3), np.ones(3)], 1).astype(np.float32)
         ref = gr.reference.rasterize(pos, [[0, 1, 2]], res)
-        return value_tolerance(ref)["screen"][ref.mask].max()
+        return value_tolerance(ref.triangles, ref.tri_id, ("screen",)).screen[ref.mask].max()
     center, far = tol_at(2045), tol_at(4000)
     assert far > 1.5 * center
     assert tol_at(0) > 0.9 * center     # the window-position term keeps the origin honest
