@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import numbers
 
 import numpy as np
@@ -77,3 +78,62 @@ def outputs(names) -> tuple[str, ...]:
     if not names:
         raise ValueError(f"outputs must name at least one of {OUTPUTS}")
     return tuple(n for n in OUTPUTS if n in names)
+
+
+def real(name: str, value, *, positive: bool = False) -> float:
+    """``value`` as a finite float (> 0 with ``positive``), or ValueError naming ``name``."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a real number, got {value!r}") from None
+    if not math.isfinite(v):
+        raise ValueError(f"{name} must be finite, got {v}")
+    if positive and v <= 0:
+        raise ValueError(f"{name} must be > 0, got {v}")
+    return v
+
+
+def positive_int(name: str, value) -> int:
+    """``value`` as a python int > 0 (not a bool), or ValueError naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    if value <= 0:
+        raise ValueError(f"{name} must be a positive integer, got {value}")
+    return int(value)
+
+
+def float_array(name: str, value, shape: tuple) -> np.ndarray:
+    """float64 copy of ``value`` with ``shape`` (-1 = any length), finite, or ValueError."""
+    try:
+        a = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a numeric array of shape {_fmt(shape)}") from None
+    if a.ndim != len(shape) or any(s != -1 and s != d for s, d in zip(shape, a.shape)):
+        raise ValueError(f"{name} must have shape {_fmt(shape)}, got {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"{name} must be finite")
+    return a
+
+
+def _fmt(shape: tuple) -> str:
+    names = iter("NM")
+    return "(" + ", ".join(next(names) if s == -1 else str(s) for s in shape) + ")"
+
+
+def matrix4(name: str, value) -> np.ndarray:
+    """A finite (4, 4) float64 matrix; None is the identity."""
+    if value is None:
+        return np.eye(4)
+    return float_array(name, value, (4, 4))
+
+
+def intrinsics(K) -> np.ndarray:
+    """An OpenCV pinhole matrix K (3, 3) float64: upper triangular, K[2, 2] = 1, fx, fy > 0."""
+    K = float_array("K", K, (3, 3))
+    if K[1, 0] != 0.0 or K[2, 0] != 0.0 or K[2, 1] != 0.0 or K[2, 2] != 1.0:
+        raise ValueError(
+            "K must be an upper-triangular pinhole matrix [[fx, s, cx], [0, fy, cy], [0, 0, 1]], "
+            f"got rows {K.tolist()}")
+    if K[0, 0] <= 0.0 or K[1, 1] <= 0.0:
+        raise ValueError(f"K must have fx > 0 and fy > 0, got fx={K[0, 0]}, fy={K[1, 1]}")
+    return K

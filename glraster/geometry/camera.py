@@ -35,6 +35,8 @@ import math
 
 import numpy as np
 
+from glraster import validate
+
 __all__ = [
     "OPENCV_TO_OPENGL",
     "perspective",
@@ -56,53 +58,6 @@ OPENCV_TO_OPENGL = np.diag([1.0, -1.0, -1.0, 1.0])
 OPENCV_TO_OPENGL.setflags(write=False)
 
 
-# --------------------------------------------------------------------------- validation
-
-
-def _scalar(name: str, value, *, positive: bool = False) -> float:
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a real number, got {value!r}") from None
-    if not math.isfinite(v):
-        raise ValueError(f"{name} must be finite, got {v}")
-    if positive and v <= 0:
-        raise ValueError(f"{name} must be > 0, got {v}")
-    return v
-
-
-def _size(name: str, value) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    if value <= 0:
-        raise ValueError(f"{name} must be a positive integer, got {value}")
-    return int(value)
-
-
-def _array(name: str, value, shape: tuple) -> np.ndarray:
-    """float64 copy of ``value`` with ``shape`` (-1 = any length), finite, or ValueError."""
-    try:
-        a = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a numeric array of shape {_fmt(shape)}") from None
-    if a.ndim != len(shape) or any(s != -1 and s != d for s, d in zip(shape, a.shape)):
-        raise ValueError(f"{name} must have shape {_fmt(shape)}, got {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise ValueError(f"{name} must be finite")
-    return a
-
-
-def _fmt(shape: tuple) -> str:
-    names = iter("NM")
-    return "(" + ", ".join(next(names) if s == -1 else str(s) for s in shape) + ")"
-
-
-def _matrix4(name: str, value) -> np.ndarray:
-    if value is None:
-        return np.eye(4)
-    return _array(name, value, (4, 4))
-
-
 # --------------------------------------------------------------------------- OpenGL matrices
 
 
@@ -118,12 +73,12 @@ def perspective(fovy_deg: float, aspect: float, near: float, far: float) -> np.n
         (4, 4) float64.  Maps eye-space z = -near to NDC z = -1 and -far to +1;
         clip w = -z_eye (the view depth).
     """
-    fovy = _scalar("fovy_deg", fovy_deg)
+    fovy = validate.real("fovy_deg", fovy_deg)
     if not 0.0 < fovy < 180.0:
         raise ValueError(f"fovy_deg must be in (0, 180), got {fovy}")
-    aspect = _scalar("aspect", aspect, positive=True)
-    near = _scalar("near", near, positive=True)
-    far = _scalar("far", far, positive=True)
+    aspect = validate.real("aspect", aspect, positive=True)
+    near = validate.real("near", near, positive=True)
+    far = validate.real("far", far, positive=True)
     if far <= near:
         raise ValueError(f"far must be > near, got near={near}, far={far}")
     f = 1.0 / math.tan(math.radians(fovy) / 2.0)
@@ -148,9 +103,9 @@ def orthographic(left: float, right: float, bottom: float, top: float,
     Returns:
         (4, 4) float64.
     """
-    l, r = _scalar("left", left), _scalar("right", right)
-    b, t = _scalar("bottom", bottom), _scalar("top", top)
-    n, f = _scalar("near", near), _scalar("far", far)
+    l, r = validate.real("left", left), validate.real("right", right)
+    b, t = validate.real("bottom", bottom), validate.real("top", top)
+    n, f = validate.real("near", near), validate.real("far", far)
     if r == l:
         raise ValueError(f"right must differ from left, both are {l}")
     if t == b:
@@ -178,9 +133,9 @@ def look_at(eye, target, up=(0.0, 1.0, 0.0)) -> np.ndarray:
         (4, 4) float64 rigid transform; the camera looks down its -z axis and
         ``up`` projects onto +y.
     """
-    eye = _array("eye", eye, (3,))
-    target = _array("target", target, (3,))
-    up = _array("up", up, (3,))
+    eye = validate.float_array("eye", eye, (3,))
+    target = validate.float_array("target", target, (3,))
+    up = validate.float_array("up", up, (3,))
     fwd = target - eye
     n = np.linalg.norm(fwd)
     if n == 0.0:
@@ -199,17 +154,6 @@ def look_at(eye, target, up=(0.0, 1.0, 0.0)) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- OpenCV cameras
-
-
-def _check_K(K) -> np.ndarray:
-    K = _array("K", K, (3, 3))
-    if K[1, 0] != 0.0 or K[2, 0] != 0.0 or K[2, 1] != 0.0 or K[2, 2] != 1.0:
-        raise ValueError(
-            "K must be an upper-triangular pinhole matrix [[fx, s, cx], [0, fy, cy], [0, 0, 1]], "
-            f"got rows {K.tolist()}")
-    if K[0, 0] <= 0.0 or K[1, 1] <= 0.0:
-        raise ValueError(f"K must have fx > 0 and fy > 0, got fx={K[0, 0]}, fy={K[1, 1]}")
-    return K
 
 
 def from_intrinsics(K, width: int, height: int, near: float, far: float) -> np.ndarray:
@@ -241,11 +185,11 @@ def from_intrinsics(K, width: int, height: int, near: float, far: float) -> np.n
     Returns:
         (4, 4) float64.
     """
-    K = _check_K(K)
-    W = _size("width", width)
-    H = _size("height", height)
-    near = _scalar("near", near, positive=True)
-    far = _scalar("far", far, positive=True)
+    K = validate.intrinsics(K)
+    W = validate.positive_int("width", width)
+    H = validate.positive_int("height", height)
+    near = validate.real("near", near, positive=True)
+    far = validate.real("far", far, positive=True)
     if far <= near:
         raise ValueError(f"far must be > near, got near={near}, far={far}")
     fx, s, cx = K[0]
@@ -272,8 +216,8 @@ def view_from_opencv(R, t) -> np.ndarray:
     Returns:
         (4, 4) float64 ``OPENCV_TO_OPENGL @ [[R, t], [0, 1]]``.
     """
-    R = _array("R", R, (3, 3))
-    t = _array("t", t, (3,)) if np.ndim(t) == 1 else _array("t", t, (3, 1)).ravel()
+    R = validate.float_array("R", R, (3, 3))
+    t = validate.float_array("t", t, (3,)) if np.ndim(t) == 1 else validate.float_array("t", t, (3, 1)).ravel()
     m = np.eye(4)
     m[:3, :3] = R
     m[:3, 3] = t
@@ -293,10 +237,10 @@ def opencv_project(points, K, R=None, t=None) -> np.ndarray:
         (N, 2) float64 ``(u, v)`` in OpenCV pixel coordinates (integer = pixel center,
         row 0 at the top).  Points with Z <= 0 give meaningless values.
     """
-    P = _array("points", points, (-1, 3))
-    K = _check_K(K)
-    R = np.eye(3) if R is None else _array("R", R, (3, 3))
-    t = np.zeros(3) if t is None else _array("t", np.ravel(t), (3,))
+    P = validate.float_array("points", points, (-1, 3))
+    K = validate.intrinsics(K)
+    R = np.eye(3) if R is None else validate.float_array("R", R, (3, 3))
+    t = np.zeros(3) if t is None else validate.float_array("t", np.ravel(t), (3,))
     Xc = P @ R.T + t
     uvw = Xc @ K.T
     return uvw[:, :2] / uvw[:, 2:3]
@@ -312,15 +256,15 @@ def opencv_to_window(uv, height: int) -> np.ndarray:
     Returns:
         (N, 2) float64 ``(x_w, y_w) = (u + 0.5, H - 0.5 - v)``.
     """
-    uv = _array("uv", uv, (-1, 2))
-    H = _size("height", height)
+    uv = validate.float_array("uv", uv, (-1, 2))
+    H = validate.positive_int("height", height)
     return np.stack([uv[:, 0] + 0.5, H - 0.5 - uv[:, 1]], axis=1)
 
 
 def window_to_opencv(xy, height: int) -> np.ndarray:
     """Inverse of :func:`opencv_to_window`: (N, 2) window (x_w, y_w) to OpenCV (u, v)."""
-    xy = _array("xy", xy, (-1, 2))
-    H = _size("height", height)
+    xy = validate.float_array("xy", xy, (-1, 2))
+    H = validate.positive_int("height", height)
     return np.stack([xy[:, 0] - 0.5, H - 0.5 - xy[:, 1]], axis=1)
 
 
@@ -354,7 +298,7 @@ def project(vertices, model=None, view=None, proj=None, *, dtype=np.float32) -> 
         raise ValueError("vertices must be finite")
     if v.shape[1] == 3:
         v = np.concatenate([v, np.ones((v.shape[0], 1))], axis=1)
-    m = _matrix4("proj", proj) @ _matrix4("view", view) @ _matrix4("model", model)
+    m = validate.matrix4("proj", proj) @ validate.matrix4("view", view) @ validate.matrix4("model", model)
     return (v @ m.T).astype(dtype)
 
 
@@ -369,10 +313,10 @@ def clip_to_window(pos, resolution) -> np.ndarray:
         (V, 3) float64 ``(x_w, y_w, z_w)`` with ``x_w = (x/w + 1) W/2``,
         ``y_w = (y/w + 1) H/2``, ``z_w = (z/w) / 2 + 1/2``.
     """
-    p = _array("pos", pos, (-1, 4))
+    p = validate.float_array("pos", pos, (-1, 4))
     if len(resolution) != 2:
         raise ValueError(f"resolution must be (H, W), got {resolution!r}")
-    H, W = _size("resolution[0]", resolution[0]), _size("resolution[1]", resolution[1])
+    H, W = validate.positive_int("resolution[0]", resolution[0]), validate.positive_int("resolution[1]", resolution[1])
     ndc = p[:, :3] / p[:, 3:4]
     return np.stack([(ndc[:, 0] + 1) * W / 2, (ndc[:, 1] + 1) * H / 2, ndc[:, 2] * 0.5 + 0.5],
                     axis=1)
@@ -394,11 +338,11 @@ def shift_window(proj, dx: float, dy: float, resolution) -> np.ndarray:
     Returns:
         (4, 4) float64.
     """
-    m = _array("proj", proj, (4, 4))
-    dx, dy = _scalar("dx", dx), _scalar("dy", dy)
+    m = validate.float_array("proj", proj, (4, 4))
+    dx, dy = validate.real("dx", dx), validate.real("dy", dy)
     if len(resolution) != 2:
         raise ValueError(f"resolution must be (H, W), got {resolution!r}")
-    H, W = _size("resolution[0]", resolution[0]), _size("resolution[1]", resolution[1])
+    H, W = validate.positive_int("resolution[0]", resolution[0]), validate.positive_int("resolution[1]", resolution[1])
     m[0] += 2.0 * dx / W * m[3]
     m[1] += 2.0 * dy / H * m[3]
     return m

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from glraster import validate
 from glraster.geometry import camera as cam
 
 __all__ = ["Mesh", "SceneGeometry", "load_mesh", "scene_geometry",
@@ -74,7 +75,7 @@ class Mesh:
     def transformed(self, matrix) -> "Mesh":
         """Copy with positions mapped by a (4, 4) affine ``matrix`` (normals by its inverse
         transpose, renormalized)."""
-        m = cam._array("matrix", matrix, (4, 4))
+        m = validate.float_array("matrix", matrix, (4, 4))
         v = self.vertices @ m[:3, :3].T + m[:3, 3]
         n = None
         if self.normals is not None:
@@ -228,7 +229,7 @@ def _resolution(resolution) -> tuple[int, int]:
         H, W = resolution
     except (TypeError, ValueError):
         raise ValueError(f"resolution must be (H, W), got {resolution!r}") from None
-    return cam._size("resolution[0]", H), cam._size("resolution[1]", W)
+    return validate.positive_int("resolution[0]", H), validate.positive_int("resolution[1]", W)
 
 
 def _pyrender_scene(scene, resolution, view, proj) -> SceneGeometry:
@@ -275,9 +276,9 @@ def scene_geometry(scene, resolution=(256, 256), *, view=None, proj=None) -> Sce
     """
     resolution = _resolution(resolution)
     if view is not None:
-        view = cam._array("view", view, (4, 4))
+        view = validate.float_array("view", view, (4, 4))
     if proj is not None:
-        proj = cam._array("proj", proj, (4, 4))
+        proj = validate.float_array("proj", proj, (4, 4))
     if type(scene).__module__.startswith("pyrender"):
         return _pyrender_scene(scene, resolution, view, proj)
     mesh = load_mesh(scene)

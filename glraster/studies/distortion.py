@@ -29,6 +29,7 @@ from fractions import Fraction
 
 import numpy as np
 
+from glraster import validate
 from glraster.geometry import camera as cam
 from glraster.interpolate import interpolate
 
@@ -267,8 +268,8 @@ def render_scene_comparison(scene: Scene, resolution=(360, 480), supersample: in
     """
     from glraster.gpu.rasterize import rasterize
 
-    H, W = cam._size("resolution[0]", resolution[0]), cam._size("resolution[1]", resolution[1])
-    k = cam._size("supersample", supersample)
+    H, W = validate.positive_int("resolution[0]", resolution[0]), validate.positive_int("resolution[1]", resolution[1])
+    k = validate.positive_int("supersample", supersample)
     pos = cam.project(scene.vertices, None, scene.view, scene.proj)
     if not np.all(np.abs(pos[:, 2]) < pos[:, 3]):
         # A near/far-clipped triangle has no meaningful window-space (affine) barycentrics:
