@@ -10,7 +10,7 @@ import pytest
 
 import glraster as gr
 from glraster import reference
-from glraster.studies.bench import make_scene
+from glraster.studies.bench import make_bench_scene
 from glraster.studies.fill_limit import FillLimit
 from glraster.gpu.rasterize import METHODS
 
@@ -24,7 +24,7 @@ def ctx():
 
 @pytest.fixture(scope="module")
 def terrain():
-    return make_scene("terrain", 20000)
+    return make_bench_scene("terrain", 20000)
 
 
 @pytest.mark.parametrize("method", sorted(METHODS))
@@ -40,7 +40,7 @@ def test_fill_limit_1024_20k(benchmark, ctx, terrain):
 
 @pytest.mark.parametrize("method", sorted(METHODS))
 def test_overhead_64x64_one_triangle(benchmark, ctx, method):
-    one = make_scene("terrain", 1)
+    one = make_bench_scene("terrain", 1)
     benchmark(gr.rasterize, one.pos, one.faces, (64, 64), ctx=ctx, method=method)
 
 

@@ -52,7 +52,7 @@ NEAR, FAR = 0.1, 20.0
 
 
 @dataclass
-class Scene:
+class BenchScene:
     """A benchmark mesh and camera.
 
     vertices : (V, 3) float64 world positions; faces : (T, 3) int32
@@ -67,7 +67,7 @@ class Scene:
     pos: np.ndarray
 
 
-def make_scene(name: str, count: int, aspect: float = 1.0, seed: int = 0) -> Scene:
+def make_bench_scene(name: str, count: int, aspect: float = 1.0, seed: int = 0) -> BenchScene:
     """The ``name`` scene ("terrain" or "shards") with about ``count`` triangles (exactly
     ``count`` for shards; terrain rounds to a grid, at least 1 triangle)."""
     rng = np.random.default_rng(seed)
@@ -98,7 +98,7 @@ def make_scene(name: str, count: int, aspect: float = 1.0, seed: int = 0) -> Sce
     view = cam.look_at(eye, target)
     proj = cam.perspective(FOVY_DEG, aspect, NEAR, FAR)
     pos = cam.project(vertices, view=view, proj=proj)
-    return Scene(name, vertices, faces.astype(np.int32), view, proj, pos)
+    return BenchScene(name, vertices, faces.astype(np.int32), view, proj, pos)
 
 
 @dataclass
@@ -172,7 +172,7 @@ print(json.dumps({"first_ms": first * 1e3, "warm_ms": float(np.median(times)) * 
 """
 
 
-def pyrender_time(scene: Scene, resolution, repeats: int = 5, timeout: float = 600) -> dict:
+def pyrender_time(scene: BenchScene, resolution, repeats: int = 5, timeout: float = 600) -> dict:
     """Depth-only pyrender render of ``scene`` at ``resolution`` (H, W) in a subprocess
     (PYOPENGL_PLATFORM=egl): {"first_ms", "warm_ms", "warm_spread_ms", "covered"}."""
     height, width = resolution
@@ -190,7 +190,7 @@ def pyrender_time(scene: Scene, resolution, repeats: int = 5, timeout: float = 6
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
-def run_case(method, scene: Scene, resolution, *, backend="egl", repeats=5, ref=None,
+def run_case(method, scene: BenchScene, resolution, *, backend="egl", repeats=5, ref=None,
              with_pyrender=False) -> CaseResult:
     """Measure one case on a fresh context (so that ``first_ms`` includes compiling)."""
     ctx = Context(backend)
@@ -267,7 +267,7 @@ def run(preset="quick", *, backend="egl", max_reference_pixels=1 << 24, progress
     cases, refs = [], []
     for scene_name, size, count in grid:
         resolution = (size, size)
-        scene = make_scene(scene_name, count)
+        scene = make_bench_scene(scene_name, count)
         tick(f"reference {scene_name} {size}x{size} {len(scene.faces)} tris")
         ref = None
         if size * size <= max_reference_pixels:
@@ -296,7 +296,7 @@ def headline(*, backend="egl", repeats=9, resolution=(1024, 1024), count=20000) 
     """The README figures: hw vs the fill limit (interleaved A/B, median and spread of the
     per-pair ratio, over ``repeats`` pairs), the 64x64 one-triangle warm overhead, the
     reference throughput, and pyrender vs glraster (depth only)."""
-    scene = make_scene("terrain", count)
+    scene = make_bench_scene("terrain", count)
     ctx = Context(backend)
     try:
         fill = FillLimit(ctx, scene.pos, scene.faces, resolution)
@@ -304,7 +304,7 @@ def headline(*, backend="egl", repeats=9, resolution=(1024, 1024), count=20000) 
         t_hw, t_fill = interleaved(call, fill.run, repeats)
         fill.release()
         ratio = t_hw / t_fill
-        one = make_scene("terrain", 1)
+        one = make_bench_scene("terrain", 1)
         small = lambda: rasterize(one.pos, one.faces, (64, 64), ctx=ctx)  # noqa: E731
         for _ in range(20):
             small()
@@ -348,7 +348,7 @@ def skips(*, backend="egl", repeats=5, resolution=(1024, 1024), count=20000) -> 
     interleaved): output subsets, the affine path, culling, the caches, the reference's
     span traversal (vs all pixels of the bounding boxes)."""
     out = {}
-    scene = make_scene("terrain", count)
+    scene = make_bench_scene("terrain", count)
     ctx = Context(backend)
     try:
         def ab(label, fn_on, fn_off):

@@ -33,8 +33,8 @@ from glraster import validate
 from glraster.geometry import camera as cam
 from glraster.interpolate import interpolate
 
-__all__ = ["SegmentExample", "segment_example", "segment_example_gpu", "Scene",
-           "builtin_scenes", "SceneResult", "checker", "render_scene_comparison",
+__all__ = ["SegmentExample", "segment_example", "segment_example_gpu", "DistortionScene",
+           "builtin_scenes", "DistortionResult", "checker", "render_scene_comparison",
            "render_comparison", "write_comparison"]
 
 ORIENTATION = "upright: file row 0 is the top row (glraster array row H-1)"
@@ -155,7 +155,7 @@ def segment_example_gpu(ctx=None, size: int = 33) -> dict:
 
 
 @dataclass(frozen=True)
-class Scene:
+class DistortionScene:
     """A textured test scene.
 
     vertices : (V, 3) float64 world positions;  faces : (T, 3) int64
@@ -175,7 +175,7 @@ class Scene:
     proj: np.ndarray
 
 
-def _plane(aspect: float) -> Scene:
+def _plane(aspect: float) -> DistortionScene:
     # A 2x2 square on y = 0 seen from just above its near edge: depth grows ~6x from the
     # near edge to the far edge.  Two triangles only, so the affine seam is long.
     v = np.array([[-1.0, 0.0, 1.0], [1.0, 0.0, 1.0], [1.0, 0.0, -1.0], [-1.0, 0.0, -1.0]])
@@ -183,10 +183,11 @@ def _plane(aspect: float) -> Scene:
     f = np.array([[0, 1, 2], [0, 2, 3]])
     view = cam.look_at([0.0, 0.5, 1.3], [0.0, -0.12, -0.3], [0.0, 1.0, 0.0])
     proj = cam.perspective(70.0, aspect, 0.1, 10.0)
-    return Scene("plane", "tilted plane (2 triangles)", v, f, uv, np.ones(2), 8, view, proj)
+    return DistortionScene("plane", "tilted plane (2 triangles)", v, f, uv, np.ones(2), 8, view,
+                           proj)
 
 
-def _cube(aspect: float) -> Scene:
+def _cube(aspect: float) -> DistortionScene:
     # 6 faces x 4 corners with their own uv square; seen up close with a wide lens.
     verts, uvs, faces, shade = [], [], [], []
     light = np.array([0.35, 0.6, 0.72])
@@ -207,11 +208,11 @@ def _cube(aspect: float) -> Scene:
             shade += [s, s]
     view = cam.look_at([1.45, 1.35, 1.85], [0.0, -0.05, 0.0], [0.0, 1.0, 0.0])
     proj = cam.perspective(72.0, aspect, 0.1, 10.0)
-    return Scene("cube", "cube, 2 triangles per face", np.array(verts) * 0.9,
-                 np.array(faces), np.array(uvs, float), np.array(shade), 4, view, proj)
+    return DistortionScene("cube", "cube, 2 triangles per face", np.array(verts) * 0.9,
+                           np.array(faces), np.array(uvs, float), np.array(shade), 4, view, proj)
 
 
-def builtin_scenes(resolution=(360, 480)) -> list[Scene]:
+def builtin_scenes(resolution=(360, 480)) -> list[DistortionScene]:
     """The tilted plane and the cube, framed for ``resolution`` (H, W)."""
     H, W = resolution
     return [_plane(W / H), _cube(W / H)]
@@ -232,7 +233,7 @@ def checker(uv: np.ndarray, checks: int) -> np.ndarray:
 
 
 @dataclass
-class SceneResult:
+class DistortionResult:
     """Images of one scene, arrays with row 0 at the bottom, at the output resolution.
 
     affine, correct : (H, W, 3) float32 RGB in [0, 1]
@@ -243,7 +244,7 @@ class SceneResult:
             of covered pixels whose color differs)
     """
 
-    scene: Scene
+    scene: DistortionScene
     affine: np.ndarray
     correct: np.ndarray
     uv_affine: np.ndarray
@@ -259,8 +260,8 @@ def _box(a: np.ndarray, k: int) -> np.ndarray:
     return a.reshape(H, k, W, k, *a.shape[2:]).mean(axis=(1, 3))
 
 
-def render_scene_comparison(scene: Scene, resolution=(360, 480), supersample: int = 3,
-                            ctx=None) -> SceneResult:
+def render_scene_comparison(scene: DistortionScene, resolution=(360, 480),
+                            supersample: int = 3, ctx=None) -> DistortionResult:
     """Render ``scene`` with affine and perspective-correct uv.
 
     Each output pixel averages ``supersample`` x ``supersample`` samples (the GPU renders
@@ -299,12 +300,13 @@ def render_scene_comparison(scene: Scene, resolution=(360, 480), supersample: in
         "mean_uv_error": float(err[r.mask].mean()),
         "pixels_changed": float((colour_a != colour_c)[r.mask].mean()),
     }
-    return SceneResult(scene, images["affine"], images["correct"], uv_a.astype(np.float32),
+    return DistortionResult(scene, images["affine"], images["correct"], uv_a.astype(np.float32),
                        uv_c.astype(np.float32), _box(err, k).astype(np.float32),
                        _box(cover, k).astype(np.float32), stats)
 
 
-def render_comparison(resolution=(360, 480), supersample: int = 3, ctx=None) -> list[SceneResult]:
+def render_comparison(resolution=(360, 480), supersample: int = 3,
+                      ctx=None) -> list[DistortionResult]:
     """:func:`render_scene_comparison` for every :func:`builtin_scenes` scene."""
     return [render_scene_comparison(s, resolution, supersample, ctx)
             for s in builtin_scenes(resolution)]
@@ -322,7 +324,7 @@ def _png_meta(what: str) -> dict:
             "Software": "glraster"}
 
 
-def _write_exr(path: str, results: list[SceneResult]) -> None:
+def _write_exr(path: str, results: list[DistortionResult]) -> None:
     import OpenImageIO as oiio
 
     H, W = results[0].affine.shape[:2]

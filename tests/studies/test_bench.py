@@ -13,12 +13,12 @@ from glraster.studies import bench
 
 @pytest.mark.parametrize("name", ["terrain", "shards"])
 def test_scenes_have_the_requested_size_and_are_in_view(name):
-    scene = bench.make_scene(name, 2000)
+    scene = bench.make_bench_scene(name, 2000)
     assert abs(len(scene.faces) - 2000) <= 0.1 * 2000
     assert scene.pos.dtype == np.float32 and scene.pos.shape == (len(scene.vertices), 4)
     ndc = scene.pos[:, :3] / scene.pos[:, 3:4]
     assert (scene.pos[:, 3] > 0).all() and (np.abs(ndc[:, :2]) < 1).mean() > 0.5
-    assert len(bench.make_scene(name, 1).faces) == 1
+    assert len(bench.make_bench_scene(name, 1).faces) == 1
 
 
 def test_a_tiny_run_reports_every_field(tmp_path):
@@ -39,7 +39,7 @@ def test_a_tiny_run_reports_every_field(tmp_path):
 
 def test_unknown_names_are_rejected():
     with pytest.raises(ValueError, match="scene must be"):
-        bench.make_scene("teapot", 10)
+        bench.make_bench_scene("teapot", 10)
     with pytest.raises(ValueError, match="preset must be"):
         bench.run("huge")
     with pytest.raises(ValueError, match="methods has unknown"):
