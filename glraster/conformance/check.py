@@ -16,7 +16,7 @@ Per scene, for one barycentric method (``method``, default "hw"):
 Pixels the error model waives (documented driver deviations, see
 :class:`glraster.verify.tolerance.ErrorModel`) are counted and shown ("waived"), never hidden.
 
-With ``mutants``, every mutant of :mod:`glraster.mutants` is rendered on the scenes that the
+With ``mutants``, every mutant of :mod:`glraster.conformance.mutants` is rendered on the scenes that the
 real shaders passed (cheapest first) until one scene catches it; the real shaders go
 through the same mutant path as a control and must pass every one of those scenes.
 """

@@ -1,6 +1,6 @@
 """Golden EXR images of the scene catalog, produced by the reference rasterizer.
 
-Each catalog scene has ``golden/<name>.exr`` (see :mod:`glraster.exr` for the layout): the
+Each catalog scene has ``golden/<name>.exr`` (see :mod:`glraster.io.exr` for the layout): the
 float64 reference (:func:`glraster.reference.rasterize`, llvmpipe fill rule) rounded once to
 float32, cropped to the bounding box of covered pixels (lossless: everything outside is
 empty). Goldens do not depend on any driver, so ``check`` can run anywhere: it recomputes

@@ -16,8 +16,8 @@ The mutated sources are written to a per-process temporary folder
 mutant) because the draw paths compile shader files; a compile error names that file, whose
 line N is line N of the real shader. Mutants that need no host change render through
 :func:`glraster.gpu.rasterize.rasterize` with ``shader_files``; the others go through
-:func:`render`, which mirrors that function with the host changes applied to its own
-framebuffer and restores the context state.
+:func:`render`, which draws through the same pipeline (:mod:`glraster.gpu.pipeline`)
+with the host changes applied (target dtype, depth test, uniforms, read-back rotation).
 """
 
 from __future__ import annotations
@@ -30,11 +30,11 @@ from pathlib import Path
 
 import numpy as np
 
+from glraster import validate
+from glraster.gpu import methods as _methods
 from glraster.gpu import pipeline as _pipeline
 from glraster.gpu import rasterize as _raster
-from glraster import validate
-from glraster.errors import GLError
-from glraster.types import OUTPUTS
+from glraster.types import OUTPUTS, Raster
 from glraster.gpu.shaders import shader_dir
 
 REAL_SHADERS = ("raster/raster.vert", "raster/raster.frag")
@@ -262,59 +262,21 @@ def render(mutant: Mutant | None, pos, tri, resolution, *, ctx, outputs=OUTPUTS)
     pos = validate.positions(pos)
     tri = validate.triangles(tri, len(pos))
     height, width = validate.resolution(resolution, ctx.max_texture_size)
-    colors = {}
-    for n in names:
-        if n in _raster.COLOR_FORMATS:
-            comps, dtype = _raster.COLOR_FORMATS[n]
-            colors[n] = (comps, m.target_dtype if dtype == "f4" else dtype)
-    defines = {}
-    for location, n in enumerate(colors):
-        defines[f"OUT_{n.upper()}"] = 1
-        defines[f"{n.upper()}_LOCATION"] = location
+    colors = {n: (c, m.target_dtype if dtype == "f4" else dtype)
+              for n, (c, dtype) in _raster.color_targets(names, _methods.get("hw")).items()}
     vert, frag = m.shader_files()
-    values = {}
     with ctx:
-        mgl = ctx.mgl
-        program, vao = ctx.program(vert, frag, defines)
-        if m.viewport_uniform:
-            program["u_viewport"].value = (float(width), float(height))
-        targets = ctx.targets((height, width), colors, depth_texture=True)
-        fbo = targets.fbo
-        fbo.use()
-        fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
-        if not m.depth_test:
-            mgl.disable(mgl.DEPTH_TEST)
-        try:
-            if len(tri):
-                # Same batching as glraster.rasterize: each draw's indices fit one storage
-                # block, ``tri_base`` keeps the ids global.
-                batch = ctx.max_storage_block_size // tri.itemsize // 3
-                ctx.storage_buffer("positions", pos).bind_to_storage_buffer(0)
-                for base in range(0, len(tri), batch):
-                    part = tri[base:base + batch]
-                    ctx.storage_buffer("indices", part).bind_to_storage_buffer(1)
-                    if "tri_base" in program:
-                        program["tri_base"].value = base
-                    vao.render(mgl.TRIANGLES, vertices=3 * len(part))
-        finally:
-            mgl.enable(mgl.DEPTH_TEST)
-        for n, (comps, dtype) in colors.items():
-            np_dtype = {"f4": np.float32, "f2": np.float16, "i4": np.int32}[dtype]
-            shape = (height, width, comps) if comps > 1 else (height, width)
-            out = np.empty(shape, np_dtype)
-            fbo.read_into(out, components=comps, attachment=targets.color[n], dtype=dtype)
-            values[n] = out.astype(np.float32) if dtype == "f2" else out
-        if "depth" in names:
-            depth = np.empty((height, width), np.float32)
-            fbo.read_into(depth, components=1, attachment=-1, dtype="f4")
-            values["depth"] = depth
-        error = mgl.error
-    if error != "GL_NO_ERROR":
-        raise GLError(error, f"rendering mutant {m.name}")
+        program, vao = ctx.program(vert, frag, _pipeline.output_defines(colors))
+    spec = _pipeline.Draw(
+        program, vao, colors, read_depth="depth" in names, depth_test=m.depth_test,
+        uniforms={"u_viewport": (float(width), float(height))} if m.viewport_uniform else {})
+    values = _pipeline.draw(ctx, spec, pos, tri, (height, width),
+                            during=f"rendering mutant {m.name}")
+    values = {n: v.astype(np.float32) if v.dtype == np.float16 else v for n, v in values.items()}
     if "tri_id" in values:
-        values["tri_id"] -= 1
+        _pipeline.decode_ids(values["tri_id"])
     if m.rotate_180:
         values = {k: np.ascontiguousarray(v[::-1, ::-1]) for k, v in values.items()}
-    return _raster.Raster(resolution=(height, width), mask=_pipeline.coverage(values),
-                          info={"backend": ctx.backend, "renderer": ctx.renderer,
-                                "method": f"mutant:{m.name}"}, **values)
+    return Raster(resolution=(height, width), mask=_pipeline.coverage(values),
+                  info={"backend": ctx.backend, "renderer": ctx.renderer,
+                        "method": f"mutant:{m.name}"}, **values)

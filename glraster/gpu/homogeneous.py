@@ -1,4 +1,4 @@
-"""Per-triangle setup of the "homogeneous" and "homogeneous64" methods (shaders/homogeneous.frag).
+"""Per-triangle setup of the "homogeneous" and "homogeneous64" methods (shaders/methods/homogeneous.frag).
 
 With homogeneous window coordinates X_j = (x_j + w_j) W/2, Y_j = (y_j + w_j) H/2 of the
 clip-space vertices, the matrix M = [[X_0 X_1 X_2], [Y_0 Y_1 Y_2], [w_0 w_1 w_2]] maps clip
@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-STRIDE = 24  # values per triangle record, see shaders/homogeneous.frag
+STRIDE = 24  # values per triangle record, see shaders/methods/homogeneous.frag
 ANCHOR_GRID = 256.0
 
 

@@ -1,5 +1,5 @@
 """The analytic reference rasterizer, in float64: per-triangle setup in NumPy, the loops over
-pixels compiled (:mod:`glraster.reference_kernels`).
+pixels compiled (:mod:`glraster.reference.kernels`).
 
 Formulation (2D homogeneous rasterization, Olano & Greer 1997). With homogeneous window
 coordinates X_i = (x_i + w_i) W/2, Y_i = (y_i + w_i) H/2 of the three clip-space vertices, the

@@ -58,7 +58,7 @@ class ErrorModel:
     waived_outputs: tuple[str, ...] = ("screen",)
     # compensated: the barycentrics (not depth, which stays the driver's) are evaluated in
     # about twice the working precision and rounded once ("homogeneous", "homogeneous64":
-    # glraster/homogeneous.py), so the position-dependent terms (|grad f| (R + kappa D)
+    # glraster/gpu/homogeneous.py), so the position-dependent terms (|grad f| (R + kappa D)
     # and the vertex-value term) shrink by a factor eps32 (glraster.gpu.methods sets it per method).
     compensated: bool = False
     # persp computed from the window-space barycentrics divided by w ("divw"): it carries

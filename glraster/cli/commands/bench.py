@@ -1,4 +1,4 @@
-"""`glraster bench`: run time against error for every method (see glraster.bench)."""
+"""`glraster bench`: run time against error for every method (see glraster.studies.bench)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""`glraster check`: the conformance run on the current driver (see glraster.check)."""
+"""`glraster check`: the conformance run on the current driver (see glraster.conformance.check)."""
 
 from __future__ import annotations
 

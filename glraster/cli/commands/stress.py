@@ -1,4 +1,4 @@
-"""`glraster stress`: numerical stability sweeps of every method (see glraster.stress)."""
+"""`glraster stress`: numerical stability sweeps of every method (see glraster.studies.stress)."""
 
 from __future__ import annotations
 
