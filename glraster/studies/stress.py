@@ -40,6 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from glraster.geometry.transforms import window_to_clip
 from glraster.gpu.rasterize import METHODS, rasterize
 
 EPS32 = float(np.finfo(np.float32).eps)
@@ -60,9 +61,7 @@ class Point:
 
 def _from_window(win, w, z, resolution):
     """Clip positions (N, 4) float32 from window x, y (N, 2) in px, w (N,), NDC z (N,)."""
-    height, width = resolution
-    ndc = np.stack([win[:, 0] / width * 2 - 1, win[:, 1] / height * 2 - 1, z], 1)
-    return np.concatenate([ndc * w[:, None], w[:, None]], 1).astype(np.float32)
+    return window_to_clip(win, resolution, z_ndc=z, w=w).astype(np.float32)
 
 
 def _well_shaped(center, size, rotation):
@@ -281,44 +280,90 @@ def run(sweeps=SWEEPS, methods=tuple(METHODS), *, ctx=None, progress=None) -> di
     return out
 
 
-def plot(result: dict, path: str) -> None:
-    """One PNG: per sweep, max |persp error| (top) and the normalized error (bottom) per
-    method against the swept parameter, log-log. matplotlib Agg."""
-    import matplotlib
+_AXIS_LABELS = {"origin": "x distance from the origin (px)",
+                "origin_y": "y distance from the origin (px)",
+                "origin_xy": "(d, d) from the origin: d (px)",
+                "origin_w1": "x distance, every w = 1 (px)",
+                "w_ratio": "w ratio of the vertices", "aspect": "sliver aspect ratio",
+                "size": "triangle size (px)", "near": "w of the vertex near the eye",
+                "extent": "vertex distance (viewport sizes)", "scale": "clip-coordinate scale"}
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+
+def plot(result: dict, path: str, columns: int = 5) -> None:
+    """One PNG: per sweep two stacked panels, max |persp error| (top) and the normalized
+    error err / (eps32 (1 + |grad b| d)) (bottom, dashed line at 16) per method against the
+    swept parameter, log scales (linear x for the origin sweeps); sweeps wrap at
+    ``columns`` per row. A black cross marks a point whose output held NaN/Inf (its error
+    is over the finite pixels); a point without judged pixels is left out. Dotted lines:
+    2^-24 and 2^-53. Written through :func:`glraster.io.figures.figure`."""
+    import math
+
+    from matplotlib.lines import Line2D
+
+    from glraster.io import figures
 
     sweeps = list(result)
-    fig, axes = plt.subplots(2, len(sweeps), figsize=(3.3 * len(sweeps), 6.4), squeeze=False)
-    colors = dict(zip(METHODS, ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd"]))
-    for col, sweep in enumerate(sweeps):
-        values = np.array(result[sweep]["values"])
-        linear = sweep.startswith("origin")
-        x = values if linear else np.where(values > 0, values, np.nan)  # no 0 on a log axis
-        for method, stats in result[sweep]["methods"].items():
-            err = np.array([s.get("persp", {}).get("max", np.nan) for s in stats])
-            ratio = np.array([s.get("persp", {}).get("ratio_max", np.nan) for s in stats])
-            err = np.clip(err, 1e-17, 1e2)
-            ratio = np.clip(ratio, 1e-6, 1e12)
-            axes[0, col].plot(x, err, "o-", color=colors[method], label=method, ms=3)
-            axes[1, col].plot(x, ratio, "o-", color=colors[method], label=method, ms=3)
-        for row in range(2):
-            ax = axes[row, col]
-            ax.set_yscale("log")
-            if not linear:
-                ax.set_xscale("log")
-            ax.grid(True, which="both", alpha=0.3)
-        axes[0, col].set_title(sweep)
-        axes[1, col].axhline(16, color="k", lw=0.8, ls="--")
-        axes[1, col].set_xlabel(sweep)
-    axes[0, 0].set_ylabel("max |persp error|")
-    axes[1, 0].set_ylabel("err / (eps32 (1 + |grad b| d))")
-    axes[0, -1].legend(fontsize=7)
-    fig.suptitle("glraster stress sweeps on llvmpipe (persp; homogeneous64 read at 48 bits)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    ncols = max(1, min(columns, len(sweeps)))
+    nblocks = math.ceil(len(sweeps) / ncols)
+    methods = [m for m in METHODS if any(m in result[s]["methods"] for s in sweeps)]
+    methods += sorted({m for s in sweeps for m in result[s]["methods"]} - set(methods))
+    color = figures.colors(METHODS)
+    color.update({m: figures.PALETTE[(len(METHODS) + i) % len(figures.PALETTE)]
+                  for i, m in enumerate(m for m in methods if m not in color)})
+    err_floor, ratio_floor = 1e-17, 1e-10
+    eps32, eps64 = 2.0**-24, 2.0**-53
+    title = "glraster stress sweeps on llvmpipe (persp barycentrics)"
+    with figures.figure(path, figsize=(3.2 * ncols + 0.6, 5.2 * nblocks + 0.9), dpi=110,
+                        title=title, description="max |persp error| and normalized error "
+                        "per method against each swept parameter") as fig:
+        axes = fig.subplots(2 * nblocks, ncols, squeeze=False)
+        nonfinite_seen = False
+        for k, sweep in enumerate(sweeps):
+            block, col = divmod(k, ncols)
+            top, bottom = axes[2 * block, col], axes[2 * block + 1, col]
+            bottom.sharex(top)
+            values = np.array(result[sweep]["values"], dtype=float)
+            linear = sweep.startswith("origin")
+            x = values if linear else np.where(values > 0, values, np.nan)  # no 0 on log x
+            for method, stats in result[sweep]["methods"].items():
+                err = np.array([s.get("persp", {}).get("max", np.nan) for s in stats])
+                ratio = np.array([s.get("persp", {}).get("ratio_max", np.nan) for s in stats])
+                bad = np.array([s.get("nonfinite", 0) > 0 for s in stats])
+                err = np.clip(err, err_floor, 1e2)
+                ratio = np.clip(ratio, ratio_floor, 1e14)
+                for ax, y in ((top, err), (bottom, ratio)):
+                    ax.plot(x, y, "o-", color=color[method], ms=3.5, lw=1.2)
+                    if bad.any():
+                        nonfinite_seen = True
+                        ax.plot(x[bad], y[bad], "x", color="k", ms=6, mew=1.2, zorder=4)
+            for level, ls in ((eps32, ":"), (eps64, "-.")):
+                top.axhline(level, color="0.4", lw=0.8, ls=ls, zorder=1)
+            bottom.axhline(16, color="k", lw=0.8, ls="--", zorder=1)
+            for ax in (top, bottom):
+                ax.set_yscale("log")
+                if not linear:
+                    ax.set_xscale("log")
+                ax.grid(True, which="major", alpha=0.3)
+            top.set_ylim(err_floor / 3, 3e2)
+            top.set_title(sweep)
+            top.tick_params(labelbottom=False)
+            bottom.set_xlabel(_AXIS_LABELS.get(sweep, sweep))
+            if col == 0:
+                top.set_ylabel("max |persp error|")
+                bottom.set_ylabel("err / (eps32 (1 + |grad b| d))")
+        for k in range(len(sweeps), nblocks * ncols):
+            block, col = divmod(k, ncols)
+            axes[2 * block, col].set_visible(False)
+            axes[2 * block + 1, col].set_visible(False)
+        handles = [Line2D([], [], color=color[m], marker="o", ms=3.5, label=m) for m in methods]
+        handles += [Line2D([], [], color="0.4", ls=":", lw=0.8, label="$2^{-24}$"),
+                    Line2D([], [], color="0.4", ls="-.", lw=0.8, label="$2^{-53}$"),
+                    Line2D([], [], color="k", ls="--", lw=0.8, label="normalized error 16")]
+        if nonfinite_seen:
+            handles.append(Line2D([], [], color="k", marker="x", ls="", label="NaN/Inf in output"))
+        fig.legend(handles=handles, loc="outside lower center", ncol=len(handles),
+                   frameon=False)
+        fig.suptitle(title)
 
 
 def write_json(result: dict, path: str) -> None:
