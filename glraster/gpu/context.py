@@ -59,6 +59,10 @@ class Context:
     max_texture_size : int    largest width or height glraster can render
     subpixel_bits : int       GL_SUBPIXEL_BITS
     mgl : moderngl.Context    the underlying moderngl context; use it inside ``with ctx:``
+
+    ``with ctx:`` (and every call: rasterize, gl_error, release_targets, release ...) makes
+    this context current and afterwards makes current again whatever context was current
+    on the thread before, as does construction: a caller's own GL context keeps working.
     """
 
     def __init__(self, backend: str | None = "auto"):

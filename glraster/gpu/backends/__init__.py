@@ -8,7 +8,10 @@ Every backend class has::
     Backend.release()       -> None
 
 All GL work happens inside ``with mgl_ctx:``, which makes the backend's context current
-(glcontext's EGL object and the OSMesa loader both implement ``__enter__``/``__exit__``), so
+through the backend's loader (``egl.EGLLoader``, ``osmesa.OSMesaLoader``, both
+``current.CurrentContextLoader``). The loader saves the thread's current context on entry
+and makes it current again on exit, and ``create()`` does the same around creation, so a
+caller's own context (a standalone moderngl context, pyrender's) keeps drawing, and
 contexts of both backends can live in one process.
 
 ``create_backend("auto")`` tries EGL first, then OSMesa.

@@ -2,20 +2,29 @@
 
 glcontext has no OSMesa backend, but moderngl accepts any loader object with
 ``load_opengl_function(name) -> int`` and ``release()``; it also calls the loader's
-``__enter__``/``__exit__`` on ``with ctx:``. This module is that loader. OSMesa was removed
-from Mesa in 25.1, so it is a fallback where the library still exists, never the only path.
+``__enter__``/``__exit__`` on ``with ctx:``. This module is that loader; like every
+glraster loader it makes the previous current context current again on exit (see
+``current``). OSMesa was removed from Mesa in 25.1, so it is a fallback where the library
+still exists, never the only path.
 """
 
 from __future__ import annotations
 
 import ctypes
 import ctypes.util
-from collections import deque
+from typing import NamedTuple
 
 from glraster.errors import BackendUnavailable
+from glraster.gpu.backends.current import (
+    CurrentContextLoader,
+    glx_has_current_context,
+    loaded_library,
+    wrap_loader,
+)
 
 # Attribute names and values from GL/osmesa.h.
 OSMESA_FORMAT = 0x22
+OSMESA_TYPE = 0x23
 OSMESA_RGBA = 0x1908
 OSMESA_DEPTH_BITS = 0x30
 OSMESA_PROFILE = 0x33
@@ -23,11 +32,13 @@ OSMESA_CORE_PROFILE = 0x34
 OSMESA_CONTEXT_MAJOR_VERSION = 0x36
 OSMESA_CONTEXT_MINOR_VERSION = 0x37
 GL_UNSIGNED_BYTE = 0x1401
+REQUIRED_GL = 450
 
 LIBRARY_NAMES = ("libOSMesa.so.8", "libOSMesa.so.6", "libOSMesa.so")
 
 
 def _load_library():
+    """libOSMesa with the prototypes glraster uses."""
     names = list(LIBRARY_NAMES)
     found = ctypes.util.find_library("OSMesa")
     if found:
@@ -37,53 +48,164 @@ def _load_library():
             lib = ctypes.CDLL(name)
         except OSError:
             continue
-        lib.OSMesaCreateContextAttribs.restype = ctypes.c_void_p
-        lib.OSMesaCreateContextAttribs.argtypes = [ctypes.POINTER(ctypes.c_int), ctypes.c_void_p]
-        lib.OSMesaMakeCurrent.restype = ctypes.c_ubyte
-        lib.OSMesaMakeCurrent.argtypes = [
-            ctypes.c_void_p, ctypes.c_void_p, ctypes.c_uint, ctypes.c_int, ctypes.c_int,
-        ]
-        lib.OSMesaGetCurrentContext.restype = ctypes.c_void_p
-        lib.OSMesaGetProcAddress.restype = ctypes.c_void_p
-        lib.OSMesaGetProcAddress.argtypes = [ctypes.c_char_p]
-        lib.OSMesaDestroyContext.argtypes = [ctypes.c_void_p]
-        return lib
+        return _declare(lib)
     raise BackendUnavailable("libOSMesa not found (Debian package libosmesa6)")
 
 
-class _OSMesaLoader:
-    """The object moderngl calls to resolve GL functions and to make the context current."""
+def _declare(lib):
+    vp, i = ctypes.c_void_p, ctypes.c_int
+    lib.OSMesaCreateContextAttribs.restype = vp
+    lib.OSMesaCreateContextAttribs.argtypes = [ctypes.POINTER(i), vp]
+    lib.OSMesaMakeCurrent.restype = ctypes.c_ubyte
+    lib.OSMesaMakeCurrent.argtypes = [vp, vp, ctypes.c_uint, i, i]
+    lib.OSMesaGetCurrentContext.restype = vp
+    lib.OSMesaGetCurrentContext.argtypes = []
+    lib.OSMesaGetColorBuffer.restype = ctypes.c_ubyte
+    lib.OSMesaGetColorBuffer.argtypes = [vp, ctypes.POINTER(i), ctypes.POINTER(i),
+                                         ctypes.POINTER(i), ctypes.POINTER(vp)]
+    lib.OSMesaGetIntegerv.restype = None
+    lib.OSMesaGetIntegerv.argtypes = [i, ctypes.POINTER(i)]
+    lib.OSMesaGetProcAddress.restype = vp
+    lib.OSMesaGetProcAddress.argtypes = [ctypes.c_char_p]
+    lib.OSMesaDestroyContext.argtypes = [vp]
+    return lib
+
+
+class OSMesaCurrent(NamedTuple):
+    """An OSMesa context with the color buffer it was made current with: the arguments of
+    ``OSMesaMakeCurrent(context, buffer, type, width, height)``."""
+
+    context: int
+    buffer: int | None
+    type: int
+    width: int
+    height: int
+
+
+class OSMesaApi:
+    """ctypes access to libOSMesa's current context (one instance per process)."""
+
+    _instance = None
+
+    def __init__(self, lib):
+        self.lib = lib
+
+    @classmethod
+    def get(cls, load: bool = False) -> "OSMesaApi | None":
+        """The process's OSMesa access; None when libOSMesa is not loaded (and ``load``
+        is False: then no OSMesa context can be current)."""
+        if load:
+            lib = _load_library()  # raises BackendUnavailable when it is missing
+            if cls._instance is None:
+                cls._instance = cls(lib)
+        elif cls._instance is None:
+            lib = loaded_library(LIBRARY_NAMES)
+            if lib is None:
+                return None
+            cls._instance = cls(_declare(lib))
+        return cls._instance
+
+    def context(self) -> int | None:
+        """OSMesaGetCurrentContext: derived from Mesa's effective context, so it is
+        meaningful only when that context is an OSMesa one."""
+        return self.lib.OSMesaGetCurrentContext()
+
+    def snapshot(self) -> OSMesaCurrent | None:
+        """The current OSMesa context and its buffer (None when none is current). Call
+        only when no EGL / GLX context is the effective one."""
+        context = self.lib.OSMesaGetCurrentContext()
+        if not context:
+            return None
+        width, height, fmt = ctypes.c_int(), ctypes.c_int(), ctypes.c_int()
+        buffer = ctypes.c_void_p()
+        self.lib.OSMesaGetColorBuffer(context, ctypes.byref(width), ctypes.byref(height),
+                                      ctypes.byref(fmt), ctypes.byref(buffer))
+        kind = ctypes.c_int(GL_UNSIGNED_BYTE)
+        self.lib.OSMesaGetIntegerv(OSMESA_TYPE, ctypes.byref(kind))
+        return OSMesaCurrent(context, buffer.value, kind.value, width.value, height.value)
+
+    def make_current(self, state: OSMesaCurrent) -> bool:
+        return bool(self.lib.OSMesaMakeCurrent(state.context, state.buffer, state.type,
+                                               state.width, state.height))
+
+    def unbind(self) -> None:
+        self.lib.OSMesaMakeCurrent(None, None, 0, 0, 0)
+
+    def force(self, state: OSMesaCurrent) -> None:
+        """OSMesaMakeCurrent rebinds Mesa's dispatch even for the current context."""
+        self.make_current(state)
+
+
+class OSMesaLoader(CurrentContextLoader):
+    """The object moderngl calls to resolve GL functions and to make the context current.
+
+    ``record`` = (OSMesa context before or None, the EGL context that was the effective one
+    as (api object, state), or None).
+    """
 
     # OSMesa needs a color buffer to make a context current; glraster renders into its own
     # framebuffer objects, so a 1x1 RGBA buffer is enough.
-    def __init__(self, lib, handle):
-        self._lib = lib
+    def __init__(self, api: OSMesaApi, handle):
+        super().__init__()
+        self._api = api
         self._handle = handle
         self._buffer = (ctypes.c_ubyte * 4)()
-        self._previous = []
+        self._own = OSMesaCurrent(handle, ctypes.addressof(self._buffer), GL_UNSIGNED_BYTE, 1, 1)
 
     def make_current(self):
-        if not self._lib.OSMesaMakeCurrent(self._handle, self._buffer, GL_UNSIGNED_BYTE, 1, 1):
+        if not self._api.make_current(self._own):
             raise BackendUnavailable("OSMesaMakeCurrent failed")
 
-    def load_opengl_function(self, name: str) -> int:
-        return self._lib.OSMesaGetProcAddress(name.encode("ascii")) or 0
+    def _save(self):
+        if self._api.context() == self._handle:
+            return None  # Mesa's effective context is this one
+        return self.save_state(self._api)
 
-    def __enter__(self):
-        self._previous.append(self._lib.OSMesaGetCurrentContext())
+    @staticmethod
+    def save_state(api: OSMesaApi):
+        """What is current now: (OSMesa state or None, effective EGL context or None)."""
+        if not api.context():
+            return None, None  # no Mesa context is effective on this thread
+        from glraster.gpu.backends.egl import EGLApi
+
+        egl = EGLApi.get()
+        if egl is not None:
+            state = egl.snapshot()
+            if state.context:
+                return None, (egl, state)  # EGL's is taken as the effective one
+        if glx_has_current_context():
+            return None, None  # not an OSMesa context: left alone
+        return api.snapshot(), None
+
+    def _make_current(self):
         self.make_current()
 
-    def __exit__(self, *exc):
-        self._previous.pop()
+    def _restore(self, record):
+        self.restore_state(self._api, record)
 
-    def release(self):
+    @staticmethod
+    def restore_state(api: OSMesaApi, record):
+        before, other = record
+        if before is not None:
+            api.make_current(before)
+        else:
+            api.unbind()
+        if other is not None:
+            other_api, state = other
+            other_api.force(state)
+
+    def _load(self, name: str) -> int:
+        return self._api.lib.OSMesaGetProcAddress(name.encode("ascii")) or 0
+
+    def _destroy(self):
         if self._handle:
-            self._lib.OSMesaDestroyContext(self._handle)
+            self._api.lib.OSMesaDestroyContext(self._handle)
             self._handle = None
 
 
 class OSMesaBackend:
-    """Headless OpenGL 4.5 core context through libOSMesa (Mesa's llvmpipe)."""
+    """Headless OpenGL 4.5 core context through libOSMesa (Mesa's llvmpipe). The context
+    current before creation is current again afterwards, and after every ``with`` block."""
 
     name = "osmesa"
 
@@ -93,7 +215,7 @@ class OSMesaBackend:
     def create(self):
         import moderngl
 
-        lib = _load_library()
+        api = OSMesaApi.get(load=True)
         attribs = (ctypes.c_int * 11)(
             OSMESA_FORMAT, OSMESA_RGBA,
             OSMESA_DEPTH_BITS, 0,
@@ -102,31 +224,24 @@ class OSMesaBackend:
             OSMESA_CONTEXT_MINOR_VERSION, 5,
             0,
         )
-        handle = lib.OSMesaCreateContextAttribs(attribs, None)
+        handle = api.lib.OSMesaCreateContextAttribs(attribs, None)
         if not handle:
             raise BackendUnavailable("OSMesaCreateContextAttribs failed for OpenGL 4.5 core")
-        self._loader = _OSMesaLoader(lib, handle)
-        self._loader.make_current()
+        loader = OSMesaLoader(api, handle)
+        record = OSMesaLoader.save_state(api)
+        created = False
         try:
-            return _wrap_loader(moderngl, self._loader)
+            loader.make_current()
+            ctx = wrap_loader(moderngl, loader, REQUIRED_GL)
+            created = True
         except Exception as exc:  # moderngl raises bare errors on a loader failure
-            self._loader.release()
             raise BackendUnavailable(f"moderngl could not use the OSMesa context: {exc}") from exc
+        finally:
+            OSMesaLoader.restore_state(api, record)
+            if not created:
+                loader.release()
+        self._loader = loader
+        return ctx
 
     def release(self):
         self._loader = None
-
-
-def _wrap_loader(moderngl, loader):
-    """A moderngl.Context over ``loader``, like ``moderngl.init_context`` but not global."""
-    ctx = moderngl.Context.__new__(moderngl.Context)
-    ctx.mglo, ctx.version_code = moderngl.mgl.create_context(context=loader)
-    ctx._info = None
-    ctx._extensions = None
-    ctx.extra = None
-    ctx._gc_mode = None
-    ctx._objects = deque()
-    ctx._screen = ctx.detect_framebuffer(0)
-    ctx.fbo = ctx.detect_framebuffer()
-    ctx.mglo.fbo = ctx.fbo.mglo
-    return ctx
