@@ -205,3 +205,50 @@ def test_large_jittered_grid_matches_fill_rule_exactly(ctx, w_range):
                                  fill_rule="llvmpipe" if ctx.is_llvmpipe else None)
     differ = (gpu.tri_id != ref.tri_id) & ~ref.ambiguous
     assert differ.sum() == 0
+
+
+# -- out=: caller-provided arrays --------------------------------------------------------
+
+@pytest.mark.parametrize("method", ["hw", "homogeneous64"])
+@pytest.mark.parametrize("same_w", [False, True])  # the affine path shares persp / screen
+def test_out_fills_the_callers_arrays_with_the_same_values(ctx, method, same_w):
+    """rasterize(out=r) writes into r's arrays (no new frame-sized arrays) and gives
+    bit-identical results to a fresh call (exact: same draw, same readback)."""
+    pos, tri = synthetic.random_soup(60, seed=3, w_range=(1.0, 1.0) if same_w else (0.5, 4.0))
+    first = gr.rasterize(pos, tri, (48, 40), ctx=ctx, method=method)
+    fresh = gr.rasterize(pos[::-1].copy(), tri, (48, 40), ctx=ctx,  # another image
+                         method=method)
+    again = gr.rasterize(pos, tri, (48, 40), ctx=ctx, method=method, out=fresh)
+    for name in ("persp", "screen", "depth", "tri_id", "mask"):
+        assert getattr(again, name) is getattr(fresh, name), name
+        np.testing.assert_array_equal(getattr(again, name), getattr(first, name), err_msg=name)
+
+
+def test_out_with_a_subset_of_outputs(ctx):
+    pos, tri = synthetic.random_soup(20, seed=4)
+    want = gr.rasterize(pos, tri, (16, 24), ctx=ctx, outputs=("persp",))
+    target = gr.rasterize(pos, tri, (16, 24), ctx=ctx, outputs=("persp", "tri_id"))
+    got = gr.rasterize(pos, tri, (16, 24), ctx=ctx, outputs=("persp",), out=target)
+    assert got.persp is target.persp and got.tri_id is None
+    np.testing.assert_array_equal(got.persp, want.persp)
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda r: setattr(r, "persp", r.persp[:, :-1]), r"out.persp must be .* shape \(16, 24, 3\)"),
+    (lambda r: setattr(r, "persp", r.persp.astype(np.float64)), r"out.persp must be .*float32"),
+    (lambda r: setattr(r, "depth", None), r"out.depth must be an array"),
+    (lambda r: setattr(r, "mask", np.zeros((16, 24), bool, order="F")),
+     r"out.mask must be .*not C-contiguous"),
+])
+def test_out_with_wrong_arrays_is_a_value_error_naming_the_field(ctx, change, message):
+    pos, tri = synthetic.random_soup(10, seed=5)
+    r = gr.rasterize(pos, tri, (16, 24), ctx=ctx)
+    change(r)
+    with pytest.raises(ValueError, match=message):
+        gr.rasterize(pos, tri, (16, 24), ctx=ctx, out=r)
+
+
+def test_out_must_be_a_raster(ctx):
+    with pytest.raises(ValueError, match="out must be a glraster.Raster"):
+        gr.rasterize(np.zeros((3, 4)) + [0, 0, 0, 1], [[0, 1, 2]], (4, 4), ctx=ctx,
+                     out={"persp": np.zeros((4, 4, 3), np.float32)})

@@ -37,16 +37,22 @@ def test_homogeneous_keeps_the_normalized_error_below_16(ctx, sweep):
                 assert stats[name]["ratio_max"] <= 16, (sweep, value, name, stats[name])
 
 
-@pytest.mark.parametrize("sweep", ["origin", "origin_w1", "aspect", "w_ratio", "near"])
+# every sweep but the 10000 x 10000 diagonal (several GiB of targets; measured 1.4e-15 there)
+@pytest.mark.parametrize("sweep", [s for s in stress.SWEEPS if s != "origin_xy"])
 def test_homogeneous64_error_stays_below_1e_12(ctx, sweep):
     """Returned as float64 (read back exactly), the float64 method's error stays below 1e-12 up to
     aspect 1e6 (measured ~1e-15)."""
     values, points = stress.sweep_points(sweep)
+    judged = 0
     for value, point in zip(values[::2], points[::2]):
         stats = stress.measure(point, "homogeneous64", ctx)
         assert stats["nonfinite"] == 0
+        if not stats["pixels"]:    # the smallest triangles of "size" cover no center
+            continue
+        judged += stats["pixels"]
         for name in ("persp", "screen"):
             assert stats[name]["max"] <= 1e-12, (sweep, value, name, stats[name])
+    assert judged > 0
 
 
 @pytest.mark.parametrize("sweep", ["origin_w1", "origin_xy"])
