@@ -42,3 +42,28 @@ class TriangleGeometry:
     planes_crossed: np.ndarray
     x_plane_crossed: np.ndarray
     conditioning: Conditioning = field(repr=False)
+
+
+def homogeneous_vertices(clip: np.ndarray, resolution, dtype=np.float64) -> np.ndarray:
+    """(T, 3, 3) homogeneous window coordinates (X_j, Y_j, w_j) of vertex j, in ``dtype``:
+    X_j = (x_j + w_j) W/2, Y_j = (y_j + w_j) H/2, from clip (T, 3, 4); (X/w, Y/w) is the
+    window position of GL 4.5 section 13.8 (x_w = (x/w + 1) W/2)."""
+    height, width = resolution
+    c = np.asarray(clip).astype(dtype)
+    w = c[..., 3]
+    return np.stack([(c[..., 0] + w) * dtype(width / 2), (c[..., 1] + w) * dtype(height / 2), w],
+                    axis=-1)
+
+
+def edge_functions(vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """adj(M) (T, 3, 3) and det(M) (T,) of M = [[X_j], [Y_j], [w_j]] with the columns
+    ``vertices`` (T, 3, 3) from :func:`homogeneous_vertices`, in their dtype.
+
+    Row i of adj(M) is vertex i+1 x vertex i+2 (indices mod 3): the edge function
+    e_i(p) = A_i p_x + B_i p_y + C_i, zero on the edge opposite vertex i and linear in
+    window space (Olano & Greer 1997); its gradient (A_i, B_i) / det is d s_i / d(x, y).
+    det(M) = e_0(vertex 0) = (vertex 1 x vertex 2) . vertex 0.
+    """
+    adj = np.cross(vertices[:, [1, 2, 0]], vertices[:, [2, 0, 1]])
+    det = np.einsum("ti,ti->t", adj[:, 0], vertices[:, 0])
+    return adj, det

@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from glraster.geometry.triangles import edge_functions, homogeneous_vertices
+
 STRIDE = 24  # values per triangle record, see shaders/methods/homogeneous.frag
 ANCHOR_GRID = 256.0
 
@@ -39,15 +41,10 @@ def setup(clip: np.ndarray, resolution, fp64: bool) -> np.ndarray:
     work = np.longdouble if fp64 else np.float64
     out_t = np.float64 if fp64 else np.float32
     T = len(clip)
-    c = clip.astype(work)
-    w = c[..., 3]
-    X = (c[..., 0] + w) * work(width / 2)
-    Y = (c[..., 1] + w) * work(height / 2)
-    # edge function of vertex i: cross product of the columns of the other two vertices
-    j, k = [1, 2, 0], [2, 0, 1]
-    A = Y[:, j] * w[:, k] - Y[:, k] * w[:, j]
-    B = w[:, j] * X[:, k] - w[:, k] * X[:, j]
-    C = X[:, j] * Y[:, k] - X[:, k] * Y[:, j]
+    vertices = homogeneous_vertices(clip, resolution, work)
+    X, Y, w = vertices[..., 0], vertices[..., 1], vertices[..., 2]
+    adj, _ = edge_functions(vertices)
+    A, B, C = adj[..., 0], adj[..., 1], adj[..., 2]
     det = (A * X).sum(1) + (B * Y).sum(1) + (C * w).sum(1)
     det = det / 3  # each vertex's expansion gives det; averaging shares out the rounding
 

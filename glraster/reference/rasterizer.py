@@ -45,6 +45,7 @@ from glraster.geometry.clipping import near_far_extents
 from glraster.geometry.conditioning import triangle_conditioning
 from glraster.geometry.fill_rule import FIXED_ONE, SUBPIXEL_BITS, llvmpipe_edges  # noqa: F401 (part of this API)
 from glraster.geometry.triangles import TriangleGeometry
+from glraster.geometry.triangles import edge_functions, homogeneous_vertices
 from glraster.geometry.window import window_float32
 from glraster.types import Raster
 from glraster.verify.tolerance import depth_error
@@ -117,12 +118,7 @@ def setup(pos: np.ndarray, tri: np.ndarray, resolution, fill_rule: str | None) -
     clip32 = pos[tri]                                   # (T, 3, 4) float32
     clip = clip32.astype(np.float64)
     w = clip[..., 3]
-    hom = np.stack(
-        [(clip[..., 0] + w) * (width / 2), (clip[..., 1] + w) * (height / 2), w], axis=1
-    )                                                   # (T, 3 rows X/Y/w, 3 vertices)
-    cols = np.moveaxis(hom, 2, 1)                       # (T, vertex, xyw)
-    adj = np.cross(cols[:, [1, 2, 0]], cols[:, [2, 0, 1]])  # row i = col_{i+1} x col_{i+2}
-    det = np.einsum("ti,ti->t", adj[:, 0], cols[:, 0])
+    adj, det = edge_functions(homogeneous_vertices(clip, resolution))
 
     z = clip[..., 2]
     in_front = (w > 0).all(axis=1)
