@@ -292,23 +292,58 @@ def run(preset="quick", *, backend="egl", max_reference_pixels=1 << 24, progress
             "cases": cases, "reference": refs, "headline": head, "skips": skip}
 
 
+def _round_robin(fns, repeats: int) -> list:
+    """Time ``fns`` in turn (A B C ... A B C ...), ``repeats`` rounds after one warm-up
+    round: one (repeats,) array of seconds per function, entry i of each from round i."""
+    for fn in fns:
+        fn()
+    times = [[] for _ in fns]
+    for _ in range(repeats):
+        for fn, t in zip(fns, times):
+            t.append(_timed(fn)[0])
+    return [np.array(t) for t in times]
+
+
+def _ratio_stats(a: np.ndarray, b: np.ndarray) -> dict:
+    """Median, min and max of the per-round ratios a / b ((repeats,) arrays)."""
+    ratio = a / b
+    return {"median": float(np.median(ratio)), "min": float(ratio.min()),
+            "max": float(ratio.max()), "pairs": int(len(ratio))}
+
+
 def headline(*, backend="egl", repeats=9, resolution=(1024, 1024), count=20000) -> dict:
-    """The README figures: hw vs the fill limit (interleaved A/B, median and spread of the
-    per-pair ratio, over ``repeats`` pairs), the 64x64 one-triangle warm overhead, the
-    reference throughput, and pyrender vs glraster (depth only)."""
+    """The README figures: hw against two yardsticks drawing the same float targets, the
+    fill limit (:class:`FillLimit`) and the lean draw (:class:`LeanDraw`: plain vertex
+    attributes, preallocated outputs), with ``rasterize`` timed both returning new arrays
+    and filling earlier ones (``out=``); all four timed in interleaved rounds, each ratio
+    the median and spread of its per-round ratios over ``repeats`` rounds. Then the 64x64
+    one-triangle warm overhead (also with ``out=``), the reference throughput, and
+    pyrender vs glraster (depth only)."""
+    from glraster.studies.fill_limit import LeanDraw
+
     scene = make_bench_scene("terrain", count)
     ctx = Context(backend)
     try:
         fill = FillLimit(ctx, scene.pos, scene.faces, resolution)
+        lean = LeanDraw(ctx, scene.pos, scene.faces, resolution)
         call = lambda: rasterize(scene.pos, scene.faces, resolution, ctx=ctx)  # noqa: E731
-        t_hw, t_fill = interleaved(call, fill.run, repeats)
+        previous = call()
+        call_out = lambda: rasterize(scene.pos, scene.faces, resolution, ctx=ctx,  # noqa: E731
+                                     out=previous)
+        t_hw, t_out, t_fill, t_lean = _round_robin((call, call_out, fill.run, lean.run), repeats)
         fill.release()
-        ratio = t_hw / t_fill
+        lean.release()
         one = make_bench_scene("terrain", 1)
         small = lambda: rasterize(one.pos, one.faces, (64, 64), ctx=ctx)  # noqa: E731
         for _ in range(20):
             small()
         t_small = np.array([_timed(small)[0] for _ in range(200)])
+        small_previous = small()
+        small_out = lambda: rasterize(one.pos, one.faces, (64, 64), ctx=ctx,  # noqa: E731
+                                      out=small_previous)
+        for _ in range(20):
+            small_out()
+        t_small_out = np.array([_timed(small_out)[0] for _ in range(200)])
         overhead = {}
         for method in METHODS:
             f = lambda m=method: rasterize(one.pos, one.faces, (64, 64), ctx=ctx, method=m)  # noqa: E731
@@ -329,10 +364,14 @@ def headline(*, backend="egl", repeats=9, resolution=(1024, 1024), count=20000) 
     return {
         "scene": f"terrain {len(scene.faces)} triangles at {resolution[1]}x{resolution[0]}",
         "hw_ms": float(np.median(t_hw)) * 1e3, "fill_ms": float(np.median(t_fill)) * 1e3,
-        "hw_over_fill": {"median": float(np.median(ratio)), "min": float(ratio.min()),
-                         "max": float(ratio.max()), "pairs": int(repeats)},
+        "hw_out_ms": float(np.median(t_out)) * 1e3, "lean_ms": float(np.median(t_lean)) * 1e3,
+        "hw_over_fill": _ratio_stats(t_hw, t_fill),
+        "hw_over_lean": _ratio_stats(t_hw, t_lean),
+        "hw_out_over_fill": _ratio_stats(t_out, t_fill),
+        "hw_out_over_lean": _ratio_stats(t_out, t_lean),
         "overhead_64x64_ms": {"median": float(np.median(t_small)) * 1e3,
                               "p90": float(np.percentile(t_small, 90)) * 1e3,
+                              "median_out": float(np.median(t_small_out)) * 1e3,
                               "per_method": overhead},
         "reference_mpix_per_s": {"median": pixels / float(np.median(t_ref)) / 1e6,
                                  "best": pixels / float(t_ref.min()) / 1e6},

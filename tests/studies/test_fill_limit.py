@@ -3,11 +3,14 @@ rasterize draws. Their speed is a benchmark figure (bench.headline), not judged 
 
 from __future__ import annotations
 
+import importlib.util
+
 import numpy as np
 import pytest
 
 import glraster as gr
 from glraster.geometry import synthetic
+from glraster.studies import bench
 from glraster.studies.fill_limit import FillLimit, LeanDraw
 
 RESOLUTION = (48, 64)
@@ -111,3 +114,13 @@ def test_bad_input_names_the_argument(ctx, cls):
         cls(ctx, pos, tri, (0, 8))
     with pytest.raises(ValueError, match="resolution must be"):
         cls(ctx, pos, tri, 64)
+
+
+@pytest.mark.skipif(importlib.util.find_spec("pyrender") is None, reason="pyrender not installed")
+def test_headline_reports_rasterize_against_both_yardsticks(ctx):
+    head = bench.headline(backend=ctx.backend, repeats=2, resolution=(48, 64), count=50)
+    for key in ("hw_over_fill", "hw_over_lean", "hw_out_over_fill", "hw_out_over_lean"):
+        assert head[key]["pairs"] == 2 and head[key]["min"] <= head[key]["median"] <= head[key]["max"]
+    for key in ("hw_ms", "hw_out_ms", "fill_ms", "lean_ms"):
+        assert head[key] > 0
+    assert head["overhead_64x64_ms"]["median_out"] > 0
