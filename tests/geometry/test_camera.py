@@ -164,7 +164,7 @@ def test_shift_window_moves_every_point_by_the_shift():
     np.testing.assert_allclose(b - a, np.tile([0.125, -0.375, 0.0], (30, 1)), atol=1e-10)
 
 
-def test_gpu_covers_the_opencv_pixel():
+def test_gpu_covers_the_opencv_pixel(ctx):
     """A small triangle around the 3D point whose OpenCV projection is the center of pixel
     (col, row) covers exactly glraster pixel (col, H - 1 - row) on the GPU."""
     import glraster as gr
@@ -186,6 +186,6 @@ def test_gpu_covers_the_opencv_pixel():
         world = (corners - t) @ R
         pos = cam.project(world, None, cam.view_from_opencv(R, t),
                           cam.from_intrinsics(K, W, H, 0.1, 100.0))
-        r = gr.rasterize(pos, [[0, 1, 2]], (H, W), outputs=("tri_id",))
+        r = gr.rasterize(pos, [[0, 1, 2]], (H, W), ctx=ctx, outputs=("tri_id",))
         ys, xs = np.nonzero(r.mask)
         assert list(zip(xs, ys)) == [(col, H - 1 - row)], (W, H, col, row)

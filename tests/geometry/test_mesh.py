@@ -109,11 +109,11 @@ def _pyrender_quad_scene():
     return scene
 
 
-def test_render_pyrender_scene_covers_expected_rectangle():
+def test_render_pyrender_scene_covers_expected_rectangle(ctx):
     """Quad x in [-0.75, 0.25], y in [-0.5, 0.5] (camera frame) at depth 2, f = 64 px and
     (pyrender's convention) the principal point at window (32, 32): it spans window
     x in [8, 40], y in [16, 48].  Those are pixel edges, so coverage is unambiguous."""
-    r = render_scene(_pyrender_quad_scene(), (64, 64), outputs=("tri_id", "depth"))
+    r = render_scene(_pyrender_quad_scene(), (64, 64), ctx=ctx, outputs=("tri_id", "depth"))
     want = np.zeros((64, 64), bool)
     want[16:48, 8:40] = True
     np.testing.assert_array_equal(r.mask, want)
@@ -124,19 +124,20 @@ def test_render_pyrender_scene_covers_expected_rectangle():
     np.testing.assert_array_equal(geo.view_depth, np.full(len(geo.mesh.vertices), 2.0))
 
 
-def test_render_scene_equals_rasterize_of_flattened_geometry():
+def test_render_scene_equals_rasterize_of_flattened_geometry(ctx):
     scene = _pyrender_quad_scene()
     geo = scene_geometry(scene, (40, 56))
     direct = gr.rasterize(cam.project(geo.mesh.vertices, None, geo.view, geo.proj), geo.tri,
-                          (40, 56), outputs=("persp", "tri_id"))
-    via = render_scene(scene, (40, 56), outputs=("persp", "tri_id"))
+                          (40, 56), ctx=ctx, outputs=("persp", "tri_id"))
+    via = render_scene(scene, (40, 56), ctx=ctx, outputs=("persp", "tri_id"))
     # same float32 inputs on the same driver: bit-identical
     np.testing.assert_array_equal(via.tri_id, direct.tri_id)
     np.testing.assert_array_equal(via.persp, direct.persp)
 
 
-def test_trimesh_gets_a_framing_camera():
-    r = render_scene(trimesh.creation.icosphere(subdivisions=2), (48, 64), outputs=("tri_id",))
+def test_trimesh_gets_a_framing_camera(ctx):
+    r = render_scene(trimesh.creation.icosphere(subdivisions=2), (48, 64), ctx=ctx,
+                     outputs=("tri_id",))
     ys, xs = np.nonzero(r.mask)
     # the whole sphere is inside the image, with a margin, and fills a good part of it
     assert 0 < xs.min() and xs.max() < 63 and 0 < ys.min() and ys.max() < 47

@@ -48,12 +48,12 @@ def _gpu_scene():
     return eye, P, pos, np.array([[0, 1, 2]])
 
 
-def test_persp_interpolated_eye_position_reprojects_to_pixel_center():
+def test_persp_interpolated_eye_position_reprojects_to_pixel_center(ctx):
     """Perspective-correct interpolation of eye-space position gives the 3D surface point
     on the pixel's ray, so projecting it back lands on the pixel center."""
     eye, P, pos, tri = _gpu_scene()
     H = W = 64
-    r = gr.rasterize(pos, tri, (H, W), outputs=("persp", "tri_id"))
+    r = gr.rasterize(pos, tri, (H, W), ctx=ctx, outputs=("persp", "tri_id"))
     pts = interpolate(eye, r, tri, space="persp")[r.mask]
     assert pts.dtype == np.float32 and len(pts) > 500
     win = cam.clip_to_window(cam.project(pts.astype(np.float64), proj=P, dtype=np.float64),
@@ -66,11 +66,11 @@ def test_persp_interpolated_eye_position_reprojects_to_pixel_center():
     assert err < 1e-2, err
 
 
-def test_screen_interpolated_window_position_is_pixel_center():
+def test_screen_interpolated_window_position_is_pixel_center(ctx):
     """Window coordinates are affine in window space: screen barycentrics reproduce them."""
     eye, P, pos, tri = _gpu_scene()
     H = W = 64
-    r = gr.rasterize(pos, tri, (H, W), outputs=("screen", "tri_id"))
+    r = gr.rasterize(pos, tri, (H, W), ctx=ctx, outputs=("screen", "tri_id"))
     win = cam.clip_to_window(pos, (H, W))
     got = interpolate(win[:, :2], r, tri, space="screen")[r.mask]
     ys, xs = np.nonzero(r.mask)
@@ -79,7 +79,7 @@ def test_screen_interpolated_window_position_is_pixel_center():
     # triangle extent: a few 1e-3 px.
     assert err < 1e-2, err
     # and the perspective-correct path does NOT reproduce window positions here
-    rp = gr.rasterize(pos, tri, (H, W), outputs=("persp", "tri_id"))
+    rp = gr.rasterize(pos, tri, (H, W), ctx=ctx, outputs=("persp", "tri_id"))
     bad = interpolate(win[:, :2], rp, tri, space="persp")[rp.mask]
     assert np.abs(bad - np.stack([xs + 0.5, ys + 0.5], 1)).max() > 1.0
 
@@ -131,7 +131,7 @@ def _sphere_scene(H=128, W=128):
     return V, np.asarray(sph.faces), view, proj
 
 
-def test_gpu_and_reference_view_depth_agree():
+def test_gpu_and_reference_view_depth_agree(ctx):
     """Perspective-correct view depth from GPU barycentrics stays within the bound that
     the project's error model (glraster.tolerance) puts on those barycentrics, and
     normalizing the GPU weights makes it more accurate, not less."""
@@ -142,7 +142,7 @@ def test_gpu_and_reference_view_depth_agree():
     V, F, view, proj = _sphere_scene(H, W)
     pos = cam.project(V, None, view, proj)
     w = pos[:, 3].astype(np.float64)          # clip w = view depth
-    gpu = gr.rasterize(pos, F, (H, W), outputs=("persp", "tri_id"))
+    gpu = gr.rasterize(pos, F, (H, W), ctx=ctx, outputs=("persp", "tri_id"))
     ref = glraster.reference.rasterize(pos, F, (H, W), outputs=("persp", "tri_id"))
     d_ref = interpolate(w, ref, F)
     assert d_ref.dtype == np.float64

@@ -145,11 +145,11 @@ def test_invalid_method_arguments_name_the_argument():
 
 
 @pytest.mark.parametrize("method", sorted(METHODS))
-def test_batched_draws_give_the_same_image(method):
+def test_batched_draws_give_the_same_image(gl_backend, method):
     """With a storage block limit small enough to split the draw (index, setup and id
     arrays per batch), every output equals the single-draw image: ids stay global."""
     pos, tri = synthetic.grid(8, 6, seed=12, w_range=(0.5, 3.0))   # 63 vertices, 96 triangles
-    ctx = gr.Context("auto")
+    ctx = gr.Context(gl_backend)   # its own: the test lowers its storage block limit
     try:
         whole = gr.rasterize(pos, tri, (40, 56), ctx=ctx, method=method, cull=False)
         ctx.max_storage_block_size = 1024   # 1008-byte pos fits; 85 triangles per index batch

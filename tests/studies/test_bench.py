@@ -21,10 +21,11 @@ def test_scenes_have_the_requested_size_and_are_in_view(name):
     assert len(bench.make_bench_scene(name, 1).faces) == 1
 
 
-def test_a_tiny_run_reports_every_field(tmp_path):
+def test_a_tiny_run_reports_every_field(tmp_path, gl_backend):
     steps = []
-    result = bench.run("quick", methods=("hw", "homogeneous"), resolutions=(48,), counts=(1, 50),
-                       repeats=2, with_pyrender=False, summaries=False,
+    result = bench.run("quick", backend=gl_backend, methods=("hw", "homogeneous"),
+                       resolutions=(48,), counts=(1, 50), repeats=2, with_pyrender=False,
+                       summaries=False,
                        progress=lambda i, n, label: steps.append((i, n)))
     assert steps[-1][0] == steps[-1][1] == 6
     assert len(result["cases"]) == 4

@@ -11,14 +11,14 @@ from glraster.studies.crosscheck import (crosscheck_pyrender, default_camera, de
 
 
 @pytest.fixture(scope="module")
-def report(tmp_path_factory):
+def report(tmp_path_factory, gl_context):
     # Through a file, with an explicit camera, so loading and the K/view path are covered.
     mesh = default_mesh()
     path = tmp_path_factory.mktemp("cc") / "torus.ply"
     mesh.to_trimesh().export(path)
     K, view, near, far = default_camera(mesh, (120, 160))
     return crosscheck_pyrender(str(path), resolution=(120, 160), K=K, view=view,
-                               near=near, far=far)
+                               near=near, far=far, ctx=gl_context)
 
 
 def test_median_relative_depth_difference(report):
@@ -43,6 +43,7 @@ def test_msaa_sample_position_explains_pixel_center_offset(report):
     assert report.median_rel_by_sample["center"] > 100 * report.median_rel
 
 
+@pytest.mark.gl   # pyrender's own EGL context, in a subprocess
 def test_pyrender_depth_rows_start_at_bottom():
     """A quad covering only the lower half of the image must show up in rows 0..H/2-1."""
     V = np.array([[-1, -1, 0], [1, -1, 0], [1, 0, 0], [-1, 0, 0]], float) * [4, 4, 1]
@@ -73,7 +74,7 @@ def test_skewed_intrinsics_are_rejected():
                        (8, 8), np.eye(4), 0.1, 10)
 
 
-def test_cli_crosscheck_pyrender(tmp_path, capsys):
+def test_cli_crosscheck_pyrender(tmp_path, capsys, gl_backend):
     import argparse
     import json
 
@@ -81,7 +82,8 @@ def test_cli_crosscheck_pyrender(tmp_path, capsys):
 
     parser = argparse.ArgumentParser(prog="glraster")
     cmd.register(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(["crosscheck", "pyrender", "--width", "64", "--height", "48",
+    args = parser.parse_args(["crosscheck", "pyrender", "--backend", gl_backend,
+                              "--width", "64", "--height", "48",
                               "--json", str(tmp_path / "r.json")])
     assert args.func(args) == 0
     assert "PASS" in capsys.readouterr().out

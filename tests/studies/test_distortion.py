@@ -50,8 +50,8 @@ def test_segment_example_errors(kwargs, name):
         segment_example(**kwargs)
 
 
-def test_gpu_reproduces_4_5_against_4():
-    g = segment_example_gpu()
+def test_gpu_reproduces_4_5_against_4(ctx):
+    g = segment_example_gpu(ctx)
     # llvmpipe's noperspective and smooth barycentrics are within ~6e-5 / 1e-5 on a
     # triangle this size (DESIGN.md, measured here ~1e-7); depths span 2..5, so 3e-4
     # bounds the interpolated depths with margin and still separates 4 from 4.5 by 1000x.
@@ -74,10 +74,10 @@ def _ray_plane_uv(scene, H, W):
     return np.stack([(hit[..., 0] + 1) / 2, (1 - hit[..., 2]) / 2], -1)
 
 
-def test_plane_correct_uv_is_the_ray_hit_and_affine_is_not():
+def test_plane_correct_uv_is_the_ray_hit_and_affine_is_not(ctx):
     H, W = 72, 96
     plane = builtin_scenes((H, W))[0]
-    res = render_scene_comparison(plane, (H, W), supersample=1)
+    res = render_scene_comparison(plane, (H, W), supersample=1, ctx=ctx)
     inside = res.coverage == 1.0
     uv = _ray_plane_uv(plane, H, W)
     err_c = np.abs(res.uv_correct - uv)[inside].max()
@@ -92,12 +92,12 @@ def test_plane_correct_uv_is_the_ray_hit_and_affine_is_not():
                                atol=1e-6)  # float32 storage of both
 
 
-def test_affine_error_vanishes_at_vertices_and_peaks_inside():
+def test_affine_error_vanishes_at_vertices_and_peaks_inside(ctx):
     """The error map is where it should be: ~0 at the projected vertices, largest inside
     (on the seam that joins the nearest and farthest corners)."""
     H, W = 288, 384
     plane = builtin_scenes((H, W))[0]
-    res = render_scene_comparison(plane, (H, W), supersample=1)
+    res = render_scene_comparison(plane, (H, W), supersample=1, ctx=ctx)
     win = cam.clip_to_window(cam.project(plane.vertices, None, plane.view, plane.proj,
                                          dtype=np.float64), (H, W))
     checked = 0
@@ -122,7 +122,7 @@ def test_affine_error_vanishes_at_vertices_and_peaks_inside():
     assert dist < 1.0, dist
 
 
-def test_cli_writes_upright_complete_files(tmp_path, capsys):
+def test_cli_writes_upright_complete_files(tmp_path, capsys, gl_backend):
     """`glraster distortion` (no required arguments) writes every file, upright."""
     import argparse
     import json
@@ -136,7 +136,8 @@ def test_cli_writes_upright_complete_files(tmp_path, capsys):
     cmd.register(parser.add_subparsers(dest="command", required=True))
     assert parser.parse_args(["distortion"]).out == "out/distortion"
     H, W = 60, 80
-    args = parser.parse_args(["distortion", "--out", str(tmp_path), "--width", str(W),
+    args = parser.parse_args(["distortion", "--backend", gl_backend, "--out", str(tmp_path),
+                              "--width", str(W),
                               "--height", str(H), "--supersample", "1"])
     assert args.func(args) == 0
     out = capsys.readouterr().out
