@@ -8,7 +8,10 @@ PY     := $(VENV)/bin/python
 demo: setup
 	$(VENV)/bin/glraster demo
 
+# Import contracts first (pyproject.toml's [tool.importlinter]), then the tests; on a
+# machine without Mesa, `$(PY) -m pytest -m "not gl"` runs the CPU half.
 test: setup
+	$(VENV)/bin/lint-imports --no-cache --no-logo
 	$(PY) -m pytest -q
 
 bench: setup

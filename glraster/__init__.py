@@ -5,18 +5,48 @@ types / validate / errors -> geometry -> io -> verify -> gpu | reference ->
 conformance | studies -> cli.
 """
 
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
 from glraster._version import __version__  # noqa: E402,F401
 
 from glraster import reference, types  # noqa: E402
 from glraster.errors import BackendUnavailable, GLError, ShaderCompileError  # noqa: E402
 from glraster.geometry import camera  # noqa: E402
 from glraster.geometry.mesh import Mesh, load_mesh  # noqa: E402
-from glraster.gpu.context import Context  # noqa: E402
-from glraster.gpu.rasterize import rasterize  # noqa: E402
-from glraster.gpu.render import render_scene  # noqa: E402
 from glraster.interpolate import interpolate  # noqa: E402
 from glraster.types import Raster  # noqa: E402
 from glraster.verify.compare import compare  # noqa: E402
+
+if TYPE_CHECKING:
+    from glraster.gpu.context import Context
+    from glraster.gpu.rasterize import rasterize
+    from glraster.gpu.render import render_scene
+
+# The GPU names are imported on first use (PEP 562), so that ``import glraster.reference``
+# and the rest of the CPU side work where moderngl is not installed.
+_GPU_NAMES = {
+    "Context": "glraster.gpu.context",
+    "rasterize": "glraster.gpu.rasterize",
+    "render_scene": "glraster.gpu.render",
+}
+
+
+def __getattr__(name: str):
+    module = _GPU_NAMES.get(name)
+    if module is None:
+        raise AttributeError(f"module 'glraster' has no attribute {name!r}")
+    import importlib
+
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_GPU_NAMES))
+
 
 __all__ = [
     "BackendUnavailable", "Context", "GLError", "Mesh", "Raster", "ShaderCompileError",
