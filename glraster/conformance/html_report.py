@@ -14,7 +14,7 @@ disappears):
   difference accepted in the edge band or a depth tie, red both cover with different ids.
 
 It also holds the per-output error statistics, the failures, golden status and timings,
-a summary figure (matplotlib, Agg) of the worst error/tolerance per scene, and the mutant
+a summary figure (glraster.io.figures) of the worst error/tolerance per scene, and the mutant
 table. Nothing is loaded from the network; the page works from ``file://``.
 """
 
@@ -27,9 +27,10 @@ from pathlib import Path
 
 import numpy as np
 
+from glraster.io import figures
+from glraster.io.png import EMPTY_RGB, bary_rgb, write_png
+
 MAX_IMAGE_PX = 384
-EMPTY_RGB = (32, 32, 32)
-NONFINITE_RGB = (255, 0, 255)
 
 
 def _crop_window(mask: np.ndarray, margin: int = 2):
@@ -59,41 +60,13 @@ def _pool_max(a: np.ndarray, f: int) -> np.ndarray:
     return b.max(axis=(1, 3))
 
 
-def write_png(path: Path, rgb: np.ndarray):
-    """Write an (H, W, 3) uint8 array, given with row 0 at the bottom, upright."""
-    import OpenImageIO as oiio
-
-    img = np.ascontiguousarray(rgb[::-1])
-    spec = oiio.ImageSpec(img.shape[1], img.shape[0], 3, oiio.UINT8)
-    out = oiio.ImageOutput.create(str(path))
-    if out is None or not out.open(str(path), spec) or not out.write_image(img):
-        raise OSError(f"cannot write {path}: {oiio.geterror()}")
-    out.close()
-
-
-def bary_rgb(bary, mask) -> np.ndarray:
-    """(H, W, 3) uint8 picture of barycentrics: RGB = (b0, b1, b2)."""
-    rgb = np.empty(mask.shape + (3,), np.uint8)
-    rgb[:] = EMPTY_RGB
-    if bary is None:
-        return rgb
-    b = np.asarray(bary, dtype=np.float64)
-    fin = np.isfinite(b).all(axis=2)
-    ok = mask & fin
-    rgb[ok] = (np.clip(b[ok], 0, 1) * 255 + 0.5).astype(np.uint8)
-    rgb[mask & ~fin] = NONFINITE_RGB
-    return rgb
-
-
 def heat_rgb(ratio, compared) -> np.ndarray:
     """(H, W, 3) uint8: log10 error/tolerance from 1e-3 (dark) to 1 (yellow), red above 1."""
-    from matplotlib import colormaps
-
     rgb = np.empty(ratio.shape + (3,), np.uint8)
     rgb[:] = EMPTY_RGB
     with np.errstate(divide="ignore", invalid="ignore"):
         t = np.clip((np.log10(np.maximum(ratio, 1e-12)) + 3.0) / 3.0, 0.0, 1.0)
-    lut = (colormaps["viridis"](np.linspace(0, 1, 256))[:, :3] * 255).astype(np.uint8)
+    lut = figures.colormap_lut("viridis", 256)
     rgb[compared] = lut[(t[compared] * 255).astype(int)]
     rgb[compared & ~(ratio <= 1)] = (255, 0, 0)
     return rgb
@@ -166,38 +139,32 @@ class HtmlReport:
         self.images[res.name] = {"files": names, "crop": (y0, y1, x0, x1), "factor": f}
 
     def _summary_figure(self, result) -> str | None:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
         scenes = [s for s in result.scenes if s.report is not None]
         if not scenes:
             return None
-        fig, (ax, ax2) = plt.subplots(1, 2, figsize=(12, max(4, 0.22 * len(scenes) + 1)),
-                                      gridspec_kw={"width_ratios": [3, 1]})
-        y = np.arange(len(scenes))
-        for k, (name, color) in enumerate((("persp", "#1f77b4"), ("screen", "#ff7f0e"),
-                                           ("depth", "#2ca02c"))):
-            vals = [max(s.report.values[name].worst_ratio, 1e-4) if name in s.report.values
-                    else np.nan for s in scenes]
-            ax.barh(y + (k - 1) * 0.27, vals, height=0.27, color=color, label=name)
-        ax.axvline(1.0, color="red", lw=1)
-        ax.set_xscale("log")
-        ax.set_xlim(1e-4, max(10.0, ax.get_xlim()[1]))
-        ax.set_yticks(y, [s.name for s in scenes], fontsize=8)
-        ax.invert_yaxis()
-        ax.set_xlabel("worst error / per-pixel tolerance (fails above 1)")
-        ax.legend(loc="lower right", fontsize=8)
-        ax2.barh(y, [s.seconds for s in scenes], color="#888")
-        ax2.set_yticks(y, [""] * len(scenes))
-        ax2.invert_yaxis()
-        ax2.set_xlabel("seconds")
-        fig.suptitle(f"{result.renderer} via {result.backend}", fontsize=10)
-        fig.tight_layout()
         fname = "summary.png"
-        fig.savefig(self.img / fname, dpi=80)
-        plt.close(fig)
+        with figures.figure(self.img / fname, figsize=(12, max(4, 0.22 * len(scenes) + 1)),
+                            dpi=80, title="glraster check: worst error/tolerance per scene",
+                            description=f"{result.renderer} via {result.backend}") as fig:
+            ax, ax2 = fig.subplots(1, 2, gridspec_kw={"width_ratios": [3, 1]})
+            y = np.arange(len(scenes))
+            for k, (name, color) in enumerate((("persp", "#1f77b4"), ("screen", "#ff7f0e"),
+                                               ("depth", "#2ca02c"))):
+                vals = [max(s.report.values[name].worst_ratio, 1e-4)
+                        if name in s.report.values else np.nan for s in scenes]
+                ax.barh(y + (k - 1) * 0.27, vals, height=0.27, color=color, label=name)
+            ax.axvline(1.0, color="red", lw=1)
+            ax.set_xscale("log")
+            ax.set_xlim(1e-4, max(10.0, ax.get_xlim()[1]))
+            ax.set_yticks(y, [s.name for s in scenes], fontsize=8)
+            ax.invert_yaxis()
+            ax.set_xlabel("worst error / per-pixel tolerance (fails above 1)")
+            ax.legend(loc="lower right", fontsize=8)
+            ax2.barh(y, [s.seconds for s in scenes], color="#888")
+            ax2.set_yticks(y, [""] * len(scenes))
+            ax2.invert_yaxis()
+            ax2.set_xlabel("seconds")
+            fig.suptitle(f"{result.renderer} via {result.backend}", fontsize=10)
         return fname
 
     def finish(self, result) -> Path:

@@ -320,8 +320,10 @@ def _upright(a: np.ndarray) -> np.ndarray:
 
 
 def _png_meta(what: str) -> dict:
+    from glraster._version import __version__
+
     return {"Title": f"glraster distortion: {what}", "Description": ORIENTATION,
-            "Software": "glraster"}
+            "Software": f"glraster {__version__}"}
 
 
 def _write_exr(path: str, results: list[DistortionResult]) -> None:
@@ -370,10 +372,8 @@ def write_comparison(out_dir="out/distortion", resolution=(360, 480), supersampl
     Returns:
         {"files": [paths], "scenes": {name: stats}, "segment_example": {...}}.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from glraster.io import figures
+    from glraster.io.png import write_png
 
     os.makedirs(out_dir, exist_ok=True)
     results = render_comparison(resolution, supersample, ctx)
@@ -383,39 +383,41 @@ def write_comparison(out_dir="out/distortion", resolution=(360, 480), supersampl
         n = res.scene.name
         for label, img in (("affine", res.affine), ("correct", res.correct)):
             p = os.path.join(out_dir, f"{n}_{label}.png")
-            plt.imsave(p, np.clip(_upright(img), 0, 1), metadata=_png_meta(f"{n} {label}"))
+            write_png(p, img, metadata=_png_meta(f"{n} {label}"))  # row 0 at the bottom
             files.append(p)
-        fig, ax = plt.subplots(figsize=(6.4, 4.8), dpi=100, layout="constrained")
-        im = ax.imshow(_upright(res.uv_error), cmap="magma", vmin=0.0)
-        ax.set_title(f"{res.scene.title}: |uv affine - uv correct|")
-        ax.set_axis_off()
-        fig.colorbar(im, ax=ax, shrink=0.85, label="uv error (checker squares)")
         p = os.path.join(out_dir, f"{n}_diff.png")
-        fig.savefig(p, metadata=_png_meta(f"{n} uv error heatmap"))
-        plt.close(fig)
+        meta = _png_meta(f"{n} uv error heatmap")
+        with figures.figure(p, figsize=(6.4, 4.8), dpi=100, title=meta["Title"],
+                            description=meta["Description"]) as fig:
+            ax = fig.subplots()
+            im = ax.imshow(_upright(res.uv_error), cmap="magma", vmin=0.0)
+            ax.set_title(f"{res.scene.title}: |uv affine - uv correct|")
+            ax.set_axis_off()
+            fig.colorbar(im, ax=ax, shrink=0.85, label="uv error (checker squares)")
         files.append(p)
 
-    fig, axes = plt.subplots(len(results), 3, figsize=(16, 4.6 * len(results)), dpi=100,
-                             layout="constrained", squeeze=False)
-    for row, res in zip(axes, results):
-        st = res.stats
-        row[0].imshow(np.clip(_upright(res.affine), 0, 1))
-        row[0].set_title(f"{res.scene.title}\naffine uv (noperspective / screen barycentrics)")
-        row[1].imshow(np.clip(_upright(res.correct), 0, 1))
-        row[1].set_title(f"{res.scene.title}\nperspective-correct uv (smooth / persp barycentrics)")
-        im = row[2].imshow(_upright(res.uv_error), cmap="magma", vmin=0.0)
-        row[2].set_title(f"|uv affine - uv correct|: max {st['max_uv_error']:.2f}, "
-                         f"mean {st['mean_uv_error']:.2f} squares\n"
-                         f"{100 * st['pixels_changed']:.0f}% of covered pixels change color")
-        fig.colorbar(im, ax=row[2], shrink=0.9, label="uv error (checker squares)")
-        for ax in row:
-            ax.set_axis_off()
-    fig.suptitle("Affine distortion against perspective-correct interpolation (glraster, "
-                 f"{resolution[1]}x{resolution[0]}, {supersample}x{supersample} supersampled)",
-                 fontsize=14)
     p = os.path.join(out_dir, "distortion_figure.png")
-    fig.savefig(p, metadata=_png_meta("side-by-side figure"))
-    plt.close(fig)
+    meta = _png_meta("side-by-side figure")
+    with figures.figure(p, figsize=(16, 4.6 * len(results)), dpi=100, title=meta["Title"],
+                        description=meta["Description"]) as fig:
+        axes = fig.subplots(len(results), 3, squeeze=False)
+        for row, res in zip(axes, results):
+            st = res.stats
+            row[0].imshow(np.clip(_upright(res.affine), 0, 1))
+            row[0].set_title(f"{res.scene.title}\naffine uv (noperspective / screen barycentrics)")
+            row[1].imshow(np.clip(_upright(res.correct), 0, 1))
+            row[1].set_title(f"{res.scene.title}\nperspective-correct uv (smooth / persp "
+                             "barycentrics)")
+            im = row[2].imshow(_upright(res.uv_error), cmap="magma", vmin=0.0)
+            row[2].set_title(f"|uv affine - uv correct|: max {st['max_uv_error']:.2f}, "
+                             f"mean {st['mean_uv_error']:.2f} squares\n"
+                             f"{100 * st['pixels_changed']:.0f}% of covered pixels change color")
+            fig.colorbar(im, ax=row[2], shrink=0.9, label="uv error (checker squares)")
+            for ax in row:
+                ax.set_axis_off()
+        fig.suptitle("Affine distortion against perspective-correct interpolation (glraster, "
+                     f"{resolution[1]}x{resolution[0]}, {supersample}x{supersample} "
+                     "supersampled)", fontsize=14)
     files.append(p)
 
     p = os.path.join(out_dir, "distortion.exr")

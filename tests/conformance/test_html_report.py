@@ -7,29 +7,35 @@ import numpy as np
 import OpenImageIO as oiio
 import pytest
 
-import glraster as gr
 from glraster.conformance import check
 from glraster.conformance.html_report import HtmlReport
+from glraster.io.png import EMPTY_RGB
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 SCENES = ["basic_perspective_triangle", "torus", "fan_offcenter", "far_from_origin_4096"]
 
 
 @pytest.fixture(scope="module")
-def report_dir(tmp_path_factory):
-    ctx = gr.Context()
+def report_dir(tmp_path_factory, gl_context):
+    ctx = gl_context
     out = tmp_path_factory.mktemp("report")
     rep = HtmlReport(out)
-    result = check.run(ctx, SCENES, on_scene=rep.add_scene, mutants=True,
+    masks = {}
+
+    def on_scene(res, art):
+        if art is not None:
+            masks[res.name] = art.gpu.mask.copy()
+        rep.add_scene(res, art)
+
+    result = check.run(ctx, SCENES, on_scene=on_scene, mutants=True,
                        mutant_pattern="tri_id_*,half_float_targets")
     rep.finish(result)
     assert ctx.gl_error() == "GL_NO_ERROR"
-    ctx.release()
-    return out, result
+    return out, result, masks, rep.images
 
 
 def test_report_files_and_content(report_dir):
-    out, result = report_dir
+    out, result, *_ = report_dir
     html = (out / "index.html").read_text()
     for name in SCENES:
         assert f'id="{name}"' in html
@@ -43,6 +49,39 @@ def test_report_files_and_content(report_dir):
     assert "http://" not in html and "https://" not in html      # works offline
 
 
+def test_report_images_are_upright_pngs_of_the_cropped_size(report_dir):
+    out, result, masks, images = report_dir
+    for name in SCENES:
+        shapes = set()
+        for kind in ("gpu", "ref", "error", "coverage"):
+            p = out / "img" / f"{name}_{kind}.png"
+            inp = oiio.ImageInput.open(str(p))
+            assert inp is not None and inp.format_name() == "png", oiio.geterror()
+            img = inp.read_image("uint8")
+            inp.close()
+            assert img.shape[2] == 3
+            shapes.add(img.shape[:2])
+        assert len(shapes) == 1                       # the four views line up
+    # upright and unscaled at 1x: the non-empty pixels of the GPU picture are the covered
+    # pixels of the crop, with the rows flipped (file row 0 = top = array row H - 1)
+    for name in ("basic_perspective_triangle", "torus"):
+        info = images[name]
+        assert info["factor"] == 1
+        y0, y1, x0, x1 = info["crop"]
+        inp = oiio.ImageInput.open(str(out / "img" / info["files"]["gpu"]))
+        img = inp.read_image("uint8")
+        inp.close()
+        drawn = (img != np.array(EMPTY_RGB, np.uint8)).any(axis=2)
+        np.testing.assert_array_equal(drawn, masks[name][y0:y1, x0:x1][::-1])
+    # the summary figure: decodable, titled, Software = glraster
+    from PIL import Image
+
+    text = Image.open(out / "img" / "summary.png").text
+    assert text["Title"].startswith("glraster check") and text["Software"].startswith("glraster")
+    # atomic writes: no temporary file left in the report
+    assert not [p.name for p in out.rglob(".*")]
+
+
 def screenshot(url, path, tmp_path, size="1280,2000"):
     cmd = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
            "--no-first-run", "--disable-background-networking", "--disable-component-update",
@@ -54,7 +93,7 @@ def screenshot(url, path, tmp_path, size="1280,2000"):
 
 @pytest.mark.skipif(CHROMIUM is None, reason="chromium not installed (scripts/install-system-deps.sh)")
 def test_report_renders_in_headless_chromium(report_dir, tmp_path):
-    out, result = report_dir
+    out, result, *_ = report_dir
     img = screenshot((out / "index.html").as_uri(), tmp_path / "shot.png", tmp_path)
     assert img.shape[:2] == (2000, 1280)
     rgb = img[..., :3].astype(int)

@@ -82,7 +82,7 @@ def run(args) -> int:
     if args.png:
         from pathlib import Path
 
-        from glraster.conformance.html_report import bary_rgb, write_png
+        from glraster.io.png import bary_rgb, write_png
 
         bary = raster.persp if raster.persp is not None else raster.screen
         write_png(Path(args.png), bary_rgb(bary, raster.mask))
