@@ -13,6 +13,24 @@ SUBPIXEL_BITS = 8  # llvmpipe: FIXED_ORDER = 8, so positions snap to 1/256 px
 FIXED_ONE = 1 << SUBPIXEL_BITS
 
 
+def snap(window: np.ndarray, subpixel_bits: int = SUBPIXEL_BITS) -> np.ndarray:
+    """Fixed-point vertex positions X = rint((x_w - 0.5) 2^subpixel_bits), as llvmpipe's
+    calc_fixed_position (lp_setup_tri.c): the subtraction in float32, the scaling exact,
+    the conversion rounding to nearest even. The one snapping of the project: the
+    reference's edge setup (:func:`llvmpipe_edges`) and GPU-side culling both use it.
+
+    window: (...) float32 window coordinates (glraster.geometry.window.window_float32).
+    Returns float32 of the same shape holding integers exactly (every float32 of magnitude
+    2^23 or more is an integer), inf / nan where the input is; the caller converts, after
+    masking out what it does not model (the reference keeps |x_w| < 2^22).
+    """
+    window = np.asarray(window, dtype=np.float32)
+    with np.errstate(invalid="ignore", over="ignore"):
+        fixed = window - np.float32(0.5)
+        fixed *= np.float32(1 << subpixel_bits)
+        return np.rint(fixed, out=fixed)
+
+
 def llvmpipe_edges(window: np.ndarray):
     """llvmpipe's fixed-point edge setup for triangles given by float32 window positions.
 
@@ -26,7 +44,7 @@ def llvmpipe_edges(window: np.ndarray):
     or (dcdx == 0 and dcdy > 0). A sample is covered when c - dcdx x + dcdy y >= 1 on all
     three edges: a bottom-left fill rule in GL window coordinates.
     """
-    snapped = np.rint((window - np.float32(0.5)) * np.float32(FIXED_ONE)).astype(np.int64)
+    snapped = snap(window).astype(np.int64)
     x, y = snapped[..., 0].copy(), snapped[..., 1].copy()
     side = (y[:, 0] - y[:, 1]) * (x[:, 0] - x[:, 2]) - (x[:, 0] - x[:, 1]) * (y[:, 0] - y[:, 2])
     flip = side < 0

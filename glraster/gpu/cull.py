@@ -1,14 +1,17 @@
 """Deciding, before upload, which triangles cannot produce a fragment.
 
 Every test here is conservative: a triangle is dropped only when the GL pipeline is certain
-to drop it too, so the image with and without culling is the same (``tests/test_skip.py``).
+to drop it too, so the image with and without culling is the same
+(``tests/gpu/test_skip.py``, ``tests/gpu/test_cull.py``).
 
 - outside the view volume: all three vertices strictly outside the same clip plane
   (x > w, x < -w, y > w, y < -w, z > w or z < -w; GL 4.5 core section 13.7);
 - zero area: on Mesa llvmpipe, a triangle inside the viewport and in front of the eye
   whose vertices snap to zero fixed-point area (llvmpipe culls those itself; see
-  glraster.reference.llvmpipe_edges); on other drivers only triangles that repeat a vertex
-  index;
+  glraster.reference.llvmpipe_edges); on other drivers only triangles that repeat a
+  vertex index. The window positions and their snapping are the driver's and the
+  reference's own (glraster.geometry.window.window_float32, with its fused last step,
+  and glraster.geometry.fill_rule.snap), so cull and reference agree on every vertex;
 - back faces (only when asked): clockwise in window space (GL's default front face is
   counter-clockwise) by a clear margin in both float and fixed point. The draw also enables
   GL_CULL_FACE, so borderline triangles are left to the driver's own decision.
@@ -19,6 +22,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+from glraster.geometry.fill_rule import snap
+from glraster.geometry.window import window_xy_float32
 
 # A back face is culled on the host only when its doubled window area is below this (px^2)
 # in float64 and negative after snapping: far from the driver's rounding.
@@ -48,6 +54,14 @@ def _area2(x, y, tri):
     x0, x1, x2 = x[tri[:, 0]], x[tri[:, 1]], x[tri[:, 2]]
     y0, y1, y2 = y[tri[:, 0]], y[tri[:, 1]], y[tri[:, 2]]
     return (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
+
+
+def window_fixed(pos: np.ndarray, resolution, subpixel_bits: int = 8):
+    """Per vertex (V,) float32 window x, y and fixed-point X, Y (integers held in float32;
+    inf / nan where w = 0) as the driver and the reference compute them: the fused viewport
+    transform of glraster.geometry.window and the snapping of glraster.geometry.fill_rule."""
+    wx, wy = window_xy_float32(pos, resolution)
+    return wx, wy, snap(wx, subpixel_bits), snap(wy, subpixel_bits)
 
 
 def cull(pos: np.ndarray, tri: np.ndarray, resolution, *, backfaces: bool = False,
@@ -83,21 +97,18 @@ def cull(pos: np.ndarray, tri: np.ndarray, resolution, *, backfaces: bool = Fals
         keep &= ~same
 
     if llvmpipe or backfaces:
-        with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
-            # as the driver: x_w = (x_c (1 / w_c)) W/2 + W/2 in float32
-            rcp = np.float32(1.0) / w
-            sx, sy = np.float32(width / 2), np.float32(height / 2)
-            wx = (x * rcp) * sx + sx
-            wy = (y * rcp) * sy + sy
+        # the driver's window positions and fixed-point vertices, the very transform and
+        # snapping of the reference (glraster.geometry.window, fill_rule)
+        wx, wy, sx, sy = window_fixed(pos, resolution, subpixel_bits)
+        limit = np.float32(1 << 22)
+        with np.errstate(invalid="ignore"):
             front_v = (w > 0) & (np.abs(z) <= w)
-            bounded_v = front_v & (np.abs(wx) < float(1 << 22)) & (np.abs(wy) < float(1 << 22))
-            one = np.float32(1 << subpixel_bits)
-            half = np.float32(0.5)
-            # Snapped coordinates are integers below 2^30, held exactly in float64; for
-            # triangles inside the viewport (|X| < 2^22) the area products stay below 2^46
-            # and are exact, which is where the zero test is used.
-            fx = np.where(bounded_v, np.rint((wx - half) * one), 0).astype(np.float64)
-            fy = np.where(bounded_v, np.rint((wy - half) * one), 0).astype(np.float64)
+            bounded_v = front_v & (np.abs(wx) < limit) & (np.abs(wy) < limit)
+        # Snapped coordinates are integers below 2^30, held exactly in float64; for
+        # triangles inside the viewport (|X| < 2^22) the area products stay below 2^46
+        # and are exact, which is where the zero test is used.
+        fx = np.where(bounded_v, sx, 0).astype(np.float64)
+        fy = np.where(bounded_v, sy, 0).astype(np.float64)
         bounded = bounded_v[i0] & bounded_v[i1] & bounded_v[i2]
         area = _area2(fx, fy, tri)
         if llvmpipe:
