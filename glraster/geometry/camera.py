@@ -36,6 +36,7 @@ import math
 import numpy as np
 
 from glraster import validate
+from glraster.geometry.window import clip_to_window  # noqa: F401 (part of this API)
 
 __all__ = [
     "OPENCV_TO_OPENGL",
@@ -300,26 +301,6 @@ def project(vertices, model=None, view=None, proj=None, *, dtype=np.float32) -> 
         v = np.concatenate([v, np.ones((v.shape[0], 1))], axis=1)
     m = validate.matrix4("proj", proj) @ validate.matrix4("view", view) @ validate.matrix4("model", model)
     return (v @ m.T).astype(dtype)
-
-
-def clip_to_window(pos, resolution) -> np.ndarray:
-    """Window coordinates of clip-space positions (DESIGN.md conventions).
-
-    Args:
-        pos: (V, 4) clip-space positions (any float dtype; computed in float64).
-        resolution: (H, W).
-
-    Returns:
-        (V, 3) float64 ``(x_w, y_w, z_w)`` with ``x_w = (x/w + 1) W/2``,
-        ``y_w = (y/w + 1) H/2``, ``z_w = (z/w) / 2 + 1/2``.
-    """
-    p = validate.float_array("pos", pos, (-1, 4))
-    if len(resolution) != 2:
-        raise ValueError(f"resolution must be (H, W), got {resolution!r}")
-    H, W = validate.positive_int("resolution[0]", resolution[0]), validate.positive_int("resolution[1]", resolution[1])
-    ndc = p[:, :3] / p[:, 3:4]
-    return np.stack([(ndc[:, 0] + 1) * W / 2, (ndc[:, 1] + 1) * H / 2, ndc[:, 2] * 0.5 + 0.5],
-                    axis=1)
 
 
 def shift_window(proj, dx: float, dy: float, resolution) -> np.ndarray:

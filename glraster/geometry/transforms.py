@@ -32,21 +32,3 @@ def to_clip(vertices: np.ndarray, mvp: np.ndarray) -> np.ndarray:
         raise ValueError(f"vertices must have shape (V, 3), got {v.shape}")
     hom = np.concatenate([v, np.ones((len(v), 1))], axis=1)
     return hom @ np.asarray(mvp, dtype=np.float64).T
-
-
-def window_to_clip(xy_window: np.ndarray, resolution, z_ndc=0.0, w=1.0) -> np.ndarray:
-    """Clip-space positions whose window coordinates are xy_window.
-
-    xy_window: (V, 2) window coordinates in pixels (GL convention: pixel (i, j) has its
-    center at (i + 0.5, j + 0.5), origin bottom-left). resolution: (height, width).
-    z_ndc, w: scalars or (V,) arrays; x, y, z are multiplied by w so the divide by w lands
-    on the requested window point. Returns (V, 4) float64.
-    """
-    xy = np.asarray(xy_window, dtype=np.float64)
-    h, w_px = resolution
-    n = len(xy)
-    z_ndc = np.broadcast_to(np.asarray(z_ndc, dtype=np.float64), (n,))
-    w = np.broadcast_to(np.asarray(w, dtype=np.float64), (n,))
-    x_ndc = 2.0 * xy[:, 0] / w_px - 1.0
-    y_ndc = 2.0 * xy[:, 1] / h - 1.0
-    return np.stack([x_ndc * w, y_ndc * w, z_ndc * w, w], axis=1)

@@ -5,11 +5,15 @@ GL 4.5 core section 13.8: x_w = (x_c / w_c + 1) W/2, y_w = (y_c / w_c + 1) H/2, 
 driver computes (llvmpipe's, fused); the reference's fixed-point coverage and the GPU-side
 culling (glraster.gpu.cull) both use it, and both snap with
 glraster.geometry.fill_rule.snap, so they agree on every fixed-point vertex.
+:func:`clip_to_window` and :func:`window_to_clip` are the float64 conversions both ways
+(cameras, scene builders, stress sweeps).
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from glraster import validate
 
 
 def window_float32(clip: np.ndarray, resolution) -> np.ndarray:
@@ -57,3 +61,43 @@ def _fused_viewport(ndc: np.ndarray, half_size: float) -> np.ndarray:
     fused = np.multiply(ndc, h, dtype=np.float64)
     fused += h
     return fused.astype(np.float32)
+
+
+# -- float64 conversions between clip and window coordinates ------------------------------
+
+def clip_to_window(pos, resolution) -> np.ndarray:
+    """Window coordinates of clip-space positions (DESIGN.md conventions).
+
+    Args:
+        pos: (V, 4) clip-space positions (any float dtype; computed in float64).
+        resolution: (H, W).
+
+    Returns:
+        (V, 3) float64 ``(x_w, y_w, z_w)`` with ``x_w = (x/w + 1) W/2``,
+        ``y_w = (y/w + 1) H/2``, ``z_w = (z/w) / 2 + 1/2``.
+    """
+    p = validate.float_array("pos", pos, (-1, 4))
+    if len(resolution) != 2:
+        raise ValueError(f"resolution must be (H, W), got {resolution!r}")
+    H, W = validate.positive_int("resolution[0]", resolution[0]), validate.positive_int("resolution[1]", resolution[1])
+    ndc = p[:, :3] / p[:, 3:4]
+    return np.stack([(ndc[:, 0] + 1) * W / 2, (ndc[:, 1] + 1) * H / 2, ndc[:, 2] * 0.5 + 0.5],
+                    axis=1)
+
+
+def window_to_clip(xy_window: np.ndarray, resolution, z_ndc=0.0, w=1.0) -> np.ndarray:
+    """Clip-space positions whose window coordinates are xy_window.
+
+    xy_window: (V, 2) window coordinates in pixels (GL convention: pixel (i, j) has its
+    center at (i + 0.5, j + 0.5), origin bottom-left). resolution: (height, width).
+    z_ndc, w: scalars or (V,) arrays; x, y, z are multiplied by w so the divide by w lands
+    on the requested window point. Returns (V, 4) float64.
+    """
+    xy = np.asarray(xy_window, dtype=np.float64)
+    h, w_px = resolution
+    n = len(xy)
+    z_ndc = np.broadcast_to(np.asarray(z_ndc, dtype=np.float64), (n,))
+    w = np.broadcast_to(np.asarray(w, dtype=np.float64), (n,))
+    x_ndc = 2.0 * xy[:, 0] / w_px - 1.0
+    y_ndc = 2.0 * xy[:, 1] / h - 1.0
+    return np.stack([x_ndc * w, y_ndc * w, z_ndc * w, w], axis=1)

@@ -40,7 +40,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from glraster.geometry.transforms import window_to_clip
+from glraster.geometry.window import window_to_clip
 from glraster.gpu.rasterize import METHODS, rasterize
 
 EPS32 = float(np.finfo(np.float32).eps)

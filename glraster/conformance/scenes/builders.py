@@ -14,7 +14,8 @@ import numpy as np
 
 from glraster.geometry import shapes as meshes
 from glraster.geometry.camera import look_at, orthographic, perspective
-from glraster.geometry.transforms import rotation, to_clip, window_to_clip
+from glraster.geometry.transforms import rotation, to_clip
+from glraster.geometry.window import window_to_clip
 
 BUILDERS: dict[str, Callable] = {}
 
