@@ -12,7 +12,7 @@ import pkgutil
 import sys
 
 from glraster._version import __version__
-from glraster.cli import commands
+from glraster.cli import commands, exit_codes
 from glraster.errors import BackendUnavailable, ShaderCompileError
 
 
@@ -34,13 +34,12 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
-        return 2
+        return exit_codes.USAGE
     try:
-        return int(args.func(args) or 0)
-    except (ValueError, FileNotFoundError, BackendUnavailable, ShaderCompileError) as exc:
+        return int(args.func(args) or exit_codes.OK)
+    except BackendUnavailable as exc:
         print(f"glraster {args.command}: error: {exc}", file=sys.stderr)
-        return 2
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+        return exit_codes.NO_BACKEND
+    except (ValueError, FileNotFoundError, ShaderCompileError) as exc:
+        print(f"glraster {args.command}: error: {exc}", file=sys.stderr)
+        return exit_codes.USAGE

@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 import sys
 
+from glraster.cli import exit_codes
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -56,8 +58,8 @@ def _print_cases(cases) -> None:
 
 
 def run(args) -> int:
-    from glraster.studies import bench
     from glraster.cli.commands.check import Progress
+    from glraster.studies import bench
 
     overrides = {}
     if args.methods:
@@ -68,7 +70,7 @@ def run(args) -> int:
                            max_reference_pixels=args.max_reference_pixels, **overrides)
     except ValueError as exc:
         print(f"glraster bench: {exc}", file=sys.stderr)
-        return 2
+        return exit_codes.USAGE
     _print_cases(result["cases"])
     head = result["headline"]
     print(f"\nheadline ({head['scene']}):")
@@ -94,4 +96,4 @@ def run(args) -> int:
     if args.plot:
         bench.pareto_plot(result, args.plot)
         print(f"wrote {args.plot}")
-    return 0
+    return exit_codes.OK

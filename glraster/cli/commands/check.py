@@ -5,11 +5,8 @@ from __future__ import annotations
 import sys
 import time
 
+from glraster.cli import exit_codes
 from glraster.cli.commands import add_backend_argument
-
-EXIT_FAIL = 1
-EXIT_USAGE = 2
-EXIT_NO_BACKEND = 3
 
 
 def register(subparsers) -> None:
@@ -67,36 +64,35 @@ def run(args) -> int:
     if not names:
         print(f"glraster check: no scene matches {args.scenes!r}; known: "
               f"{', '.join(list_scenes())}", file=sys.stderr)
-        return EXIT_USAGE
+        return exit_codes.USAGE
     if args.list:
         for n in names:
             print(f"{n:<28} {describe(n)}")
-        return 0
+        return exit_codes.OK
     from glraster.conformance import check, mutants
-    from glraster.gpu.context import Context
     from glraster.errors import BackendUnavailable
-
+    from glraster.gpu.context import Context
     from glraster.gpu.rasterize import METHODS
 
     if args.method not in METHODS:
         print(f"glraster check: --method must be one of {', '.join(sorted(METHODS))}, got "
               f"{args.method!r}", file=sys.stderr)
-        return EXIT_USAGE
+        return exit_codes.USAGE
     if args.mutants:
         if args.method != "hw":
             print("glraster check: --mutants injects faults into the hw shaders; it cannot "
                   f"be combined with --method {args.method}", file=sys.stderr)
-            return EXIT_USAGE
+            return exit_codes.USAGE
         try:
             mutants.select(args.mutants)
         except ValueError as exc:
             print(f"glraster check: {exc}", file=sys.stderr)
-            return EXIT_USAGE
+            return exit_codes.USAGE
     try:
         ctx = Context(backend=args.backend)
     except (BackendUnavailable, ValueError) as exc:
         print(f"glraster check: {exc}", file=sys.stderr)
-        return EXIT_NO_BACKEND
+        return exit_codes.NO_BACKEND
     report = None
     if args.html:
         from glraster.conformance.html_report import HtmlReport
@@ -113,4 +109,4 @@ def run(args) -> int:
         print(f"JUnit XML: {junit.write(result, args.junit)}")
     if report:
         print(f"HTML report: {report.finish(result)}")
-    return 0 if result.ok else EXIT_FAIL
+    return exit_codes.OK if result.ok else exit_codes.FAIL

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+from glraster.cli import exit_codes
 from glraster.cli.commands import add_backend_argument
 
 
@@ -48,4 +49,4 @@ def _pyrender(args) -> int:
             json.dump(rep.to_dict(), fh, indent=2)
     ok = rep.median_rel <= args.max_median
     print(f"  median {'<=' if ok else '>'} {args.max_median:g}: {'PASS' if ok else 'FAIL'}")
-    return 0 if ok else 1
+    return exit_codes.OK if ok else exit_codes.FAIL

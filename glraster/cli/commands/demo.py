@@ -5,6 +5,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+from glraster.cli import exit_codes
 from glraster.cli.commands import add_backend_argument
 
 
@@ -23,10 +24,9 @@ def register(subparsers) -> None:
 
 def compare_builtin(ctx) -> bool:
     """Print the GPU-vs-reference comparison of the built-in scenes; True when all pass."""
-    from glraster.verify.compare import compare
-    from glraster import rasterize
-    from glraster import reference
+    from glraster import rasterize, reference
     from glraster.geometry import synthetic
+    from glraster.verify.compare import compare
     from glraster.verify.tolerance import ErrorModel
 
     scenes = {
@@ -57,11 +57,11 @@ def run(args) -> int:
     print(f"glraster demo on {ctx.backend}: {ctx.renderer}, {ctx.gl_version}")
     ok = compare_builtin(ctx)
     if args.quick:
-        return 0 if ok else 1
+        return exit_codes.OK if ok else exit_codes.FAIL
     out = Path(args.out)
     backend = ["--backend", ctx.backend]
     print(f"\n== conformance check -> {out / 'report' / 'index.html'}")
     ok &= main(["check", *backend, "--html", str(out / "report")]) == 0
     print(f"\n== distortion figure -> {out / 'distortion'}")
     ok &= main(["distortion", *backend, "--out", str(out / "distortion")]) == 0
-    return 0 if ok else 1
+    return exit_codes.OK if ok else exit_codes.FAIL

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from glraster.cli import exit_codes
 from glraster.cli.commands import add_backend_argument
 
 
@@ -34,4 +35,4 @@ def _run(args) -> int:
               f"{st['mean_uv_error']:.3f} checker squares; "
               f"{100 * st['pixels_changed']:.1f}% of covered pixels change color")
     print("wrote " + ", ".join(summary["files"]))
-    return 0
+    return exit_codes.OK

@@ -5,6 +5,8 @@ from __future__ import annotations
 import sys
 import time
 
+from glraster.cli import exit_codes
+
 GOLDEN_BUDGET_BYTES = 20 * 1024 * 1024
 
 
@@ -49,7 +51,7 @@ def _update(args) -> int:
         names = _names(args.names)
     except ValueError as exc:
         print(f"glraster golden update: {exc}", file=sys.stderr)
-        return 2
+        return exit_codes.USAGE
     t0 = time.perf_counter()
     written = 0
     for name in names:
@@ -65,8 +67,8 @@ def _update(args) -> int:
     if total > GOLDEN_BUDGET_BYTES:
         print(f"warning: golden folder exceeds the {GOLDEN_BUDGET_BYTES // 1024 // 1024} MiB "
               "budget", file=sys.stderr)
-        return 1
-    return 0
+        return exit_codes.FAIL
+    return exit_codes.OK
 
 
 def _check(args) -> int:
@@ -76,7 +78,7 @@ def _check(args) -> int:
         names = _names(args.names)
     except ValueError as exc:
         print(f"glraster golden check: {exc}", file=sys.stderr)
-        return 2
+        return exit_codes.USAGE
     t0 = time.perf_counter()
     bad = 0
     for name in names:
@@ -86,4 +88,4 @@ def _check(args) -> int:
     total = golden.folder_size(args.dir)
     print(f"{len(names) - bad}/{len(names)} goldens reproduced bit for bit in "
           f"{time.perf_counter() - t0:.1f} s; folder total {total / 1024 / 1024:.2f} MiB")
-    return 1 if bad else 0
+    return exit_codes.FAIL if bad else exit_codes.OK

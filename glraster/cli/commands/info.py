@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import sys
 
+from glraster.cli import exit_codes
 from glraster.cli.commands import add_backend_argument
 
 
@@ -51,10 +52,10 @@ def run(args) -> int:
         facts = gather(args.backend)
     except (BackendUnavailable, ValueError) as exc:
         print(f"glraster info: {exc}", file=sys.stderr)
-        return 3
+        return exit_codes.NO_BACKEND
     if args.json:
         print(json.dumps(facts, indent=2))
-        return 0
+        return exit_codes.OK
     labels = {"backend": "backend", "renderer": "renderer", "vendor": "vendor",
               "gl_version": "GL version",
               "subpixel_bits": "subpixel bits", "max_texture_size": "max render size",
@@ -68,4 +69,4 @@ def run(args) -> int:
         elif isinstance(value, bool):
             value = "yes (llvmpipe)" if value else "no (edge band used)"
         print(f"{label + ':':<27}{value}")
-    return 0
+    return exit_codes.OK

@@ -5,6 +5,7 @@ from __future__ import annotations
 import sys
 import time
 
+from glraster.cli import exit_codes
 from glraster.cli.commands import add_backend_argument
 
 
@@ -33,8 +34,8 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from glraster.io import exr
     from glraster.conformance.scenes import resolve
+    from glraster.io import exr
 
     try:
         scene = resolve(args.scene)
@@ -47,7 +48,7 @@ def run(args) -> int:
             raise ValueError(f"output must end in .exr, got {args.output!r}")
     except ValueError as exc:
         print(f"glraster render: {exc}", file=sys.stderr)
-        return 2
+        return exit_codes.USAGE
     t = time.perf_counter()
     if args.reference:
         from glraster.reference import rasterize as ref_rasterize
@@ -55,20 +56,20 @@ def run(args) -> int:
         raster = ref_rasterize(scene.pos, scene.tri, scene.resolution, outputs=outputs)
         producer = "glraster.reference.rasterize (float64, fill rule llvmpipe), rounded to float32"
     else:
-        from glraster.gpu.context import Context
         from glraster.errors import BackendUnavailable
+        from glraster.gpu.context import Context
         from glraster.gpu.rasterize import rasterize
 
         try:
             ctx = Context(backend=args.backend)
         except (BackendUnavailable, ValueError) as exc:
             print(f"glraster render: {exc}", file=sys.stderr)
-            return 3
+            return exit_codes.NO_BACKEND
         try:
             raster = rasterize(scene.pos, scene.tri, scene.resolution, ctx=ctx, outputs=outputs)
         except ValueError as exc:
             print(f"glraster render: {exc}", file=sys.stderr)
-            return 2
+            return exit_codes.USAGE
         producer = f"glraster.rasterize on {ctx.renderer} via {ctx.backend}, {ctx.gl_version}"
     seconds = time.perf_counter() - t
     kept = {n: getattr(raster, n) for n in outputs}
@@ -87,4 +88,4 @@ def run(args) -> int:
         bary = raster.persp if raster.persp is not None else raster.screen
         write_png(Path(args.png), bary_rgb(bary, raster.mask))
         print(f"preview: {args.png}")
-    return 0
+    return exit_codes.OK

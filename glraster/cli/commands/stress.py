@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import sys
 
+from glraster.cli import exit_codes
 from glraster.cli.commands import add_backend_argument
 
 
@@ -28,10 +29,10 @@ def register(subparsers) -> None:
 
 
 def run(args) -> int:
-    from glraster.studies import stress
+    from glraster.cli.commands.check import Progress
     from glraster.gpu.context import Context
     from glraster.gpu.rasterize import METHODS
-    from glraster.cli.commands.check import Progress
+    from glraster.studies import stress
 
     sweeps = tuple(s.strip() for s in args.sweeps.split(",")) if args.sweeps else stress.SWEEPS
     methods = tuple(m.strip() for m in args.methods.split(",")) if args.methods else tuple(METHODS)
@@ -39,7 +40,7 @@ def run(args) -> int:
     if bad:
         print(f"glraster stress: unknown sweep or method {bad}; sweeps {stress.SWEEPS}, "
               f"methods {tuple(METHODS)}", file=sys.stderr)
-        return 2
+        return exit_codes.USAGE
     ctx = Context(args.backend)
     try:
         result = stress.run(sweeps, methods, ctx=ctx, progress=Progress())
@@ -64,4 +65,4 @@ def run(args) -> int:
     if args.plot:
         stress.plot(result, args.plot)
         print(f"wrote {args.plot}")
-    return 0
+    return exit_codes.OK
