@@ -121,7 +121,7 @@ def test_user_scene_files_round_trip(tmp_path):
 
 
 @pytest.mark.parametrize("content, message", [
-    ({"pos": [[0, 0, 0, 1]], "tri": [[0, 0, 1]], "resolution": [4, 4]}, "tri indices"),
+    ({"pos": [[0, 0, 0, 1]], "tri": [[0, 0, 1]], "resolution": [4, 4]}, "tri index 1 is out of range"),
     ({"pos": [[0, 0, 0]], "tri": [[0, 0, 0]], "resolution": [4, 4]}, "pos must have shape"),
     ({"pos": [[0, 0, 0, 1]], "tri": [[0, 0, 0]], "resolution": [4]}, "resolution"),
     ({"pos": [[0, 0, 0, 1]], "tri": [[0, 0, 0]], "resolution": [0, 4]}, "resolution"),

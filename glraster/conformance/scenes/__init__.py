@@ -25,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from glraster import validate
+
 from glraster.conformance.scenes.builders import BUILDERS
 
 from glraster.types import OUTPUTS as ALL_OUTPUTS
@@ -106,11 +108,14 @@ def build_scene(entry: dict, source: str = "scene") -> Scene:
     for key in ("name", "resolution", "builder"):
         if key not in entry:
             raise ValueError(f"{source}: missing field {key!r}")
-    resolution = _check_resolution(entry["resolution"], source)
     fn = BUILDERS.get(entry["builder"])
     if fn is None:
         raise ValueError(f"{source}: unknown builder {entry['builder']!r}; "
                          f"known: {', '.join(sorted(BUILDERS))}")
+    try:
+        resolution = validate.resolution(entry["resolution"], MAX_RESOLUTION)
+    except ValueError as exc:
+        raise ValueError(f"{source}: {exc}") from None
     try:
         pos, tri = fn(resolution, **entry.get("params", {}))
     except TypeError as exc:
@@ -122,49 +127,18 @@ def build_scene(entry: dict, source: str = "scene") -> Scene:
 
 def make_scene(name, pos, tri, resolution, description="", outputs=ALL_OUTPUTS, tags=(),
                source="scene") -> Scene:
-    """Validate arrays and wrap them in a read-only Scene (pos -> float32, tri -> int32)."""
-    resolution = _check_resolution(resolution, source)
-    pos = np.asarray(pos)
-    if pos.ndim != 2 or pos.shape[1] != 4:
-        raise ValueError(f"{source}: pos must have shape (V, 4), got {pos.shape}")
-    if not np.issubdtype(pos.dtype, np.number) or np.issubdtype(pos.dtype, np.complexfloating):
-        raise ValueError(f"{source}: pos must be real numbers, got dtype {pos.dtype}")
-    with np.errstate(over="ignore"):
-        pos32 = np.ascontiguousarray(pos, dtype=np.float32)
-    if not np.all(np.isfinite(pos32)):
-        bad = int(np.argwhere(~np.isfinite(pos32))[0, 0])
-        raise ValueError(f"{source}: pos must be finite in float32 (vertex {bad} is not)")
-    tri = np.asarray(tri)
-    if tri.ndim != 2 or tri.shape[1] != 3:
-        raise ValueError(f"{source}: tri must have shape (T, 3), got {tri.shape}")
-    if tri.size and not np.issubdtype(tri.dtype, np.integer):
-        if not np.all(np.mod(tri, 1) == 0):
-            raise ValueError(f"{source}: tri must hold integer vertex indices, got dtype {tri.dtype}")
-    tri64 = tri.astype(np.int64)
-    if tri64.size and (tri64.min() < 0 or tri64.max() >= len(pos32)):
-        raise ValueError(f"{source}: tri indices must lie in [0, {len(pos32) - 1}], "
-                         f"got range [{tri64.min()}, {tri64.max()}]")
-    if len(tri64) >= 2 ** 31 - 1:
-        raise ValueError(f"{source}: too many triangles ({len(tri64)})")
-    bad = [o for o in outputs if o not in ALL_OUTPUTS]
-    if bad or not outputs:
-        raise ValueError(f"{source}: outputs must be a non-empty subset of {ALL_OUTPUTS}, got {outputs}")
-    tri32 = np.ascontiguousarray(tri64, dtype=np.int32)
+    """Validate arrays and wrap them in a read-only Scene (pos -> float32, tri -> int32).
+    Errors are glraster.validate's, prefixed with ``source`` (the file or catalog entry)."""
+    try:
+        resolution = validate.resolution(resolution, MAX_RESOLUTION)
+        pos32 = validate.positions(pos)
+        tri32 = validate.triangles(tri, len(pos32))
+        outputs = validate.outputs(outputs)
+    except ValueError as exc:
+        raise ValueError(f"{source}: {exc}") from None
     pos32.setflags(write=False)
     tri32.setflags(write=False)
     return Scene(str(name), pos32, tri32, resolution, description, tuple(outputs), tuple(tags))
-
-
-def _check_resolution(resolution, source) -> tuple[int, int]:
-    try:
-        h, w = (int(v) for v in resolution)
-        ok = all(float(v) == int(v) for v in resolution)
-    except (TypeError, ValueError):
-        raise ValueError(f"{source}: resolution must be (height, width), got {resolution!r}") from None
-    if not ok or not (1 <= h <= MAX_RESOLUTION and 1 <= w <= MAX_RESOLUTION):
-        raise ValueError(f"{source}: resolution must be two integers in [1, {MAX_RESOLUTION}], "
-                         f"got {tuple(resolution)}")
-    return h, w
 
 
 def load_scene_file(path) -> Scene:
@@ -210,11 +184,9 @@ def load_scene_file(path) -> Scene:
             raise ValueError(f"{src}: missing field(s) {', '.join(missing)}")
         try:
             pos = np.array(entry["pos"], dtype=np.float64)
-            tri = np.array(entry["tri"], dtype=np.float64)
+            tri = np.array(entry["tri"])             # integers stay integers
         except (TypeError, ValueError) as exc:
             raise ValueError(f"{src}: pos and tri must be rectangular numeric lists ({exc})") from None
-        if tri.size == 0:
-            tri = tri.reshape(0, 3)
         return make_scene(entry.get("name", path.stem), pos, tri, entry["resolution"],
                           entry.get("description", ""),
                           outputs=tuple(entry.get("outputs", ALL_OUTPUTS)), source=src)
