@@ -25,13 +25,13 @@ renamed over it, so a reader never sees a partial file.
 
 from __future__ import annotations
 
-import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import OpenImageIO as oiio
+
+from glraster.io.atomic import atomic_write
 
 ORIENTATION = "upright: file row 0 is the top row (glraster array row H-1)"
 _LAYERS = {"persp": ("persp.b0", "persp.b1", "persp.b2"),
@@ -189,10 +189,7 @@ def write_raster(path, raster=None, *, persp=None, screen=None, depth=None, tri_
                             "tri_id", meta), ids[..., None]))
 
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".exr", dir=path.parent)
-    os.close(fd)
-    try:
+    with atomic_write(path, suffix=".exr") as tmp:
         out = oiio.ImageOutput.create(tmp)
         if out is None:
             raise OSError(f"OpenImageIO cannot write EXR files: {oiio.geterror()}")
@@ -205,11 +202,6 @@ def write_raster(path, raster=None, *, persp=None, screen=None, depth=None, tri_
         ok = out.close() and ok
         if not ok:
             raise OSError(f"writing {path} failed: {out.geterror() or oiio.geterror()}")
-        os.chmod(tmp, 0o644)  # mkstemp creates 0600; golden files are shared
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
     return path
 
 

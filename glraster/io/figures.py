@@ -20,10 +20,10 @@ formats allow).
 
 from __future__ import annotations
 
-import os
-import tempfile
 from contextlib import contextmanager
 from pathlib import Path
+
+from glraster.io.atomic import atomic_write
 
 __all__ = ["STYLE", "PALETTE", "colors", "colormap_lut", "figure", "save"]
 
@@ -90,19 +90,10 @@ def save(fig, path, *, title: str | None = None, description: str | None = None,
     parent directory. Returns the path."""
     path = Path(path)
     fmt = path.suffix[1:].lower() or "png"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=f".{fmt}", dir=path.parent)
-    os.close(fd)
-    try:
+    with atomic_write(path, suffix=f".{fmt}") as tmp:
         meta = _metadata(fmt, title, description)
         kwargs = {"metadata": {k: v for k, v in meta.items() if v is not None}} if meta else {}
         fig.savefig(tmp, format=fmt, dpi=dpi if dpi is not None else "figure", **kwargs)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
     return path
 
 

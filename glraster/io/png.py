@@ -12,11 +12,11 @@ renamed over it, so a reader never sees a partial file and a failed write leaves
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
+
+from glraster.io.atomic import atomic_write
 
 __all__ = ["EMPTY_RGB", "NONFINITE_RGB", "ORIENTATION", "bary_rgb", "to_uint8", "write_png"]
 
@@ -59,10 +59,7 @@ def write_png(path, rgb, *, bottom_up: bool = True, metadata: dict | None = None
         spec.attribute(str(key), str(value))
 
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".png", dir=path.parent)
-    os.close(fd)
-    try:
+    with atomic_write(path, suffix=".png") as tmp:
         out = oiio.ImageOutput.create("png")
         if out is None:
             raise OSError(f"OpenImageIO cannot write PNG files: {oiio.geterror()}")
@@ -71,12 +68,6 @@ def write_png(path, rgb, *, bottom_up: bool = True, metadata: dict | None = None
                 raise OSError(f"cannot write {path}: {out.geterror() or oiio.geterror()}")
         finally:
             out.close()
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
     return path
 
 

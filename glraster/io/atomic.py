@@ -1,0 +1,36 @@
+"""Writing a file so that nothing partial is ever left behind.
+
+Every writer in glraster (EXR, PNG, figures) writes to a temporary file in the target's
+folder and renames it over the target only when the write succeeded, so a failure (or an
+interrupt) leaves the previous file, or none, and no temporary file.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
+
+
+@contextmanager
+def atomic_write(path, suffix: str | None = None, mode: int = 0o644):
+    """Context manager yielding a temporary path (str) beside ``path`` to write to.
+
+    On normal exit the temporary file gets ``mode`` (mkstemp creates 0600; output files
+    are shared) and replaces ``path`` in one rename; on any exception it is removed and
+    the exception propagates. The parent folder is created. ``suffix`` (default: the
+    target's) matters to writers that choose a format from the file name.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix,
+                               dir=path.parent)
+    os.close(fd)
+    try:
+        yield tmp
+        os.chmod(tmp, mode)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
