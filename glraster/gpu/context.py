@@ -15,8 +15,9 @@ from pathlib import Path
 
 import moderngl
 
+from glraster.errors import ShaderCompileError
 from glraster.gpu.backends import create_backend
-from glraster.gpu.shaders import compile_program
+from glraster.gpu.shaders import compile_program, describe_compile_error, with_defines
 
 # Framebuffers kept alive: enough for a test suite that alternates a few sizes.
 FRAMEBUFFER_CACHE_SIZE = 4
@@ -70,6 +71,7 @@ class Context:
         self.backend = self._backend.name
         self._lock = threading.RLock()
         self._programs: dict = {}
+        self._compute: dict = {}
         self._framebuffers: OrderedDict = OrderedDict()
         self._buffers: dict = {}
         with self:
@@ -112,6 +114,22 @@ class Context:
             program = compile_program(self.mgl, vert, frag, defines)
             vao = self.mgl.vertex_array(program, [])
             self._programs[key] = program = (program, vao)
+        return program
+
+    def compute_program(self, path: Path, defines: dict):
+        """The compute shader of one GLSL file and a set of defines (cached); a compile
+        error is a :class:`ShaderCompileError` naming the file and line."""
+        key = (str(path), tuple(sorted(defines.items())))
+        program = self._compute.get(key)
+        if program is None:
+            source = with_defines(Path(path).read_text(), defines)
+            try:
+                program = self.mgl.compute_shader(source)
+            except moderngl.Error as exc:  # moderngl.Error carries the driver's info log
+                message = describe_compile_error(str(exc), {"compute_shader": Path(path)})
+                raise ShaderCompileError(
+                    f"GLSL compile error in {path}:\n{message}") from None
+            self._compute[key] = program
         return program
 
     def targets(self, resolution: tuple[int, int], color_formats: dict, depth_texture: bool):
@@ -161,15 +179,21 @@ class Context:
         """A buffer holding ``data`` (a C-contiguous array), reused between calls; grows by
         doubling when needed."""
         data = memoryview(data).cast("B")
-        nbytes = max(data.nbytes, 16)
+        buffer = self.scratch_buffer(name, data.nbytes)
+        if data.nbytes:
+            buffer.write(data)
+        return buffer
+
+    def scratch_buffer(self, name: str, nbytes: int):
+        """A buffer of at least ``nbytes`` with undefined contents (for shader output),
+        reused between calls under ``name``; grows by doubling when needed."""
+        nbytes = max(int(nbytes), 16)
         buffer = self._buffers.get(name)
         if buffer is None or buffer.size < nbytes:
             if buffer is not None:
                 buffer.release()
             size = 1 << (nbytes - 1).bit_length()
             buffer = self._buffers[name] = self.mgl.buffer(reserve=size, dynamic=True)
-        if data.nbytes:
-            buffer.write(data)
         return buffer
 
     def gl_error(self) -> str:
@@ -191,7 +215,7 @@ class Context:
     def cached_object_count(self) -> int:
         """Number of GL objects held in the caches (for leak tests)."""
         return (
-            len(self._programs) + len(self._buffers)
+            len(self._programs) + len(self._compute) + len(self._buffers)
             + sum(2 + len(t.attachments) for t in self._framebuffers.values())
         )
 
@@ -201,11 +225,14 @@ class Context:
             for program, vao in self._programs.values():
                 vao.release()
                 program.release()
+            for program in self._compute.values():
+                program.release()
             for targets in self._framebuffers.values():
                 targets.release()
             for buffer in self._buffers.values():
                 buffer.release()
         self._programs.clear()
+        self._compute.clear()
         self._framebuffers.clear()
         self._buffers.clear()
         self.mgl.release()

@@ -1,0 +1,178 @@
+#version 450
+// Backward of point-sampled rasterization: dL/d(pos) from dL/d(u, v) and, with GRAD_DB,
+// dL/d(du/dx, du/dy, dv/dx, dv/dy), at frozen coverage (one invocation per pixel).
+//
+// Defines: SPACE_SCREEN (u, v are window-space barycentrics, else perspective-correct);
+// ACCUM_ATOMIC_FLOAT (atomicAdd on float, GL_NV_shader_atomic_float) | ACCUM_CAS
+// (atomicCompSwap loop on the float's bits) | ACCUM_PER_PIXEL (each pixel writes its three
+// vertex contributions; the caller reduces them in a fixed order); GRAD_DB.
+//
+// Mathematics (docs/differentiable.md, "Backward on the GPU"). In the pixel-relative window
+// frame V'_j = (X_j - p_x w_j, Y_j - p_y w_j, w_j), with X = (x + w) W/2, Y = (y + w) H/2,
+// each edge row N_k = V'_{k+1} x V'_{k+2} = (A_k, B_k, e_k): e_k is the edge function at the
+// pixel centre, (A_k, B_k) its screen gradient; b_k = e_k / S, S = e_0 + e_1 + e_2
+// (window space: b_k = e_k w_k / det, det = V'_0 . N_0).
+// With n_k = dL/dN_k, dL/dV'_{k+1} += V'_{k+2} x n_k and dL/dV'_{k+2} += n_k x V'_{k+1}.
+#ifdef ACCUM_ATOMIC_FLOAT
+#extension GL_NV_shader_atomic_float : require
+#endif
+
+layout(local_size_x = 64) in;
+
+layout(std430, binding = 0) readonly buffer Pos { vec4 pos[]; };
+layout(std430, binding = 1) readonly buffer Tri { int tri[]; };
+layout(std430, binding = 2) readonly buffer Rast { vec4 rast[]; };
+layout(std430, binding = 3) readonly buffer GradRast { vec4 grad_rast[]; };
+#ifdef GRAD_DB
+layout(std430, binding = 4) readonly buffer GradDb { vec4 grad_db[]; };
+#endif
+#if defined(ACCUM_ATOMIC_FLOAT)
+layout(std430, binding = 5) buffer GradPos { float grad_pos[]; };
+#elif defined(ACCUM_CAS)
+layout(std430, binding = 5) buffer GradPos { uint grad_pos[]; };
+#else
+// (dL/dx, dL/dy, 0, dL/dw) of the pixel's vertex 0, 1, 2: three vec4 per pixel
+layout(std430, binding = 5) writeonly buffer Contrib { vec4 contrib[]; };
+#endif
+
+uniform uint n_pixels;       // pixels in this dispatch
+uniform uint first_pixel;    // flat index (b, y, x) of the first one
+uniform uvec2 size;          // (W, H)
+uniform uint vertex_stride;  // V when pos is batched, else 0
+uniform int n_tri;
+
+// Triangle index + 1 from rast's fourth channel (0: empty pixel): the float's value up to
+// 2^24, its bit pattern minus 0x4a800000 above.
+int decode_id(float f) {
+    return f <= 16777216.0 ? int(f) : floatBitsToInt(f) - 0x4a800000;
+}
+
+void add(uint vertex, vec3 g) {
+    uint o = 4u * vertex;
+#if defined(ACCUM_ATOMIC_FLOAT)
+    atomicAdd(grad_pos[o + 0u], g.x);
+    atomicAdd(grad_pos[o + 1u], g.y);
+    atomicAdd(grad_pos[o + 3u], g.z);
+#elif defined(ACCUM_CAS)
+    for (int c = 0; c < 3; ++c) {
+        uint slot = o + uint(c == 2 ? 3 : c);
+        float value = g[c];
+        uint seen = grad_pos[slot];
+        while (true) {
+            uint want = floatBitsToUint(uintBitsToFloat(seen) + value);
+            uint got = atomicCompSwap(grad_pos[slot], seen, want);
+            if (got == seen) break;
+            seen = got;
+        }
+    }
+#endif
+}
+
+void main() {
+    uint i = gl_GlobalInvocationID.x;
+    if (i >= n_pixels) return;
+    int t = decode_id(rast[i].w) - 1;
+    vec2 gbary = grad_rast[i].xy;
+#ifdef GRAD_DB
+    vec4 gdb = grad_db[i];
+#endif
+    bool live = t >= 0 && t < n_tri;
+#ifdef ACCUM_PER_PIXEL
+    if (!live) {
+        contrib[3u * i] = vec4(0.0);
+        contrib[3u * i + 1u] = vec4(0.0);
+        contrib[3u * i + 2u] = vec4(0.0);
+        return;
+    }
+#else
+    if (!live) return;
+#ifdef GRAD_DB
+    if (gbary == vec2(0.0) && gdb == vec4(0.0)) return;
+#else
+    if (gbary == vec2(0.0)) return;
+#endif
+#endif
+    uint g = first_pixel + i;
+    uint hw = size.x * size.y;
+    uint b = g / hw;
+    uint r = g - b * hw;
+    uint y = r / size.x;
+    uint x = r - y * size.x;
+    vec2 half_size = 0.5 * vec2(size);
+    // the pixel centre in NDC
+    vec2 ndc = (2.0 * vec2(float(x), float(y)) + 1.0) / vec2(size) - 1.0;
+
+    uint base = b * vertex_stride;
+    uint idx[3] = uint[3](uint(tri[3 * t]) + base, uint(tri[3 * t + 1]) + base,
+                          uint(tri[3 * t + 2]) + base);
+    vec3 V[3];
+    for (int j = 0; j < 3; ++j) {
+        vec4 p = pos[idx[j]];
+        // pixel-relative homogeneous window coordinates: X' = (W/2) (x - w ndc_x)
+        V[j] = vec3(half_size * fma(-vec2(p.w), ndc, p.xy), p.w);
+    }
+    vec3 N[3];
+    for (int k = 0; k < 3; ++k) N[k] = cross(V[(k + 1) % 3], V[(k + 2) % 3]);
+    vec3 G[3] = vec3[3](vec3(0.0), vec3(0.0), vec3(0.0));
+    vec3 ge = vec3(0.0), gA = vec3(0.0), gB = vec3(0.0);
+    vec3 g3 = vec3(gbary, 0.0);
+#ifdef GRAD_DB
+    vec3 hx = vec3(gdb.x, gdb.z, 0.0);   // dL/d(db_i/dx), i = 0, 1
+    vec3 hy = vec3(gdb.y, gdb.w, 0.0);   // dL/d(db_i/dy)
+#endif
+#ifdef SPACE_SCREEN
+    // window-space barycentrics b_i = e_i w_i / det, db_i/dx = A_i w_i / det
+    float det = dot(V[0], N[0]);
+    if (det != 0.0) {
+        float invD = 1.0 / det;
+        vec3 w = vec3(V[0].z, V[1].z, V[2].z);
+        vec3 e = vec3(N[0].z, N[1].z, N[2].z);
+        ge = g3 * w * invD;
+        vec3 gw = g3 * e * invD;
+        float gdet = -dot(g3, e * w);
+#ifdef GRAD_DB
+        vec3 A = vec3(N[0].x, N[1].x, N[2].x), B = vec3(N[0].y, N[1].y, N[2].y);
+        gA = hx * w * invD;
+        gB = hy * w * invD;
+        gw += (hx * A + hy * B) * invD;
+        gdet -= dot(hx * A + hy * B, w);
+#endif
+        gdet *= invD * invD;
+        for (int j = 0; j < 3; ++j) G[j] = gdet * N[j] + vec3(0.0, 0.0, gw[j]);
+    }
+#else
+    // perspective-correct barycentrics b_i = e_i / S, db_i/dx = (A_i - b_i sum_j A_j) / S
+    float S = N[0].z + N[1].z + N[2].z;
+    if (S != 0.0) {
+        float invS = 1.0 / S;
+        float b0 = N[0].z * invS, b1 = N[1].z * invS;
+        // dL/de_k = (g_k - sum_i g_i b_i) / S
+        ge = (g3 - (g3.x * b0 + g3.y * b1)) * invS;
+#ifdef GRAD_DB
+        float SA = N[0].x + N[1].x + N[2].x, SB = N[0].y + N[1].y + N[2].y;
+        vec4 db = vec4(N[0].x - b0 * SA, N[0].y - b0 * SB, N[1].x - b1 * SA, N[1].y - b1 * SB) * invS;
+        vec3 gx = hx - (hx.x * b0 + hx.y * b1);
+        vec3 gy = hy - (hy.x * b0 + hy.y * b1);
+        gA = gx * invS;
+        gB = gy * invS;
+        ge -= (dot(gdb, db) + (SA * invS) * gx + (SB * invS) * gy) * invS;
+#endif
+    }
+#endif
+    for (int k = 0; k < 3; ++k) {
+        vec3 n = vec3(gA[k], gB[k], ge[k]);   // dL/d(A_k, B_k, e_k)
+        int k1 = (k + 1) % 3, k2 = (k + 2) % 3;
+        G[k1] += cross(V[k2], n);
+        G[k2] += cross(n, V[k1]);
+    }
+    for (int j = 0; j < 3; ++j) {
+        // back to clip space: X' = (W/2)(x - w ndc_x), Y' = (H/2)(y - w ndc_y)
+        vec2 gxy = half_size * G[j].xy;
+        vec3 clip = vec3(gxy, G[j].z - dot(ndc, gxy));
+#ifdef ACCUM_PER_PIXEL
+        contrib[3u * i + uint(j)] = vec4(clip.xy, 0.0, clip.z);
+#else
+        add(idx[j], clip);
+#endif
+    }
+}
