@@ -125,8 +125,9 @@ def backward(saved: InterpolateSaved, grad_out, grad_out_da=None, *, determinist
     Returns:
         ``(grad_attr, grad_rast, grad_rast_db)``: grad_attr float32 of attr's shape (with
         (V, A) attr the batch is summed); grad_rast (B, H, W, 4) float32 (dL/du, dL/dv, 0, 0);
-        grad_rast_db (B, H, W, 4) float32 dL/d(du/dx, du/dy, dv/dx, dv/dy), or None when the
-        forward had no chosen attribute. Empty pixels are 0.
+        grad_rast_db (B, H, W, 4) float32 dL/d(du/dx, du/dy, dv/dx, dv/dy), or None when there
+        is no grad_out_da (or the forward had no chosen attribute), as the reference. Empty
+        pixels are 0.
     """
     rast = saved.rast
     batch, height, width, _ = rast.shape
@@ -155,6 +156,4 @@ def backward(saved: InterpolateSaved, grad_out, grad_out_da=None, *, determinist
         grad_out_da, ctx=saved.ctx, deterministic=deterministic, accumulate=accumulate)
     if not saved.batched:
         grad_attr = grad_attr[0]
-    if n_diff and grad_db is None:
-        grad_db = np.zeros((batch, height, width, 4), np.float32)
     return grad_attr, grad_rast, grad_db
