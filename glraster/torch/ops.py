@@ -123,21 +123,43 @@ class _RasterizeFunction(torch.autograd.Function):
 
 
 class _InterpolateOp:
+    """One interpolation. A ``diff_attrs`` that repeats an attribute is given to the core
+    once per attribute; ``columns`` picks out_da's channels from the core's (and backward
+    sums the gradients of repeats)."""
+
     def __init__(self, glctx, tri, diff_attrs):
         self.glctx = glctx
         self.tri = tri
         self.diff_attrs = diff_attrs
+        self.core_attrs = self.columns = None
+        if diff_attrs is not None:
+            unique = list(dict.fromkeys(diff_attrs))
+            self.core_attrs = tuple(unique)
+            self.columns = np.array([2 * unique.index(k) + c for k in diff_attrs
+                                     for c in (0, 1)], np.intp)
 
     def forward(self, attr, rast, rast_db):
         if attr.dtype == np.float64:
-            return _reference().interpolate_forward(attr, rast, self.tri, rast_db,
-                                                    self.diff_attrs)
-        from glraster.diff import interpolate as gpu_interpolate
+            out, out_da, saved = _reference().interpolate_forward(
+                attr, rast, self.tri, rast_db, self.core_attrs)
+        else:
+            from glraster.diff import interpolate as gpu_interpolate
 
-        ctx = None if self.glctx is None else self.glctx.context
-        return gpu_interpolate.forward(attr, rast, self.tri, rast_db, self.diff_attrs, ctx=ctx)
+            ctx = None if self.glctx is None else self.glctx.context
+            out, out_da, saved = gpu_interpolate.forward(attr, rast, self.tri, rast_db,
+                                                         self.core_attrs, ctx=ctx)
+        if out_da is None or self.diff_attrs is None:
+            out_da = np.zeros(out.shape[:-1] + (0,), out.dtype)
+        else:
+            out_da = out_da[..., self.columns]
+        return out, out_da, saved
 
     def backward(self, saved, dtype, grad_out, grad_out_da):
+        if grad_out_da is not None:
+            core = np.zeros(grad_out_da.shape[:-1] + (2 * len(self.core_attrs),), dtype)
+            for j, column in enumerate(self.columns):
+                core[..., column] += grad_out_da[..., j]
+            grad_out_da = core
         if dtype == np.float64:
             return _reference().interpolate_backward(saved, grad_out, grad_out_da)
         from glraster.diff import interpolate as gpu_interpolate
@@ -145,24 +167,17 @@ class _InterpolateOp:
         return gpu_interpolate.backward(saved, grad_out, grad_out_da)
 
 
-def _fit(grad, shape, dtype):
-    """A core's gradient as an array of ``shape``: None -> zeros; a batch summed where the
-    input was broadcast; rast's channels beyond those returned (z/w, id) zero."""
+def _fit(name, grad, shape, dtype, core_shape=None):
+    """A core's gradient as an array of the input's ``shape`` (None: zeros). ``core_shape``:
+    the shape the core was given, when the wrapper reshaped the input (attr (1, V, A) is
+    passed as (V, A), which broadcasts on every path)."""
     if grad is None:
         return np.zeros(shape, dtype)
     grad = np.asarray(grad, dtype)
-    if grad.shape == tuple(shape):
-        return grad
-    if grad.ndim == len(shape) + 1 and grad.shape[1:] == tuple(shape):  # (B, V, A) -> (V, A)
-        return grad.sum(axis=0)
-    if grad.ndim == len(shape) and shape[0] == 1 and grad.shape[1:] == tuple(shape[1:]):
-        return grad.sum(axis=0, keepdims=True)
-    if grad.shape[:-1] == tuple(shape[:-1]) and grad.shape[-1] < shape[-1]:
-        out = np.zeros(shape, dtype)
-        out[..., :grad.shape[-1]] = grad
-        return out
-    raise RuntimeError(f"the core returned a gradient of shape {grad.shape} for an input "
-                       f"of shape {tuple(shape)}")
+    if grad.shape != tuple(core_shape or shape):
+        raise RuntimeError(f"the core returned {name} of shape {grad.shape}, expected "
+                           f"{tuple(core_shape or shape)}")
+    return grad.reshape(shape)
 
 
 class _InterpolateFunction(torch.autograd.Function):
@@ -170,11 +185,11 @@ class _InterpolateFunction(torch.autograd.Function):
     def forward(fctx, attr, rast, rast_db, op):
         attr_np, rast_np = _checks.numpy(attr), _checks.numpy(rast)
         db_np = None if rast_db is None else _checks.numpy(rast_db)
-        out, out_da, saved = op.forward(attr_np, rast_np, db_np)
-        if op.diff_attrs is None or out_da is None:
-            out_da = np.zeros(out.shape[:-1] + (0,), out.dtype)
+        core_attr = attr_np[0] if attr_np.ndim == 3 and attr_np.shape[0] == 1 else attr_np
+        out, out_da, saved = op.forward(core_attr, rast_np, db_np)
         fctx.op, fctx.saved = op, saved
-        fctx.shapes = (attr_np.shape, rast_np.shape, None if db_np is None else db_np.shape)
+        fctx.shapes = (attr_np.shape, core_attr.shape, rast_np.shape,
+                       None if db_np is None else db_np.shape)
         fctx.dtype = attr_np.dtype
         fctx.set_materialize_grads(False)
         return _checks.to_torch(out), _checks.to_torch(out_da)
@@ -185,7 +200,7 @@ class _InterpolateFunction(torch.autograd.Function):
         if not any(fctx.needs_input_grad[:3]) or (grad_out is None and grad_out_da is None):
             return None, None, None, None
         op, dtype = fctx.op, fctx.dtype
-        attr_shape, rast_shape, db_shape = fctx.shapes
+        attr_shape, core_attr_shape, rast_shape, db_shape = fctx.shapes
         out_shape = rast_shape[:-1] + (attr_shape[-1],)
         g_out = (np.zeros(out_shape, dtype) if grad_out is None
                  else _checks.numpy(grad_out).astype(dtype, copy=False))
@@ -195,9 +210,10 @@ class _InterpolateFunction(torch.autograd.Function):
         g_attr, g_rast, g_db = op.backward(fctx.saved, dtype, g_out, g_da)
         need_attr, need_rast, need_db = fctx.needs_input_grad[:3]
         return (
-            _checks.to_torch(_fit(g_attr, attr_shape, dtype)) if need_attr else None,
-            _checks.to_torch(_fit(g_rast, rast_shape, dtype)) if need_rast else None,
-            _checks.to_torch(_fit(g_db, db_shape, dtype))
+            _checks.to_torch(_fit("grad_attr", g_attr, attr_shape, dtype, core_attr_shape))
+            if need_attr else None,
+            _checks.to_torch(_fit("grad_rast", g_rast, rast_shape, dtype)) if need_rast else None,
+            _checks.to_torch(_fit("grad_rast_db", g_db, db_shape, dtype))
             if need_db and db_shape is not None else None,
             None,
         )

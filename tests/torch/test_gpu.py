@@ -40,10 +40,10 @@ def _close(name, got, want, tol):
     assert err <= tol * scale, f"{name}: max error {err:.3g} > {tol} * {scale:.3g}"
 
 
-def _run(glctx, pos_np, dtype, ranges=None, diff_attrs=(0, 2), seed=0):
+def _run(glctx, pos_np, dtype, ranges=None, diff_attrs=(0, 2), attr_np=scenes.COLORS, seed=0):
     """Forward and backward of rasterize -> interpolate with fixed random upstream grads."""
     pos = torch.tensor(pos_np, dtype=dtype, requires_grad=True)
-    attr = torch.tensor(scenes.COLORS, dtype=dtype, requires_grad=True)
+    attr = torch.tensor(attr_np, dtype=dtype, requires_grad=True)
     rast, rast_db = dr.rasterize(glctx, pos, TRI, scenes.RESOLUTION, ranges=ranges)
     rast.retain_grad()
     rast_db.retain_grad()
@@ -78,6 +78,21 @@ def test_gpu_path_matches_float64_reference(glctx, mode):
     assert (layout.decode_ids(ids) >= 0).sum() > 50
     _close("rast", gpu["rast"][..., :3], ref["rast"][..., :3], FORWARD_TOL)
     for name in ("rast_db", "out", "out_da"):
+        _close(name, gpu[name], ref[name], FORWARD_TOL)
+    for name in ("pos", "attr", "grad_rast", "grad_rast_db"):
+        _close(f"grad {name}", gpu[name], ref[name], GRAD_TOL)
+
+
+@pytest.mark.parametrize("attr_batch", [None, 1, 2])
+def test_gpu_interpolate_broadcasts_attr_like_the_reference(glctx, attr_batch):
+    # attr (V, A) and (1, V, A) broadcast over an instanced batch of 2; (2, V, A) does not
+    attr = scenes.COLORS if attr_batch is None else np.stack(
+        [scenes.COLORS, scenes.COLORS[::-1]][:attr_batch])
+    pos = np.stack([scenes.POS, scenes.mirrored(scenes.POS)])
+    gpu = _run(glctx, pos, torch.float32, attr_np=attr, diff_attrs=(1, 1, 0))
+    ref = _run(glctx, pos, torch.float64, attr_np=attr, diff_attrs=(1, 1, 0))
+    assert gpu["attr"].shape == attr.shape and gpu["out_da"].shape[-1] == 6
+    for name in ("out", "out_da"):
         _close(name, gpu[name], ref[name], FORWARD_TOL)
     for name in ("pos", "attr", "grad_rast", "grad_rast_db"):
         _close(f"grad {name}", gpu[name], ref[name], GRAD_TOL)

@@ -142,6 +142,20 @@ def test_interpolate_gradcheck_broadcast_attr_over_batch(glctx):
                                     eps=EPS, atol=ATOL, rtol=RTOL)
 
 
+def test_interpolate_gradcheck_with_a_repeated_diff_attr(glctx):
+    # diff_attrs [1, 1, 0]: out_da's channels 0..3 both hold attribute 1's derivatives
+    rast, rast_db = _raster(glctx)
+    attr = _tensor(scenes.COLORS)
+
+    def f(a, db_):
+        return dr.interpolate(a, rast, TRI, db_, diff_attrs=[1, 1, 0])[1]
+
+    out_da = f(attr, rast_db)
+    assert out_da.shape[-1] == 6 and torch.equal(out_da[..., 0:2], out_da[..., 2:4])
+    assert torch.autograd.gradcheck(f, (attr, rast_db.clone().requires_grad_(True)),
+                                    eps=EPS, atol=ATOL, rtol=RTOL)
+
+
 def test_rasterize_then_interpolate_gradcheck_wrt_pos_and_attr(glctx):
     # the whole chain: colours and their screen derivatives as functions of pos and attr
     pos, attr = _tensor(scenes.POS), _tensor(scenes.COLORS)

@@ -160,3 +160,39 @@ def test_interpolate_without_diff_attrs_ignores_rast_db(raster):
     assert out.shape == rast.shape[:3] + (3,) and out_da.shape == rast.shape[:3] + (0,)
     out, out_da = dr.interpolate(_attr(), rast, TRI, diff_attrs=[])
     assert out_da.shape == rast.shape[:3] + (0,)
+
+
+NO_GL = """
+import sys
+
+class NoGL:
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] in ("moderngl", "glcontext"):
+            raise ImportError(f"No module named {name!r} (blocked by the test)")
+        return None
+
+sys.meta_path.insert(0, NoGL())
+
+import torch
+import glraster.torch as dr
+pos = torch.tensor([[-0.8, -0.8, 0, 1], [0.8, -0.8, 0, 2], [0, 0.8, 0, 1]],
+                   dtype=torch.float64, requires_grad=True)
+tri = torch.tensor([[0, 1, 2]], dtype=torch.int32)
+rast, rast_db = dr.rasterize(dr.RasterizeGLContext(), pos, tri, (8, 8))
+out, _ = dr.interpolate(pos[:, :2], rast, tri)
+out.sum().backward()
+assert pos.grad.abs().sum() > 0
+assert not any(m.startswith(("moderngl", "glraster.gpu")) for m in sys.modules)
+print("ok")
+"""
+
+
+def test_the_float64_path_runs_without_moderngl():
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    proc = subprocess.run([sys.executable, "-c", NO_GL], capture_output=True, text=True,
+                          cwd=Path(__file__).resolve().parents[2], timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip() == "ok"
