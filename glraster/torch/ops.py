@@ -102,15 +102,20 @@ class _RasterizeFunction(torch.autograd.Function):
     def forward(fctx, pos, op):
         pos_np = _checks.numpy(pos)
         rast, rast_db, state = op.forward(pos_np)
+        rast_t = _checks.to_torch(rast)
+        # the cores keep views of pos and rast: saving the tensors makes autograd refuse a
+        # backward after either was modified in place
+        fctx.save_for_backward(pos, rast_t)
         fctx.op, fctx.state = op, state
         fctx.set_materialize_grads(False)
-        return _checks.to_torch(rast), _checks.to_torch(rast_db)
+        return rast_t, _checks.to_torch(rast_db)
 
     @staticmethod
     @once_differentiable
     def backward(fctx, grad_rast, grad_db):
         if not fctx.needs_input_grad[0] or (grad_rast is None and grad_db is None):
             return None, None
+        fctx.saved_tensors  # raises if pos or rast changed in place since the forward
         op, state = fctx.op, fctx.state
         rast = state[1]
         g_rast = (np.zeros(rast.shape, rast.dtype) if grad_rast is None
@@ -187,6 +192,7 @@ class _InterpolateFunction(torch.autograd.Function):
         db_np = None if rast_db is None else _checks.numpy(rast_db)
         core_attr = attr_np[0] if attr_np.ndim == 3 and attr_np.shape[0] == 1 else attr_np
         out, out_da, saved = op.forward(core_attr, rast_np, db_np)
+        fctx.save_for_backward(attr, rast, rast_db)  # in-place changes are then refused
         fctx.op, fctx.saved = op, saved
         fctx.shapes = (attr_np.shape, core_attr.shape, rast_np.shape,
                        None if db_np is None else db_np.shape)
@@ -199,6 +205,7 @@ class _InterpolateFunction(torch.autograd.Function):
     def backward(fctx, grad_out, grad_out_da):
         if not any(fctx.needs_input_grad[:3]) or (grad_out is None and grad_out_da is None):
             return None, None, None, None
+        fctx.saved_tensors  # raises if an input changed in place since the forward
         op, dtype = fctx.op, fctx.dtype
         attr_shape, core_attr_shape, rast_shape, db_shape = fctx.shapes
         out_shape = rast_shape[:-1] + (attr_shape[-1],)
@@ -233,7 +240,8 @@ def _rasterize_args(glctx, pos, tri, resolution, ranges, grad_db):
     """The checked NumPy arguments of rasterize / DepthPeeler: (tri, resolution, ranges)."""
     _check_glctx(glctx)
     _checks.tensor("pos", pos, _checks.FLOAT_DTYPES)
-    pos_np = layout.positions(_checks.numpy(pos), dtype=_checks.numpy(pos).dtype)
+    pos_np = _checks.numpy(pos)
+    pos_np = layout.positions(pos_np, dtype=pos_np.dtype)
     _checks.tensor("tri", tri, _checks.INT_DTYPES)
     tri_np = layout.triangles(_checks.numpy(tri), pos_np.shape[-2])
     res = layout.resolution(resolution)

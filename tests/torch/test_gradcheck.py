@@ -165,3 +165,21 @@ def test_rasterize_then_interpolate_gradcheck_wrt_pos_and_attr(glctx):
         return dr.interpolate(a, rast, TRI, rast_db, diff_attrs=[1])
 
     assert torch.autograd.gradcheck(f, (pos, attr), eps=EPS, atol=ATOL, rtol=RTOL)
+
+
+def test_backward_refuses_inputs_changed_in_place(glctx):
+    # the cores keep views of pos, rast and attr: autograd's version check guards them
+    pos, attr = _tensor(scenes.POS), _tensor(scenes.COLORS)
+    rast, rast_db = dr.rasterize(glctx, pos, TRI, scenes.RESOLUTION)
+    out, _ = dr.interpolate(attr, rast, TRI)
+    with torch.no_grad():
+        rast[..., 3] = 0
+    with pytest.raises(RuntimeError, match="modified by an inplace operation"):
+        out.sum().backward()
+    leaf = pos.detach().clone().requires_grad_(True)
+    p = leaf * 1.0
+    rast, _ = dr.rasterize(glctx, p, TRI, scenes.RESOLUTION)
+    with torch.no_grad():
+        p[0, 0] += 0.1
+    with pytest.raises(RuntimeError, match="modified by an inplace operation"):
+        rast[..., :2].sum().backward()
