@@ -32,6 +32,8 @@ class Draw:
     uniforms     : name -> value, set once before drawing
     cull_backfaces : enable GL_CULL_FACE (CCW front faces) for this draw
     depth_test   : False disables GL_DEPTH_TEST (which also stops depth writes)
+    textures     : sampler uniform name -> moderngl texture read by the shaders (e.g. the
+                   previous layer's depth when peeling); the k-th is bound to unit k
     """
 
     program: object
@@ -42,6 +44,7 @@ class Draw:
     uniforms: dict = field(default_factory=dict)
     cull_backfaces: bool = False
     depth_test: bool = True
+    textures: dict = field(default_factory=dict)
 
 
 def draw(ctx, spec: Draw, pos: np.ndarray, tri: np.ndarray, resolution, *,
@@ -64,6 +67,9 @@ def draw(ctx, spec: Draw, pos: np.ndarray, tri: np.ndarray, resolution, *,
         targets = ctx.targets((height, width), spec.colors, depth_texture=spec.read_depth)
         targets.fbo.use()
         targets.fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        for unit, (name, texture) in enumerate(spec.textures.items()):
+            texture.use(location=unit)
+            program[name].value = unit
         if len(tri):
             _draw_batches(ctx, spec, pos, tri)
         for name, (components, dtype) in spec.colors.items():

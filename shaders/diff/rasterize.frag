@@ -1,0 +1,138 @@
+#version 450 core
+// The differentiable rasterize's forward (glraster/diff/rasterize.py, docs/differentiable.md).
+//
+// Writes, per covered pixel (row 0 at the bottom):
+//   rast    = (u, v, z/w, id): u = b0, v = b1, the perspective-correct barycentrics of the
+//             triangle's vertices 0 and 1 (SPACE_SCREEN: the window-space ones), z/w the
+//             NDC depth z_c / w_c of the surface point, id = triangle index + 1 encoded as
+//             a float (encode_id below); the clear value 0 marks empty pixels.
+//   rast_db = (du/dx, du/dy, dv/dx, dv/dy) at the pixel centre, in window pixels.
+//
+// With homogeneous window coordinates X_j = (x_j + w_j) W/2, Y_j = (y_j + w_j) H/2 and
+// M = [[X_j], [Y_j], [w_j]], row i of adj(M) is the edge function e_i = A_i x + B_i y + C_i
+// and s_i = e_i / det(M) (Olano & Greer 1997). With S = sum_j s_j (= 1 / w of the surface
+// point), b_i = s_i / S, and
+//   d b_i / dx = (g_i - b_i sum_j g_j) / S,   g_i = d s_i / dx = A_i / det  (y: B_i)
+//   window-space barycentrics s_i w_i have d (s_i w_i) / dx = g_i w_i
+//   z / w = sum_i s_i z_i                     (M s = (x, y, 1): sum_i s_i w_i = 1)
+// All of it is evaluated here at gl_FragCoord from the triangle's setup record: the
+// derivatives are the exact closed form at the centre, not a 2x2-quad difference.
+//
+// The record (RECORD_STRIDE floats per triangle, glraster/diff/rasterize.py) is the
+// "homogeneous" method's (glraster/gpu/homogeneous.py, shaders/methods/homogeneous.frag),
+// everything scaled by k = max_j |w_j|, plus z_j / k:
+//   [0, 2) anchor a   [2, 5) k g_i (x) high  [5, 8) low   [8, 11) k g_i (y) high  [11, 14) low
+//   [14, 17) k s_i(a) high  [17, 20) low     [20, 23) w_i / k   [24, 27) z_i / k
+// s_i(p) = s_i(a) + grad s_i . (p - a) is evaluated compensated (exact p - a, Dekker's
+// TwoProduct, Knuth's TwoSum), so it is about as accurate as a float64 evaluation rounded
+// once to float32, wherever the pixel is.
+//
+// Host defines: OUT_RAST, OUT_RAST_DB, RAST_LOCATION, RAST_DB_LOCATION; SPACE_SCREEN;
+// REMAP (ids[] at binding 3 holds the caller's triangle index of each drawn triangle);
+// PEEL (discard fragments at or in front of the previous layer's z/w, prev_depth).
+
+#define RECORD_STRIDE 28
+#define SPLITTER 4097.0  // 2^12 + 1
+
+layout(std430, binding = 2) readonly buffer Setup { float setup[]; };
+#ifdef REMAP
+layout(std430, binding = 3) readonly buffer Ids { int ids[]; };
+#endif
+
+layout(location = RAST_LOCATION) out vec4 out_rast;
+#ifdef OUT_RAST_DB
+layout(location = RAST_DB_LOCATION) out vec4 out_rast_db;
+#endif
+uniform int tri_base;  // index of the storage batch's first triangle (set by the pipeline)
+uniform int id_base;   // index in the caller's tri of the draw's first triangle (ranges)
+#ifdef PEEL
+uniform sampler2D prev_depth;  // (H, W) previous layer's z/w; +inf where it was empty
+#endif
+
+// Triangle index + 1 as a float: the value itself up to 2^24, above that the float whose
+// bit pattern is 0x4a800000 + id (> 2^24, increasing with id, decoded from the bits).
+float encode_id(int id) {
+    return id <= 16777216 ? float(id) : intBitsToFloat(0x4a800000 + id);
+}
+
+// hi + lo = a exactly, each with half the mantissa bits (Veltkamp's split).
+void split(float a, out float hi, out float lo) {
+    precise float c = SPLITTER * a;
+    precise float h = c - (c - a);
+    hi = h;
+    lo = a - h;
+}
+
+// hi + lo = a * b exactly (Dekker's TwoProduct; llvmpipe lowers fma() to mul + add).
+void two_product(float a, float b, out float hi, out float lo) {
+    precise float p = a * b;
+    float ah, al, bh, bl;
+    split(a, ah, al);
+    split(b, bh, bl);
+    precise float err = ((ah * bh - p) + ah * bl + al * bh) + al * bl;
+    hi = p;
+    lo = err;
+}
+
+// hi + lo = a + b exactly (Knuth's TwoSum).
+void two_sum(float a, float b, out float hi, out float lo) {
+    precise float s = a + b;
+    precise float bb = s - a;
+    precise float err = (a - (s - bb)) + (b - bb);
+    hi = s;
+    lo = err;
+}
+
+// k s_i(a) + k grad s_i . d, compensated.
+float evaluate(int base, int i, float dx, float dy) {
+    float px, ex, py, ey, t, f1, u, f2;
+    two_product(setup[base + 2 + i], dx, px, ex);
+    two_product(setup[base + 8 + i], dy, py, ey);
+    two_sum(px, py, t, f1);
+    two_sum(t, setup[base + 14 + i], u, f2);
+    precise float tail = (f1 + f2) + (ex + ey) + setup[base + 17 + i]
+                         + (setup[base + 5 + i] * dx + setup[base + 11 + i] * dy);
+    precise float result = u + tail;
+    return result;
+}
+
+void main() {
+    int base = RECORD_STRIDE * gl_PrimitiveID;
+    precise float dx = gl_FragCoord.x - setup[base];
+    precise float dy = gl_FragCoord.y - setup[base + 1];
+    vec3 s = vec3(evaluate(base, 0, dx, dy), evaluate(base, 1, dx, dy),
+                  evaluate(base, 2, dx, dy));
+    vec3 zk = vec3(setup[base + 24], setup[base + 25], setup[base + 26]);
+    float z = dot(s, zk);
+#ifdef PEEL
+    if (z <= texelFetch(prev_depth, ivec2(gl_FragCoord.xy), 0).r) {
+        discard;
+    }
+#endif
+    vec3 gx = vec3(setup[base + 2], setup[base + 3], setup[base + 4]);
+    vec3 gy = vec3(setup[base + 8], setup[base + 9], setup[base + 10]);
+#ifdef SPACE_SCREEN
+    vec3 wk = vec3(setup[base + 20], setup[base + 21], setup[base + 22]);
+    vec3 b = s * wk;
+    vec3 bx = gx * wk;
+    vec3 by = gy * wk;
+#else
+    float total = s.x + s.y + s.z;           // k S = k / w of the surface point
+    float inv = total != 0.0 ? 1.0 / total : 0.0;
+    vec3 b = vec3(s.x / total, s.y / total, s.z / total);
+    if (total == 0.0) {
+        b = vec3(0.0);
+    }
+    vec3 bx = (gx - b * (gx.x + gx.y + gx.z)) * inv;
+    vec3 by = (gy - b * (gy.x + gy.y + gy.z)) * inv;
+#endif
+#ifdef REMAP
+    int id = ids[gl_PrimitiveID] + 1;
+#else
+    int id = id_base + tri_base + gl_PrimitiveID + 1;
+#endif
+    out_rast = vec4(b.x, b.y, z, encode_id(id));
+#ifdef OUT_RAST_DB
+    out_rast_db = vec4(bx.x, by.x, bx.y, by.y);
+#endif
+}
