@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from glraster.diff import backward_gpu as _gpu
+from glraster.diff import layout
 from glraster.gpu.context import Context, default_context
 
 __all__ = ["InterpolateSaved", "backward", "forward"]
@@ -41,27 +42,6 @@ class InterpolateSaved:
     rast_db: np.ndarray | None
     diff_index: tuple
     ctx: Context
-
-
-def _diff_index(diff_attrs, num_attr: int) -> tuple:
-    if diff_attrs is None:
-        return ()
-    if isinstance(diff_attrs, str):
-        if diff_attrs != "all":
-            raise ValueError(f"diff_attrs must be None, 'all' or a list of attribute indices, "
-                             f"got {diff_attrs!r}")
-        return tuple(range(num_attr))
-    try:
-        index = [int(k) for k in diff_attrs]
-    except (TypeError, ValueError):
-        raise ValueError(f"diff_attrs must be None, 'all' or a list of attribute indices, "
-                         f"got {diff_attrs!r}") from None
-    if any(float(k) != int(k) for k in diff_attrs):
-        raise ValueError(f"diff_attrs must hold integers, got {list(diff_attrs)}")
-    bad = [k for k in index if not 0 <= k < num_attr]
-    if bad:
-        raise ValueError(f"diff_attrs indexes attributes 0..{num_attr - 1}, got {bad}")
-    return tuple(index)
 
 
 def _columns(diff_index: tuple) -> tuple[tuple, list]:
@@ -95,7 +75,7 @@ def forward(attr, rast, tri, rast_db=None, diff_attrs=None, *, ctx: Context | No
     rast = _gpu.check_rast("rast", rast)
     attr3, batched = _gpu.check_vertices("attr", attr, None, rast.shape[0])
     tri = _gpu.check_tri(tri, attr3.shape[1])
-    diff_index = _diff_index(diff_attrs, attr3.shape[2])
+    diff_index = layout.diff_attrs(diff_attrs, attr3.shape[2]) or ()
     if rast_db is not None:
         rast_db = _gpu.check_rast("rast_db", rast_db, rast.shape)
     elif diff_index:

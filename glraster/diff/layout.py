@@ -227,3 +227,16 @@ def diff_attrs(value, num_attrs: int) -> tuple[int, ...] | None:
                              f"{num_attrs} attributes")
         out.append(int(k))
     return tuple(out)
+
+
+def batch_items(pos: np.ndarray, tri: np.ndarray, ranges: np.ndarray | None):
+    """The items of a batch, in order: yields (b, first, tri_b, pos_b) where item b draws
+    ``tri_b`` (a slice of ``tri`` starting at triangle ``first``, whose ids are offset by
+    ``first``) over ``pos_b`` (V, 4). Range mode: ``tri[first:first + count]`` over the one
+    ``pos``; instanced mode (3-D pos): all of ``tri`` over ``pos[b]``; else one item."""
+    for b in range(batch_size(pos, ranges)):
+        if ranges is not None:
+            first, count = (int(v) for v in ranges[b])
+            yield b, first, tri[first:first + count], pos
+        else:
+            yield b, 0, tri, (pos[b] if pos.ndim == 3 else pos)

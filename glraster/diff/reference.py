@@ -205,12 +205,7 @@ def _coverage(pos, tri, resolution, ranges) -> np.ndarray:
     height, width = resolution
     batch = layout.batch_size(pos, ranges)
     out = np.full((batch, height, width), -1, np.int64)
-    for b in range(batch):
-        if ranges is not None:
-            first, count = ranges[b]
-            sub, p = tri[first:first + count], pos
-        else:
-            first, sub, p = 0, tri, (pos[b] if pos.ndim == 3 else pos)
+    for b, first, sub, p in layout.batch_items(pos, tri, ranges):
         if len(sub) == 0:
             continue
         r = reference_rasterize(p, sub, resolution, outputs=("tri_id",))
@@ -522,12 +517,7 @@ def depth_peel(pos, tri, resolution, layers, ranges=None, *, space: str = "persp
     batch = layout.batch_size(pos, ranges)
     ids = np.full((int(layers), batch, height, width), -1, np.int64)
     pos32 = layout.positions(pos, np.float32)
-    for b in range(batch):
-        if ranges is not None:
-            first, count = ranges[b]
-            sub, p = tri[first:first + count], pos32
-        else:
-            first, sub, p = 0, tri, (pos32[b] if pos.ndim == 3 else pos32)
+    for b, first, sub, p in layout.batch_items(pos32, tri, ranges):
         if len(sub) == 0:
             continue
         pix, t, depth = _fragments(p, sub, (height, width))
