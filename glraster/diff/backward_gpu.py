@@ -28,11 +28,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from glraster.diff import layout
 from glraster.gpu.context import Context, default_context
 from glraster.gpu.shaders import shader_path
 
 __all__ = [
-    "ACCUMULATIONS", "accumulation", "decode_tri_ids", "has_atomic_float",
+    "ACCUMULATIONS", "accumulation", "has_atomic_float",
     "interpolate_backward", "interpolate_forward", "rasterize_backward",
     "rasterize_backward_pixels",
 ]
@@ -71,56 +72,11 @@ def accumulation(ctx: Context, deterministic: bool = False, accumulate: str | No
     return "atomic_float" if has_atomic_float(ctx) else "cas"
 
 
-def decode_tri_ids(ids: np.ndarray) -> np.ndarray:
-    """Triangle index + 1 (int64, 0 = empty) from rast's fourth channel (float32): the
-    value up to 2^24, the bit pattern minus 0x4a800000 above."""
-    ids = np.ascontiguousarray(ids, dtype=np.float32)
-    small = ids <= ID_FLOAT_MAX
-    out = np.where(small, ids, 0).astype(np.int64)
-    if not small.all():
-        big = ids.view(np.int32).astype(np.int64) - ID_BITS_OFFSET
-        out = np.where(small, out, big)
-    return out
-
-
-def _float32(name: str, value, shapes: str) -> np.ndarray:
-    try:
-        a = np.asarray(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a float array of shape {shapes}") from None
-    if a.dtype.kind not in "biuf":
-        raise ValueError(f"{name} must be numeric, got dtype {a.dtype}")
-    return np.ascontiguousarray(a, dtype=np.float32)
-
-
-def check_rast(name: str, rast, shape=None) -> np.ndarray:
-    """``rast``-like (B, H, W, 4) float32 array; ``shape`` (B, H, W, 4) when it must match."""
-    a = _float32(name, rast, "(B, H, W, 4)")
-    if a.ndim != 4 or a.shape[3] != 4:
-        raise ValueError(f"{name} must have shape (B, H, W, 4), got {a.shape}")
-    if shape is not None and a.shape != tuple(shape):
-        raise ValueError(f"{name} must have shape {tuple(shape)} (that of rast), got {a.shape}")
-    return a
-
-
-def check_tri(tri, num_vertices: int) -> np.ndarray:
-    """(T, 3) int32 vertex indices in [0, num_vertices)."""
-    t = np.asarray(tri)
-    if t.ndim != 2 or t.shape[1] != 3:
-        raise ValueError(f"tri must have shape (T, 3), got {t.shape}")
-    if t.dtype.kind not in "iu":
-        raise ValueError(f"tri must hold integers, got dtype {t.dtype}")
-    if t.size and (t.min() < 0 or t.max() >= num_vertices):
-        raise ValueError(f"tri indexes vertices 0..{num_vertices - 1}, got indices in "
-                         f"[{t.min()}, {t.max()}]")
-    return np.ascontiguousarray(t, dtype=np.int32)
-
-
 def check_vertices(name: str, value, channels: int | None, batch: int) -> tuple[np.ndarray, bool]:
     """(V, C) or (B, V, C) float32 per-vertex array; returns it as (B or 1, V, C) and
     whether it was batched. ``channels`` None: any C >= 1."""
     want = f"(V, {channels}) or (B, V, {channels})" if channels else "(V, A) or (B, V, A)"
-    a = _float32(name, value, want)
+    a = np.ascontiguousarray(layout.real_array(name, value), dtype=np.float32)
     if a.ndim not in (2, 3) or (channels is not None and a.shape[-1] != channels) \
             or a.shape[-1] < 1:
         raise ValueError(f"{name} must have shape {want}, got {a.shape}")
@@ -163,7 +119,7 @@ def _zeroed(ctx: Context, name: str, nbytes: int):
 def _corner_vertices(rast_chunk_ids: np.ndarray, first: int, tri: np.ndarray,
                      pixels_per_image: int, vertex_stride: int):
     """Covered-pixel mask of a chunk and the (N, 3) vertex rows (batch offset included)."""
-    ids = decode_tri_ids(rast_chunk_ids)
+    ids = layout.decode_ids(rast_chunk_ids) + 1      # index + 1, 0 = empty
     live = (ids > 0) & (ids <= len(tri))
     rows = tri[ids[live] - 1].astype(np.int64)
     if vertex_stride:
@@ -207,18 +163,18 @@ def rasterize_backward(pos, tri, rast, grad_rast, grad_db=None, *, ctx: Context 
         pos the batch's contributions are summed.
     """
     ctx = ctx or default_context()
-    rast = check_rast("rast", rast)
+    rast = layout.image("rast", rast, dtype=np.float32)
     batch, height, width, _ = rast.shape
     if resolution is not None and tuple(int(r) for r in resolution) != (height, width):
         raise ValueError(f"resolution {tuple(resolution)} does not match rast's "
                          f"(H, W) = {(height, width)}")
-    grad_rast = check_rast("grad_rast", grad_rast, rast.shape)
+    grad_rast = layout.image("grad_rast", grad_rast, rast.shape, np.float32)
     if grad_db is not None:
-        grad_db = check_rast("grad_db", grad_db, rast.shape)
+        grad_db = layout.image("grad_db", grad_db, rast.shape, np.float32)
     pos_shape = np.shape(pos)
     pos3, batched = check_vertices("pos", pos, 4, batch)
     num_vertices = pos3.shape[1]
-    tri = check_tri(tri, num_vertices)
+    tri = layout.triangles(tri, num_vertices)
     if space not in ("persp", "screen"):
         raise ValueError(f"space must be 'persp' or 'screen', got {space!r}")
     mode = accumulation(ctx, deterministic, accumulate)
@@ -278,7 +234,7 @@ def rasterize_backward_pixels(pos, tri, rast, grad_rast, grad_db=None, *,
     contribution to the vertices tri[t, 0], tri[t, 1], tri[t, 2] of its triangle (0 on empty
     pixels). For error analysis and tests.
     """
-    rast = check_rast("rast", rast)
+    rast = layout.image("rast", rast, dtype=np.float32)
     out = np.empty((rast.shape[0] * rast.shape[1] * rast.shape[2], 3, 4), np.float32)
     rasterize_backward(pos, tri, rast, grad_rast, grad_db, ctx=ctx, space=space,
                        accumulate="per_pixel", _pixels_out=out)

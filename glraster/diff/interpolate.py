@@ -72,12 +72,12 @@ def forward(attr, rast, tri, rast_db=None, diff_attrs=None, *, ctx: Context | No
         Empty pixels are 0 in both.
     """
     ctx = ctx or default_context()
-    rast = _gpu.check_rast("rast", rast)
+    rast = layout.image("rast", rast, dtype=np.float32)
     attr3, batched = _gpu.check_vertices("attr", attr, None, rast.shape[0])
-    tri = _gpu.check_tri(tri, attr3.shape[1])
+    tri = layout.triangles(tri, attr3.shape[1])
     diff_index = layout.diff_attrs(diff_attrs, attr3.shape[2]) or ()
     if rast_db is not None:
-        rast_db = _gpu.check_rast("rast_db", rast_db, rast.shape)
+        rast_db = layout.image("rast_db", rast_db, rast.shape, np.float32)
     elif diff_index:
         raise ValueError("diff_attrs needs rast_db (the raster's screen derivatives)")
     unique, place = _columns(diff_index)
@@ -112,13 +112,13 @@ def backward(saved: InterpolateSaved, grad_out, grad_out_da=None, *, determinist
     rast = saved.rast
     batch, height, width, _ = rast.shape
     num_attr = saved.attr.shape[2]
-    grad_out = _gpu._float32("grad_out", grad_out, "(B, H, W, A)")
+    grad_out = layout.image("grad_out", grad_out, dtype=np.float32, channels=None)
     if grad_out.shape != (batch, height, width, num_attr):
         raise ValueError(f"grad_out must have shape {(batch, height, width, num_attr)} "
                          f"(that of out), got {grad_out.shape}")
     n_diff = len(saved.diff_index)
     if n_diff and grad_out_da is not None:
-        grad_out_da = _gpu._float32("grad_out_da", grad_out_da, "(B, H, W, 2 D)")
+        grad_out_da = layout.image("grad_out_da", grad_out_da, dtype=np.float32, channels=None)
         if grad_out_da.shape != (batch, height, width, 2 * n_diff):
             raise ValueError(f"grad_out_da must have shape {(batch, height, width, 2 * n_diff)}"
                              f" (that of out_da), got {grad_out_da.shape}")

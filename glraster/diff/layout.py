@@ -86,7 +86,8 @@ def decode_ids(values, name: str = "rast id channel") -> np.ndarray:
 # --------------------------------------------------------------------------- argument checks
 
 
-def _real_array(name: str, value, dtype) -> np.ndarray:
+def real_array(name: str, value, dtype=None) -> np.ndarray:
+    """``value`` as an array of real numbers (float or int), or ValueError naming ``name``."""
     arr = np.asarray(value)
     if arr.dtype == object or arr.dtype == np.bool_ or not (
         np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)
@@ -106,7 +107,7 @@ def _finite(name: str, arr: np.ndarray, out: np.ndarray) -> np.ndarray:
 
 def positions(pos, dtype=np.float64) -> np.ndarray:
     """``pos`` (V, 4) or (B, V, 4) as a C-contiguous finite array of ``dtype``."""
-    arr = _real_array("pos", pos, dtype)
+    arr = real_array("pos", pos, dtype)
     if arr.ndim not in (2, 3) or arr.shape[-1] != 4:
         raise ValueError(f"pos must have shape (V, 4) or (B, V, 4), got {arr.shape}")
     if arr.ndim == 3 and arr.shape[0] == 0:
@@ -170,7 +171,7 @@ def image(name: str, value, shape=None, dtype=np.float64, channels: int | None =
 
     shape : the exact expected shape, or None for any (B, H, W, ``channels``)
     """
-    arr = _real_array(name, value, dtype)
+    arr = real_array(name, value, dtype)
     if shape is not None:
         if arr.shape != tuple(shape):
             raise ValueError(f"{name} must have shape {tuple(shape)}, got {arr.shape}")
@@ -193,7 +194,7 @@ def rast_ids(rast: np.ndarray, num_triangles: int) -> np.ndarray:
 
 def attributes(attr, batch: int, dtype=np.float64) -> np.ndarray:
     """``attr`` (V, A) or (B', V, A) with B' in (1, ``batch``) as a finite array."""
-    arr = _real_array("attr", attr, dtype)
+    arr = real_array("attr", attr, dtype)
     if arr.ndim not in (2, 3):
         raise ValueError(f"attr must have shape (V, A) or (B, V, A), got {arr.shape}")
     if arr.ndim == 3 and arr.shape[0] not in (1, batch):

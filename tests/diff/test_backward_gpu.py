@@ -452,16 +452,10 @@ def test_accumulation_choice_and_atomic_float_on_llvmpipe(ctx):
         bg.accumulation(ctx, accumulate="sorted")
 
 
-def test_id_decoding_matches_the_layout_encoding():
-    ids = np.array([-1, 0, 1, 2 ** 22, 2 ** 24 - 1, 2 ** 24, 2 ** 24 + 5, 2 ** 29])
-    encoded = layout.encode_ids(ids)
-    assert np.array_equal(bg.decode_tri_ids(encoded), ids + 1)
-
-
 def test_shapes_are_checked(ctx):
     pos, tri, res = random_soup(13, 4)
     rast = np.zeros((1,) + res + (4,), np.float32)
-    with pytest.raises(ValueError, match=r"grad_rast must have shape \(B, H, W, 4\), got \(1, 48, 64, 3\)"):
+    with pytest.raises(ValueError, match=r"grad_rast must have shape \(1, 48, 64, 4\), got \(1, 48, 64, 3\)"):
         bg.rasterize_backward(pos, tri, rast, np.zeros((1, 48, 64, 3)), ctx=ctx)
     with pytest.raises(ValueError, match=r"pos must have shape \(V, 4\)"):
         bg.rasterize_backward(pos[:, :3], tri, rast, rast, ctx=ctx)
@@ -469,5 +463,5 @@ def test_shapes_are_checked(ctx):
         bg.rasterize_backward(pos, tri, rast, rast, ctx=ctx, resolution=(10, 10))
     with pytest.raises(ValueError, match="pos has 3 batch entries but rast has 1"):
         bg.rasterize_backward(np.stack([pos] * 3), tri, rast, rast, ctx=ctx)
-    with pytest.raises(ValueError, match="tri indexes vertices"):
+    with pytest.raises(ValueError, match="tri index .* is out of range"):
         bg.rasterize_backward(pos, tri + 100, rast, rast, ctx=ctx)
