@@ -36,6 +36,75 @@ def register(subparsers) -> None:
                         "every size up to 4096x4096)")
     p.set_defaults(func=run)
 
+    d = subparsers.add_parser(
+        "bench-diff", help="time the differentiable ops (derivatives, backward passes, "
+                           "determinism, interpolate against plain PyTorch)",
+        description="For each resolution x triangle count on the benchmark terrain: "
+                    "rasterize with and without rast_db, its backward (atomic and "
+                    "deterministic) against the forward, and interpolate forward+backward "
+                    "through glraster.torch against the same math in plain PyTorch "
+                    "(glraster.torch.baseline), as medians of interleaved rounds, with the "
+                    "goals met or missed. Needs the [torch] extra. The quick preset "
+                    "(256/1024 px, 1k/20k triangles) takes about a minute, the full one "
+                    "(256/512/1024 px, 1k/20k/100k triangles, plus a cProfile breakdown of "
+                    "two cells) about 4 minutes on 2 cores (docs/differentiable.md, Speed).")
+    d.add_argument("--preset", choices=("quick", "full"), default="quick",
+                   help="case grid (default: quick)")
+    d.add_argument("--quick", dest="preset", action="store_const", const="quick",
+                   help="same as --preset quick")
+    d.add_argument("--full", dest="preset", action="store_const", const="full",
+                   help="same as --preset full")
+    d.add_argument("--repeats", type=int, default=None, metavar="N",
+                   help="interleaved rounds per cell (default: the preset's)")
+    d.add_argument("--backend", default="egl", choices=("egl", "osmesa"),
+                   help="OpenGL backend (default: egl)")
+    d.add_argument("--json", default=None, metavar="FILE", help="write all results as JSON")
+    d.set_defaults(func=run_diff)
+
+
+def run_diff(args) -> int:
+    from glraster.cli.commands.check import Progress
+
+    try:
+        from glraster.studies import diff_bench
+    except ImportError as exc:  # torch is the optional [torch] extra
+        print(f"glraster bench-diff: needs the [torch] extra ({exc})", file=sys.stderr)
+        return exit_codes.USAGE
+    overrides = {}
+    if args.repeats is not None:
+        if args.repeats < 1:
+            print("glraster bench-diff: --repeats must be >= 1", file=sys.stderr)
+            return exit_codes.USAGE
+        overrides["repeats"] = args.repeats
+    result = diff_bench.run(args.preset, backend=args.backend, progress=Progress(),
+                            **overrides)
+    m = result["machine"]
+    print(f"{m['renderer']}, {m['cpus']} CPUs, torch {m['torch']} ({m['torch_threads']} "
+          f"threads), accumulation {m['accumulation']}; medians of per-round ratios "
+          f"(wall), {result['settings']['repeats']} rounds\n")
+    print(diff_bench.table(result))
+    print("\ngoals:")
+    for name, (goal, op, sizes) in diff_bench.GOALS.items():
+        g = result["goals"].get(name)
+        if g:
+            where = f" at {', '.join(f'{s}²' for s in sizes)}" if sizes else ""
+            print(f"  {name} {op} {goal}{where}: met in {g['met']} of {g['cells']} cells")
+    same = [c["same_math"] for c in result["cells"]]
+    print(f"  baseline out / out_da bit-identical to glraster's: "
+          f"{sum(s['out_equal'] and s['out_da_equal'] for s in same)} of {len(same)} cells")
+    for p in result["profile"]:
+        print(f"\nwhere the time goes, {p['resolution'][0]}², {p['triangles']} triangles "
+              "(ms per call, cProfile):")
+        for call, phases in p["ms_per_call"].items():
+            parts = ", ".join(f"{k} {v:.1f}" for k, v in phases.items() if k != "total")
+            print(f"  {call} {phases['total']:.1f}: {parts}")
+    print(f"\n{result['seconds']:.0f} s")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(result, f, indent=1, default=float)
+        print(f"wrote {args.json}")
+    return exit_codes.OK
+
 
 def _print_cases(cases) -> None:
     print(f"{'method':<14}{'scene':<9}{'res':>6}{'tris':>9}{'first ms':>10}{'warm ms':>10}"
