@@ -5,6 +5,34 @@ class BackendUnavailable(RuntimeError):
     """No headless OpenGL context could be created with the requested backend."""
 
 
+class LibraryMissing(BackendUnavailable):
+    """The backend's library (libEGL, libOSMesa) is not installed: an install hint helps."""
+
+
+class DriverTooOld(BackendUnavailable):
+    """The driver makes OpenGL contexts, but none of the version glraster needs.
+
+    ``offered`` is the driver's best OpenGL version as text ("3.1") or None when even that
+    could not be read; ``needed`` the version glraster asked for ("3.3").
+    """
+
+    def __init__(self, message: str, offered: str | None = None, needed: str = "3.3"):
+        super().__init__(message)
+        self.offered = offered
+        self.needed = needed
+
+
+class GLVersionError(ValueError):
+    """A feature needs a newer OpenGL than the context offers; the message names the
+    feature, the version the context offers and the one needed."""
+
+    def __init__(self, message: str, feature: str, offered: int, needed: int):
+        super().__init__(message)
+        self.feature = feature
+        self.offered = offered
+        self.needed = needed
+
+
 class ShaderCompileError(RuntimeError):
     """A GLSL file failed to compile or link; the message names the file and line."""
 

@@ -3,18 +3,22 @@
 Each :class:`Mutant` is the real ``shaders/raster/raster.vert`` / ``raster.frag`` with one
 fault, written as a few :class:`Patch` replacements (old text -> new text) that are applied
 to the current real shader text whenever the mutant is rendered, so a mutant cannot drift
-from the shaders it mutates. Each replacement must match exactly once (else a ValueError
-names the mutant, the file and the text) and keep the number of lines, so that the mutated
-source has the real file's line numbers. A mutant may also carry a host-side change that a
+from the shaders it mutates. On a GL 3.3 context the real shaders of method "hw" are
+``shaders/raster33/raster.vert`` / ``raster.frag``, whose text is the same where the patches
+apply: the same patches make the same faults there (a patch names the file by its role,
+``raster/raster.vert`` or ``raster/raster.frag``). Each replacement must match exactly
+once (else a ValueError names the mutant, the file and the text) and keep the number of
+lines, so that the mutated source has the real file's line numbers. A mutant may also carry a host-side change that a
 shader cannot express (half-float render targets, the depth test switched off, a uniform).
 ``glraster check --mutants`` renders the catalog with every mutant and expects each one to be
 caught (some scene fails its comparison with the reference); the real shaders, run through
 the same path, must pass everywhere.
 
 The mutated sources are written to a per-process temporary folder
-(``<tmp>/glraster-mutants-*/<mutant>/raster.vert``, ending with a comment that names the
-mutant) because the draw paths compile shader files; a compile error names that file, whose
-line N is line N of the real shader. Mutants that need no host change render through
+(``<tmp>/glraster-mutants-*/<mutant>/raster.vert``, ``.../<mutant>/raster33/raster.vert``
+for the GL 3.3 shaders, ending with a comment that names the mutant) because the draw
+paths compile shader files; a compile error names that file, whose line N is line N of
+the real shader. Mutants that need no host change render through
 :func:`glraster.gpu.rasterize.rasterize` with ``shader_files``; the others go through
 :func:`render`, which draws through the same pipeline (:mod:`glraster.gpu.pipeline`)
 with the host changes applied (target dtype, depth test, uniforms, read-back rotation).
@@ -39,6 +43,13 @@ from glraster.gpu.shaders import shader_dir
 
 REAL_SHADERS = ("raster/raster.vert", "raster/raster.frag")
 VERT, FRAG = REAL_SHADERS
+
+
+def real_shaders(ctx=None) -> tuple[str, str]:
+    """The real (vert, frag) of method "hw" on ``ctx`` (relative to ``shaders/``), in the
+    order of REAL_SHADERS: ``raster/`` on GL 4.5 (or ``ctx=None``), ``raster33/`` below."""
+    hw = _methods.for_context("hw", ctx)
+    return hw.vert, hw.frag
 
 
 @dataclass(frozen=True)
@@ -99,22 +110,27 @@ class Mutant:
         """The real shader files this mutant changes, in REAL_SHADERS order."""
         return tuple(f for f in REAL_SHADERS if any(p.file == f for p in self.patches))
 
-    def source(self, file: str) -> str:
-        """The current text of the real shader ``file`` with this mutant's patches applied.
+    def source(self, file: str, ctx=None) -> str:
+        """The current text of the real shader ``file`` (a REAL_SHADERS role; on a GL 3.3
+        ``ctx`` the file of :func:`real_shaders` in that role) with this mutant's patches
+        applied.
 
         Raises ValueError naming the mutant, the file and the text when a replacement does
         not match exactly once.
         """
-        text = (shader_dir() / file).read_text()
-        return apply_patches(self.name, file, text,
+        real = dict(zip(REAL_SHADERS, real_shaders(ctx)))[file]
+        text = (shader_dir() / real).read_text()
+        return apply_patches(self.name, real, text,
                              [p for p in self.patches if p.file == file])
 
-    def shader_files(self) -> tuple:
-        """(vert, frag) paths to compile: the real file for an unpatched stage, else the
-        mutated source written to this process's temporary mutant folder."""
+    def shader_files(self, ctx=None) -> tuple:
+        """(vert, frag) paths to compile on ``ctx`` (None: the GL 4.5 shaders): the real
+        file for an unpatched stage, else the mutated source written to this process's
+        temporary mutant folder."""
         d = shader_dir()
-        return tuple(str(_write_generated(self, f) if f in self.patched_files else d / f)
-                     for f in REAL_SHADERS)
+        return tuple(str(_write_generated(self, f, real, ctx) if f in self.patched_files
+                         else d / real)
+                     for f, real in zip(REAL_SHADERS, real_shaders(ctx)))
 
 
 def apply_patches(name: str, file: str, text: str, patches) -> str:
@@ -135,19 +151,24 @@ _generated: dict[Path, str] = {}  # path -> text written there by this process
 _generated_root: list[Path] = []
 
 
-def _write_generated(mutant: Mutant, file: str) -> Path:
-    """Write ``mutant``'s version of ``file`` (unchanged lines, then a trailing comment that
-    names the mutant) and return its path; rewritten only when the text changes."""
+def _write_generated(mutant: Mutant, file: str, real: str | None = None, ctx=None) -> Path:
+    """Write ``mutant``'s version of ``file`` (role), whose real shader on ``ctx`` is
+    ``real`` (unchanged lines, then a trailing comment that names the mutant), and return
+    its path; rewritten only when the text changes."""
+    real = real or file
     if not _generated_root:
         root = Path(tempfile.mkdtemp(prefix="glraster-mutants-"))
         atexit.register(shutil.rmtree, root, ignore_errors=True)
         _generated_root.append(root)
-    text = mutant.source(file)
+    text = mutant.source(file, ctx)
     text += ("" if text.endswith("\n") else "\n") + (
         f"// MUTANT {mutant.name}: {mutant.fault}.\n"
-        f"// Generated by glraster.conformance.mutants from shaders/{file}; every line above "
+        f"// Generated by glraster.conformance.mutants from shaders/{real}; every line above "
         f"has the line number it has there.\n")
-    path = _generated_root[0] / mutant.name / Path(file).name
+    folder = _generated_root[0] / mutant.name
+    if Path(real).parent != Path(file).parent:
+        folder = folder / Path(real).parent.name  # raster33/: the GL 3.3 shaders
+    path = folder / Path(real).name
     if _generated.get(path) != text:
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(text)
@@ -158,7 +179,7 @@ def _write_generated(mutant: Mutant, file: str) -> Path:
 # Declarations the mutants add share a line with ``void main() {`` or an existing statement,
 # so that no line is added.
 _MAIN = "void main() {"
-_POSITION = "gl_Position = positions[indices[gl_VertexID]];"
+_POSITION = "gl_Position = CORNER_POSITION;"
 _PERSP_OUT, _PERSP_IN = "smooth out vec3 v_persp;", "smooth in vec3 v_persp;"
 _SCREEN_OUT, _SCREEN_IN = "noperspective out vec3 v_screen;", "noperspective in vec3 v_screen;"
 
@@ -201,7 +222,7 @@ MUTANTS: tuple[Mutant, ...] = (
               "vec3(corner == 1, corner == 2, corner == 0)"),
     )),
     Mutant("tri_id_off_by_one", "triangle id written one too high", patches=(
-        Patch(FRAG, "tri_base + gl_PrimitiveID + 1;", "tri_base + gl_PrimitiveID + 2;"),
+        Patch(FRAG, "tri_base + PRIMITIVE_ID + 1;", "tri_base + PRIMITIVE_ID + 2;"),
     )),
     Mutant("edge_discard", "fragments centered exactly on an edge are discarded "
                            "(missing pixels on shared edges)", patches=(
@@ -256,19 +277,21 @@ def render(mutant: Mutant | None, pos, tri, resolution, *, ctx, outputs=OUTPUTS)
     """
     if mutant is not None and not mutant.needs_host_changes:
         return _raster.rasterize(pos, tri, resolution, ctx=ctx, outputs=outputs,
-                                 shader_files=mutant.shader_files())
+                                 shader_files=mutant.shader_files(ctx))
     m = mutant or Mutant("control", "none")
     names = validate.outputs(outputs)
     pos = validate.positions(pos)
     tri = validate.triangles(tri, len(pos))
     height, width = validate.resolution(resolution, ctx.max_texture_size)
+    hw = _methods.for_context("hw", ctx)
     colors = {n: (c, m.target_dtype if dtype == "f4" else dtype)
-              for n, (c, dtype) in _raster.color_targets(names, _methods.get("hw")).items()}
-    vert, frag = m.shader_files()
+              for n, (c, dtype) in _raster.color_targets(names, hw).items()}
+    vert, frag = m.shader_files(ctx)
     with ctx:
         program, vao = ctx.program(vert, frag, _pipeline.output_defines(colors))
     spec = _pipeline.Draw(
         program, vao, colors, read_depth="depth" in names, depth_test=m.depth_test,
+        vertex_input=hw.vertex_input,
         uniforms={"u_viewport": (float(width), float(height))} if m.viewport_uniform else {})
     values = _pipeline.draw(ctx, spec, pos, tri, (height, width),
                             during=f"rendering mutant {m.name}")

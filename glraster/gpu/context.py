@@ -8,19 +8,43 @@ the number of calls.
 
 from __future__ import annotations
 
+import os
+import re
 import threading
 from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
 
 import moderngl
+import numpy as np
 
-from glraster.errors import ShaderCompileError
+from glraster.errors import GLVersionError, ShaderCompileError
 from glraster.gpu.backends import create_backend
+from glraster.gpu.backends.current import MIN_GL, version_text
 from glraster.gpu.shaders import compile_program, describe_compile_error, with_defines
 
 # Framebuffers kept alive: enough for a test suite that alternates a few sizes.
 FRAMEBUFFER_CACHE_SIZE = 4
+
+# GL versions (major * 10 + minor): shader storage buffers (and their limits) exist from
+# 4.3; glraster's storage-buffer and compute shaders are GLSL 4.50.
+STORAGE_GL = 43
+GLSL450_GL = 45
+
+
+def parse_gl_version(value, what: str = "max_gl") -> int:
+    """33, 330, "3.3" or "33" -> 33 (major * 10 + minor); ValueError naming ``what``."""
+    text = str(value).strip()
+    match = re.fullmatch(r"(\d)\.(\d)|(\d)(\d)0?", text)
+    if isinstance(value, bool) or match is None:
+        raise ValueError(f"{what} must be an OpenGL version such as 33, 45 or '3.3', got {value!r}")
+    major, minor = (match.group(1), match.group(2)) if match.group(1) else (match.group(3),
+                                                                          match.group(4))
+    number = 10 * int(major) + int(minor)
+    if number < MIN_GL // 10:
+        raise ValueError(f"{what} must be at least {version_text(MIN_GL)} (glraster's "
+                         f"least OpenGL), got {value!r}")
+    return number
 
 
 @dataclass
@@ -44,18 +68,25 @@ class Targets:
 
 
 class Context:
-    """A headless OpenGL 4.5 core context.
+    """A headless OpenGL core context: the best of 4.5 and 3.3 the driver makes.
 
     Parameters
     ----------
     backend : {"auto", "egl", "osmesa"} or None
         "auto" tries EGL, then OSMesa. None reads ``$GLRASTER_BACKEND`` (default "auto").
+    max_gl : int or str, optional
+        Use no OpenGL feature above this version (33 or "3.3": the GL 3.3 draw path of
+        method "hw" even on a 4.5 driver, to test it). None reads ``$GLRASTER_MAX_GL``
+        (default: no cap).
 
     Attributes
     ----------
     backend : str             "egl" or "osmesa", the backend actually in use
     renderer : str            GL_RENDERER, e.g. "llvmpipe (LLVM 15.0.6, 256 bits)"
     gl_version : str          GL_VERSION
+    gl_version_number : int   the OpenGL version glraster uses, major * 10 + minor (33, 45):
+                              the driver's, or ``max_gl`` when that is lower
+    driver_gl_version_number : int   the driver's (from GL_VERSION), whatever ``max_gl``
     vendor : str              GL_VENDOR
     max_texture_size : int    largest width or height glraster can render
     subpixel_bits : int       GL_SUBPIXEL_BITS
@@ -66,7 +97,11 @@ class Context:
     on the thread before, as does construction: a caller's own GL context keeps working.
     """
 
-    def __init__(self, backend: str | None = "auto"):
+    def __init__(self, backend: str | None = "auto", *, max_gl=None):
+        if max_gl is None and os.environ.get("GLRASTER_MAX_GL"):
+            cap = parse_gl_version(os.environ["GLRASTER_MAX_GL"], "GLRASTER_MAX_GL")
+        else:
+            cap = None if max_gl is None else parse_gl_version(max_gl)
         self._backend, self.mgl = create_backend(backend)
         self.backend = self._backend.name
         self._lock = threading.RLock()
@@ -74,6 +109,7 @@ class Context:
         self._compute: dict = {}
         self._framebuffers: OrderedDict = OrderedDict()
         self._buffers: dict = {}
+        self._attribute_arrays: dict = {}  # (program glo, name) -> (buffers..., vao)
         with self:
             info = self.mgl.info
             self.renderer = info["GL_RENDERER"]
@@ -84,9 +120,29 @@ class Context:
                 min(info["GL_MAX_TEXTURE_SIZE"], info["GL_MAX_RENDERBUFFER_SIZE"], *viewport)
             )
             self.subpixel_bits = int(info["GL_SUBPIXEL_BITS"])
-            self.max_storage_block_size = int(info["GL_MAX_SHADER_STORAGE_BLOCK_SIZE"])
+            self.driver_gl_version_number = self.mgl.version_code // 10
+            self.gl_version_number = min(self.driver_gl_version_number, cap or 99)
+            self.max_gl = cap
+            # (a GL 3.3 context has no storage blocks: the query is not made there)
+            self.max_storage_block_size = int(info.get("GL_MAX_SHADER_STORAGE_BLOCK_SIZE", 0)) \
+                if self.gl_version_number >= STORAGE_GL else 0
             self.mgl.enable(self.mgl.DEPTH_TEST)
             self.mgl.depth_func = "<"
+
+    def require_gl(self, needed: int, feature: str, why: str = "") -> None:
+        """Raise :class:`GLVersionError` (a ValueError) naming ``feature``, the version this
+        context offers and ``needed`` (major * 10 + minor; ``why``: what of that version
+        the feature uses) when the context is below ``needed``."""
+        if self.gl_version_number >= needed:
+            return
+        offered = f"the driver ({self.renderer}) offers OpenGL " \
+            f"{version_text(self.driver_gl_version_number)}"
+        if self.gl_version_number < self.driver_gl_version_number:
+            offered = (f"this context is capped at OpenGL {version_text(self.gl_version_number)}"
+                       f" by max_gl / GLRASTER_MAX_GL ({offered})")
+        raise GLVersionError(
+            f"{feature} needs OpenGL {version_text(needed)}{f' ({why})' if why else ''}; "
+            f"{offered}", feature, self.gl_version_number, needed)
 
     @property
     def is_llvmpipe(self) -> bool:
@@ -122,6 +178,8 @@ class Context:
         key = (str(path), tuple(sorted(defines.items())))
         program = self._compute.get(key)
         if program is None:
+            self.require_gl(GLSL450_GL, f"the compute shader {Path(path).name}",
+                            "compute shaders, GLSL 4.50")
             source = with_defines(Path(path).read_text(), defines)
             try:
                 program = self.mgl.compute_shader(source)
@@ -196,6 +254,29 @@ class Context:
             buffer = self._buffers[name] = self.mgl.buffer(reserve=size, dynamic=True)
         return buffer
 
+    def attribute_array(self, program, name: str, corners):
+        """A vertex array feeding ``program`` the vertex attributes ``a_position`` =
+        ``corners`` ((N, 4) float32, C-contiguous; in :meth:`storage_buffer` ``name``) and
+        ``a_vertex`` = 0, 1, ..., N - 1 (int32, a buffer shared by every draw, written only
+        when it grows). The vertex array is cached per program and buffer name and remade
+        only when a buffer grows."""
+        count = len(corners)
+        positions = self.storage_buffer(name, corners)
+        numbers = self._buffers.get("vertex_numbers")
+        if numbers is None or numbers.size < 4 * count:
+            size = max(1 << (4 * count - 1).bit_length(), 1 << 15)  # 8k vertices or more
+            numbers = self.storage_buffer("vertex_numbers", np.arange(size // 4, dtype=np.int32))
+        key = (program.glo, name)
+        cached = self._attribute_arrays.get(key)
+        if cached is None or cached[0] is not positions or cached[1] is not numbers:
+            if cached is not None:
+                cached[2].release()
+            vao = self.mgl.vertex_array(
+                program, [(positions, "4f", "a_position"), (numbers, "1i", "a_vertex")],
+                skip_errors=True)  # a_vertex is optimized out when no output needs it
+            self._attribute_arrays[key] = cached = (positions, numbers, vao)
+        return cached[2]
+
     def gl_error(self) -> str:
         """The pending GL error ("GL_NO_ERROR" when there is none); reading clears it."""
         with self:
@@ -216,6 +297,7 @@ class Context:
         """Number of GL objects held in the caches (for leak tests)."""
         return (
             len(self._programs) + len(self._compute) + len(self._buffers)
+            + len(self._attribute_arrays)
             + sum(2 + len(t.attachments) for t in self._framebuffers.values())
         )
 
@@ -227,12 +309,15 @@ class Context:
                 program.release()
             for program in self._compute.values():
                 program.release()
+            for *_, vao in self._attribute_arrays.values():
+                vao.release()
             for targets in self._framebuffers.values():
                 targets.release()
             for buffer in self._buffers.values():
                 buffer.release()
         self._programs.clear()
         self._compute.clear()
+        self._attribute_arrays.clear()
         self._framebuffers.clear()
         self._buffers.clear()
         self.mgl.release()

@@ -5,6 +5,13 @@ only how ``persp`` and ``screen`` are obtained. One :class:`Method` record per m
 everything that differs between them (shader files, defines, host-side setup, culling
 default, read-back format, error-model traits and waivers), so adding a method touches
 this file and its shader only.
+
+Each record says the OpenGL version its shaders need (``min_gl``: 4.5 for the GLSL 4.50
+shaders with storage buffers). A method may have a variant for older contexts: ``hw``
+draws from storage buffers on GL 4.5 and from a de-indexed vertex buffer
+(``shaders/raster33/``) below, down to GL 3.3; :func:`for_context` picks the
+record for a context, or raises a :class:`GLVersionError` naming the method, the version
+the context offers and the one needed.
 """
 
 from __future__ import annotations
@@ -14,6 +21,7 @@ from typing import Callable
 
 import numpy as np
 
+from glraster.errors import GLVersionError
 from glraster.gpu import homogeneous as _homogeneous
 from glraster.verify.tolerance import ErrorModel
 
@@ -38,6 +46,12 @@ class Method:
     compensated, persp_from_screen : error-model traits (see ErrorModel)
     clip_defect_outputs : outputs computed from the driver's noperspective varyings, which
                       a driver with Mesa's clipper defect gets wrong (waived there)
+    min_gl          : least OpenGL version (major * 10 + minor) the shaders need
+    needs           : what needs ``min_gl``, for the error message
+    vertex_input    : positions come as the vertex attribute ``a_position`` of a de-indexed
+                      vertex buffer (:class:`pipeline.Draw`), not from storage buffers
+    fallback        : the variant used on contexts below ``min_gl`` (None: the method
+                      is unavailable there)
     """
 
     name: str
@@ -54,6 +68,10 @@ class Method:
     compensated: bool = False
     persp_from_screen: bool = False
     clip_defect_outputs: tuple[str, ...] = ()
+    min_gl: int = 45
+    needs: str = "shader storage buffers, GLSL 4.50"
+    vertex_input: bool = False
+    fallback: Method | None = None
 
     def error_model(self, ctx=None) -> ErrorModel:
         """The per-pixel error model for this method on a context (None: llvmpipe).
@@ -79,10 +97,18 @@ def _solve4_uniforms(height, width):
     return {"u_ndc_scale": (2.0 / width, 2.0 / height)}
 
 
+# hw on GL 3.3: the same interpolation, positions from a de-indexed vertex buffer and the
+# triangle index as a flat varying (shaders/raster33/, whose text is raster/'s where the
+# fault-injection mutants patch it).
+HW_GL33 = Method("hw", "the driver's smooth / noperspective interpolation (GL 3.3 path: "
+                       "vertex attributes)",
+                 "raster33/raster.vert", "raster33/raster.frag", remaps_ids=False,
+                 clip_defect_outputs=("screen",), min_gl=33, needs="", vertex_input=True)
+
 METHODS: dict[str, Method] = {m.name: m for m in (
     Method("hw", "the driver's smooth / noperspective interpolation",
            "raster/raster.vert", "raster/raster.frag",
-           remaps_ids=False, clip_defect_outputs=("screen",)),
+           remaps_ids=False, clip_defect_outputs=("screen",), fallback=HW_GL33),
     Method("divw", "noperspective barycentrics divided by per-vertex w in the shader "
                    "(seed 002 eq. 2.4.9)",
            "raster/pull.vert", "methods/divw.frag", varies_screen=True,
@@ -94,7 +120,7 @@ METHODS: dict[str, Method] = {m.name: m for m in (
     Method("homogeneous64", "the same in float64 (GL 4.0 fp64), returned as float64",
            "raster/pull.vert", "methods/homogeneous.frag", defines={"FP64": 1},
            setup=_homogeneous_setup(True), cull_by_default=True, value_dtype="f8",
-           compensated=True),
+           compensated=True, needs="shader storage buffers and float64, GLSL 4.50"),
     Method("solve4", "seed 000's 4x4 linear system per pixel, float32 Gaussian elimination",
            "raster/pull.vert", "methods/solve4.frag", uniforms=_solve4_uniforms),
 )}
@@ -107,6 +133,35 @@ def get(name) -> Method:
     if method is None:
         raise ValueError(f"method must be one of {sorted(METHODS)}, got {name!r}")
     return method
+
+
+def for_context(method, ctx) -> Method:
+    """The record of ``method`` (a name or a :class:`Method`) to draw with on ``ctx``: the
+    method itself when the context offers its ``min_gl``, else the first fallback that
+    fits (``hw`` on GL 3.3). Raises :class:`GLVersionError` (a ValueError) naming the
+    method, the version the context offers and the one needed. ``ctx=None``: the method."""
+    m = get(method) if isinstance(method, str) else method
+    if ctx is None:
+        return m
+    candidate = m
+    while candidate is not None:
+        if ctx.gl_version_number >= candidate.min_gl:
+            return candidate
+        candidate = candidate.fallback
+    ctx.require_gl(m.min_gl, f"method {m.name!r}", m.needs)
+    return m  # pragma: no cover - require_gl raised
+
+
+def available(ctx) -> dict[str, Method | None]:
+    """Method name -> the record drawn on ``ctx``, or None where the context's OpenGL is
+    too old for it."""
+    out = {}
+    for name, m in METHODS.items():
+        try:
+            out[name] = for_context(m, ctx)
+        except GLVersionError:
+            out[name] = None
+    return out
 
 
 def error_model(method: str, ctx=None) -> ErrorModel:

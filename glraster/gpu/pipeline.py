@@ -1,10 +1,17 @@
 """The one draw pipeline: render targets, batched draws, readback and id decoding.
 
-:func:`draw` renders T triangles pulled from storage buffers (positions at binding 0,
-indices at binding 1, optional per-triangle buffers at bindings 2, 3, ...) with
-``glDrawArrays(3 T)`` into float / integer color targets and a 32-bit float depth
-buffer, and reads back what was asked. :func:`glraster.rasterize`, the fault-injection
-mutants and the differentiable ops all draw through it.
+:func:`draw` renders T triangles with ``glDrawArrays(3 T)`` into float / integer color
+targets and a 32-bit float depth buffer, and reads back what was asked. Vertex k is
+corner k % 3 of triangle k / 3, and the shaders get its clip position in one of two ways:
+
+* storage buffers (GLSL 4.50 shaders): positions at binding 0 and indices at binding 1,
+  pulled by ``gl_VertexID``; optional per-triangle buffers at bindings 2, 3, ...;
+* vertex attributes (GL 3.3, ``Draw.vertex_input``): the host de-indexes the triangles
+  into a vertex buffer of 3 T positions, the attribute ``a_position``, beside the vertex
+  numbers k (``a_vertex``; see :meth:`Context.attribute_array`).
+
+:func:`glraster.rasterize`, the fault-injection mutants and the differentiable ops all
+draw through it.
 """
 
 from __future__ import annotations
@@ -34,6 +41,9 @@ class Draw:
     depth_test   : False disables GL_DEPTH_TEST (which also stops depth writes)
     textures     : sampler uniform name -> moderngl texture read by the shaders (e.g. the
                    previous layer's depth when peeling); the k-th is bound to unit k
+    vertex_input : positions as the vertex attribute ``a_position`` of a de-indexed vertex
+                   buffer (GL 3.3 shaders, e.g. ``raster33/``) instead of storage buffers;
+                   ``per_triangle`` must then be empty
     """
 
     program: object
@@ -45,6 +55,12 @@ class Draw:
     cull_backfaces: bool = False
     depth_test: bool = True
     textures: dict = field(default_factory=dict)
+    vertex_input: bool = False
+
+
+# Triangles per draw on the vertex-attribute path: bounds the host's de-indexed copy of
+# the positions (48 MiB) and the vertex buffer; ids stay global through ``tri_base``.
+VERTEX_BATCH_TRIANGLES = 1 << 20
 
 
 def draw(ctx, spec: Draw, pos: np.ndarray, tri: np.ndarray, resolution, *,
@@ -94,12 +110,19 @@ def draw(ctx, spec: Draw, pos: np.ndarray, tri: np.ndarray, resolution, *,
 
 def _draw_batches(ctx, spec: Draw, pos, tri) -> None:
     """The draw calls: triangles go in batches whose index and per-triangle arrays each fit
-    one storage block; ``tri_base`` keeps the ids written by the shader global."""
+    one storage block (vertex input: of VERTEX_BATCH_TRIANGLES); ``tri_base`` keeps the
+    ids written by the shader global."""
     mgl = ctx.mgl
-    ctx.storage_buffer("positions", pos).bind_to_storage_buffer(0)
-    batch = ctx.max_storage_block_size // (3 * tri.itemsize)
-    for array in spec.per_triangle.values():
-        batch = min(batch, ctx.max_storage_block_size // max(array[0].nbytes, 1))
+    if spec.vertex_input:
+        if spec.per_triangle:
+            raise ValueError("per-triangle storage buffers need the storage-buffer path "
+                             "(OpenGL 4.5), not vertex_input")
+        batch = VERTEX_BATCH_TRIANGLES
+    else:
+        ctx.storage_buffer("positions", pos).bind_to_storage_buffer(0)
+        batch = ctx.max_storage_block_size // (3 * tri.itemsize)
+        for array in spec.per_triangle.values():
+            batch = min(batch, ctx.max_storage_block_size // max(array[0].nbytes, 1))
     if spec.cull_backfaces:
         mgl.enable(mgl.CULL_FACE)
     if not spec.depth_test:
@@ -111,13 +134,18 @@ def _draw_batches(ctx, spec: Draw, pos, tri) -> None:
             # fragment shader reads (measured).
             suffix = f"/{number}" if number else ""
             part = tri[base:base + batch]
-            ctx.storage_buffer("indices" + suffix, part).bind_to_storage_buffer(1)
-            for binding, array in spec.per_triangle.items():
-                ctx.storage_buffer(f"binding{binding}{suffix}", array[base:base + batch]) \
-                    .bind_to_storage_buffer(binding)
+            if spec.vertex_input:
+                corners = pos[part.reshape(-1)]  # (3 t, 4): corner k of triangle j at 3 j + k
+                vao = ctx.attribute_array(spec.program, "vertices" + suffix, corners)
+            else:
+                vao = spec.vao
+                ctx.storage_buffer("indices" + suffix, part).bind_to_storage_buffer(1)
+                for binding, array in spec.per_triangle.items():
+                    ctx.storage_buffer(f"binding{binding}{suffix}", array[base:base + batch]) \
+                        .bind_to_storage_buffer(binding)
             if "tri_base" in spec.program:
                 spec.program["tri_base"].value = base
-            spec.vao.render(mgl.TRIANGLES, vertices=3 * len(part))
+            vao.render(mgl.TRIANGLES, vertices=3 * len(part))
     finally:
         if spec.cull_backfaces:
             mgl.disable(mgl.CULL_FACE)

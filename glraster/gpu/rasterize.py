@@ -15,7 +15,13 @@ from glraster import validate
 from glraster.gpu import cull as _cull
 from glraster.gpu import pipeline
 from glraster.gpu.context import Context, default_context
-from glraster.gpu.methods import METHOD_NOTES, METHODS, Method, get  # noqa: F401 (public)
+from glraster.gpu.methods import (  # noqa: F401 (public)
+    METHOD_NOTES,
+    METHODS,
+    Method,
+    for_context,
+    get,
+)
 from glraster.gpu.shaders import shader_path
 from glraster.types import OUTPUTS, Raster
 
@@ -120,10 +126,13 @@ def rasterize(
     method : {"hw", "divw", "homogeneous", "homogeneous64", "solve4"}
         How barycentrics are computed (:data:`glraster.gpu.methods.METHODS`,
         docs/performance.md). Coverage, depth and triangle ids always come from the
-        driver's rasterizer. "homogeneous64" returns float64 persp / screen.
+        driver's rasterizer. "homogeneous64" returns float64 persp / screen. "hw" runs on
+        OpenGL 3.3 too (vertex attributes instead of storage buffers, the same values);
+        the others need 4.5 and raise a ValueError naming the versions on an older context.
     shader_files : (vert, frag), optional
         Alternative shader files with the interface of ``raster/raster.vert`` /
-        ``raster/raster.frag`` (used by fault injection); only with ``method="hw"``.
+        ``raster/raster.frag`` (``raster33/`` on a GL 3.3 context; used by fault
+        injection); only with ``method="hw"``.
     cull_backfaces : bool
         Drop clockwise triangles (window space, GL's default front face is CCW).
     cull : True, False or "auto"
@@ -156,6 +165,7 @@ def rasterize(
     if cull not in (True, False, "auto"):
         raise ValueError(f"cull must be True, False or 'auto', got {cull!r}")
     ctx = ctx if ctx is not None else default_context()
+    m = for_context(m, ctx)  # hw below GL 4.5: the vertex-attribute variant
     pos = validate.positions(pos)
     tri = validate.triangles(tri, len(pos))
     height, width = validate.resolution(resolution, ctx.max_texture_size)
@@ -165,7 +175,7 @@ def rasterize(
     # -- skip what the scene does not need ----------------------------------------------
     kept = None
     info = {"backend": ctx.backend, "renderer": ctx.renderer, "method": method,
-            "culled": {}, "affine": False}
+            "culled": {}, "affine": False, "vertex_input": m.vertex_input}
     if cull == "auto":
         cull = m.cull_by_default or cull_backfaces
     if len(tri) >= CULL_MIN_TRIANGLES and (cull or cull_backfaces):
@@ -175,7 +185,7 @@ def rasterize(
         if not culling.all_kept:
             kept = culling.kept
             tri = tri[kept]
-    if pos.nbytes > ctx.max_storage_block_size:
+    if not m.vertex_input and pos.nbytes > ctx.max_storage_block_size:
         raise ValueError(
             f"pos takes {pos.nbytes} bytes, above the driver's shader storage block "
             f"limit of {ctx.max_storage_block_size} bytes ({ctx.max_storage_block_size // 16} vertices)"
@@ -213,7 +223,7 @@ def rasterize(
     spec = pipeline.Draw(
         program, vao, colors, read_depth="depth" in names, per_triangle=per_triangle,
         uniforms=m.uniforms(height, width) if m.uniforms and needs_bary else {},
-        cull_backfaces=cull_backfaces)
+        cull_backfaces=cull_backfaces, vertex_input=m.vertex_input)
 
     # caller arrays are filled directly where the target layout is the output's own
     targets_out = {n: fill[n] for n in colors if n in fill}

@@ -18,6 +18,7 @@ layout(location = SCREEN_LOCATION) out vec3 out_screen;
 // below 2^31 because the target is a 32-bit integer texture.
 layout(location = TRI_ID_LOCATION) out int out_tri_id;
 uniform int tri_base;  // index of the draw's first triangle (large meshes draw in batches)
+#define PRIMITIVE_ID gl_PrimitiveID  // the triangle's index in this draw (raster33/: a varying)
 #endif
 
 void main() {
@@ -28,6 +29,6 @@ void main() {
     out_screen = v_screen;
 #endif
 #ifdef OUT_TRI_ID
-    out_tri_id = tri_base + gl_PrimitiveID + 1;
+    out_tri_id = tri_base + PRIMITIVE_ID + 1;
 #endif
 }

@@ -7,6 +7,8 @@
 
 layout(std430, binding = 0) readonly buffer Positions { vec4 positions[]; };  // (V, 4) clip space
 layout(std430, binding = 1) readonly buffer Indices { int indices[]; };       // (T, 3) flattened
+#define VERTEX_ID gl_VertexID  // 3 * triangle + corner (raster33/: a vertex attribute)
+#define CORNER_POSITION positions[indices[VERTEX_ID]]
 
 #ifdef OUT_PERSP
 smooth out vec3 v_persp;          // perspective-correct: GL 4.5 core eq. 14.9
@@ -16,9 +18,9 @@ noperspective out vec3 v_screen;  // linear in window space: GL 4.5 core eq. 14.
 #endif
 
 void main() {
-    int corner = gl_VertexID % 3;
+    int corner = VERTEX_ID % 3;
     vec3 unit = vec3(corner == 0, corner == 1, corner == 2);
-    gl_Position = positions[indices[gl_VertexID]];
+    gl_Position = CORNER_POSITION;
 #ifdef OUT_PERSP
     v_persp = unit;
 #endif

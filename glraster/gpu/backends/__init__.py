@@ -1,6 +1,7 @@
 """Headless OpenGL backends: one small class per platform behind one interface.
 
-A backend creates an OpenGL 4.5 core context without a window and hands it to moderngl.
+A backend creates an OpenGL core context without a window, the best of 4.5 and 3.3
+that the driver makes (``current.GL_VERSIONS``), and hands it to moderngl.
 Every backend class has::
 
     Backend.name            -> str           "egl" or "osmesa"
@@ -21,7 +22,7 @@ from __future__ import annotations
 
 import os
 
-from glraster.errors import BackendUnavailable
+from glraster.errors import BackendUnavailable, DriverTooOld, LibraryMissing
 from glraster.gpu.backends.egl import EGLBackend
 from glraster.gpu.backends.osmesa import OSMesaBackend
 
@@ -47,18 +48,23 @@ def create_backend(backend: str | None = None):
     """Create a backend and its moderngl context: ``(backend, moderngl.Context)``."""
     name = resolve_backend_name(backend)
     candidates = list(BACKENDS) if name == "auto" else [name]
-    failures = []
+    failures, errors = [], []
     for candidate in candidates:
         instance = BACKENDS[candidate]()
         try:
             return instance, instance.create()
         except BackendUnavailable as exc:
             failures.append(f"{candidate}: {exc}")
-    raise BackendUnavailable(
-        "no headless OpenGL 4.5 context could be created ("
-        + "; ".join(failures)
-        + f"); {INSTALL_HINT}"
-    )
+            errors.append(exc)
+    message = "no headless OpenGL 3.3+ core context could be created (" + "; ".join(failures) + ")"
+    # The install hint helps where a library is missing (or the cause is unknown), not
+    # where the driver answered with an older OpenGL.
+    too_old = [e for e in errors if isinstance(e, DriverTooOld)]
+    if too_old and len(too_old) == len(errors):
+        raise DriverTooOld(message, too_old[0].offered, too_old[0].needed)
+    if errors and all(isinstance(e, LibraryMissing) for e in errors):
+        raise LibraryMissing(f"{message}; {INSTALL_HINT}")
+    raise BackendUnavailable(f"{message}; {INSTALL_HINT}")
 
 
 def available_backends() -> list[str]:

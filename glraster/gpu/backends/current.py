@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import ctypes
 import os
+import re
 import threading
 
 _libc = ctypes.CDLL(None)
@@ -136,6 +137,45 @@ class CurrentContextLoader:
 
     def _destroy(self):  # pragma: no cover - abstract
         raise NotImplementedError
+
+
+# Core profile versions a backend asks for, best first. Mesa (and NVIDIA) return the
+# highest version compatible with the one asked for (4.6 for 4.5, 4.4 for 3.3 where a
+# driver has that). 4.5 runs every method (GLSL 4.50 shaders with storage buffers), 3.3 is
+# the least glraster runs on at all (method "hw" through vertex attributes, e.g. Mesa's
+# softpipe).
+GL_VERSIONS = (450, 330)
+MIN_GL = GL_VERSIONS[-1]
+
+
+def version_text(code: int) -> str:
+    """450 or 45 -> "4.5"."""
+    code = code // 10 if code >= 100 else code
+    return f"{code // 10}.{code % 10}"
+
+
+def gl_strings(load) -> tuple[str, str]:
+    """(GL_VERSION, GL_RENDERER) of the current context, through ``load(name) -> address``
+    (works on a context of any version, below what moderngl accepts)."""
+    address = load("glGetString")
+    if not address:
+        return "", ""
+    get_string = ctypes.CFUNCTYPE(ctypes.c_char_p, ctypes.c_uint)(address)
+    version, renderer = get_string(0x1F02), get_string(0x1F01)  # GL_VERSION, GL_RENDERER
+    return (version or b"").decode(errors="replace"), (renderer or b"").decode(errors="replace")
+
+
+def driver_too_old(version: str, renderer: str):
+    """The :class:`DriverTooOld` for a driver whose best context is ``version`` (GL_VERSION
+    text of a context made without a profile)."""
+    from glraster.errors import DriverTooOld
+
+    match = re.match(r"\s*(?:OpenGL )?(\d+)\.(\d+)", version)
+    offered = f"{match.group(1)}.{match.group(2)}" if match else None
+    needed = version_text(MIN_GL)
+    return DriverTooOld(
+        f"the driver ({renderer or 'unknown renderer'}) offers OpenGL "
+        f"{offered or repr(version)}; glraster needs OpenGL {needed} core", offered, needed)
 
 
 def wrap_loader(moderngl, loader, require: int):

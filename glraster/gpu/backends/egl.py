@@ -7,16 +7,21 @@ import ctypes
 import ctypes.util
 from typing import NamedTuple
 
-from glraster.errors import BackendUnavailable
+from glraster.errors import BackendUnavailable, LibraryMissing
 from glraster.gpu.backends.current import (
+    GL_VERSIONS,
+    MIN_GL,
     CurrentContextLoader,
+    driver_too_old,
+    gl_strings,
     glx_has_current_context,
     loaded_library,
     mesa_current_context,
     wrap_loader,
 )
 
-REQUIRED_GL = 450
+# Below 3.2 there are no profiles: the context made to read what a too old driver offers.
+PROBE_GL = 300
 
 EGL_DRAW = 0x3059
 EGL_READ = 0x305A
@@ -173,7 +178,10 @@ class EGLLoader(CurrentContextLoader):
 
 
 class EGLBackend:
-    """Headless OpenGL 4.5 core context through EGL.
+    """Headless OpenGL core context through EGL: the first of 4.5, 3.3 that the driver
+    makes (:data:`~glraster.gpu.backends.current.GL_VERSIONS`; Mesa returns its highest).
+    A driver without a 3.3 core context raises :class:`DriverTooOld` naming the version it
+    offers.
 
     glcontext enumerates EGL devices; Mesa's llvmpipe shows up as its software device.
     ``GLCONTEXT_DEVICE_INDEX`` picks another device. glcontext raises bare exceptions; they
@@ -191,18 +199,35 @@ class EGLBackend:
         import moderngl
 
         if ctypes.util.find_library("EGL") is None:
-            raise BackendUnavailable("libEGL.so.1 not found (Debian package libegl1)")
+            raise LibraryMissing("libEGL.so.1 not found (Debian package libegl1)")
         api = EGLApi.get(load=True)
         record = EGLLoader.save_state(api)
         native = own = None
         created = False
+        make = glcontext.get_backend_by_name("egl")
         try:
-            native = glcontext.get_backend_by_name("egl")(mode="standalone", glversion=REQUIRED_GL)
+            failure = None
+            for version in GL_VERSIONS:
+                try:
+                    native = make(mode="standalone", glversion=version)
+                    break
+                except Exception as exc:  # noqa: BLE001 (glcontext raises bare Exception)
+                    failure = exc
+            if native is None:
+                # no core context of a version glraster runs on: what does the driver offer?
+                try:
+                    native = make(mode="standalone", glversion=PROBE_GL)
+                except Exception:  # noqa: BLE001 (glcontext raises bare Exception)
+                    raise BackendUnavailable(f"EGL context creation failed: {failure}") from failure
+                own = api.snapshot()
+                raise driver_too_old(*gl_strings(native.load_opengl_function))
             own = api.snapshot()  # glcontext leaves the new context current
             self._loader = EGLLoader(api, native)
-            mgl = wrap_loader(moderngl, self._loader, REQUIRED_GL)
+            mgl = wrap_loader(moderngl, self._loader, MIN_GL)
             created = True
             return mgl
+        except BackendUnavailable:
+            raise
         except Exception as exc:  # glcontext raises bare Exception
             raise BackendUnavailable(f"EGL context creation failed: {exc}") from exc
         finally:

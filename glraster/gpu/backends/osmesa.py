@@ -12,11 +12,16 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import os
 from typing import NamedTuple
 
-from glraster.errors import BackendUnavailable
+from glraster.errors import BackendUnavailable, LibraryMissing
 from glraster.gpu.backends.current import (
+    GL_VERSIONS,
+    MIN_GL,
     CurrentContextLoader,
+    driver_too_old,
+    gl_strings,
     glx_has_current_context,
     loaded_library,
     wrap_loader,
@@ -31,8 +36,8 @@ OSMESA_PROFILE = 0x33
 OSMESA_CORE_PROFILE = 0x34
 OSMESA_CONTEXT_MAJOR_VERSION = 0x36
 OSMESA_CONTEXT_MINOR_VERSION = 0x37
+OSMESA_COMPAT_PROFILE = 0x35
 GL_UNSIGNED_BYTE = 0x1401
-REQUIRED_GL = 450
 
 LIBRARY_NAMES = ("libOSMesa.so.8", "libOSMesa.so.6", "libOSMesa.so")
 
@@ -49,7 +54,7 @@ def _load_library():
         except OSError:
             continue
         return _declare(lib)
-    raise BackendUnavailable("libOSMesa not found (Debian package libosmesa6)")
+    raise LibraryMissing("libOSMesa not found (Debian package libosmesa6)")
 
 
 def _declare(lib):
@@ -204,7 +209,8 @@ class OSMesaLoader(CurrentContextLoader):
 
 
 class OSMesaBackend:
-    """Headless OpenGL 4.5 core context through libOSMesa (Mesa's llvmpipe). The context
+    """Headless OpenGL core context through libOSMesa (Mesa's llvmpipe, or the driver
+    ``GALLIUM_DRIVER`` names): the first of 4.5, 3.3 that it makes. The context
     current before creation is current again afterwards, and after every ``with`` block."""
 
     name = "osmesa"
@@ -215,24 +221,34 @@ class OSMesaBackend:
     def create(self):
         import moderngl
 
+        if os.environ.get("GALLIUM_DRIVER", "").strip().lower() == "zink":
+            # measured on Mesa 22.3: a segfault in OSMesaCreateContextAttribs, which would
+            # take the process down (available_backends() and "auto" try OSMesa too)
+            raise BackendUnavailable(
+                "OSMesa cannot run zink (GALLIUM_DRIVER=zink crashes OSMesaCreateContextAttribs "
+                "in Mesa 22.3); use the EGL backend, or MESA_LOADER_DRIVER_OVERRIDE=zink, "
+                "which EGL honours and OSMesa ignores")
         api = OSMesaApi.get(load=True)
-        attribs = (ctypes.c_int * 11)(
-            OSMESA_FORMAT, OSMESA_RGBA,
-            OSMESA_DEPTH_BITS, 0,
-            OSMESA_PROFILE, OSMESA_CORE_PROFILE,
-            OSMESA_CONTEXT_MAJOR_VERSION, 4,
-            OSMESA_CONTEXT_MINOR_VERSION, 5,
-            0,
-        )
-        handle = api.lib.OSMesaCreateContextAttribs(attribs, None)
-        if not handle:
-            raise BackendUnavailable("OSMesaCreateContextAttribs failed for OpenGL 4.5 core")
+        for version in GL_VERSIONS:
+            attribs = (ctypes.c_int * 11)(
+                OSMESA_FORMAT, OSMESA_RGBA,
+                OSMESA_DEPTH_BITS, 0,
+                OSMESA_PROFILE, OSMESA_CORE_PROFILE,
+                OSMESA_CONTEXT_MAJOR_VERSION, version // 100,
+                OSMESA_CONTEXT_MINOR_VERSION, version // 10 % 10,
+                0,
+            )
+            handle = api.lib.OSMesaCreateContextAttribs(attribs, None)
+            if handle:
+                break
+        else:
+            raise self._too_old(api)
         loader = OSMesaLoader(api, handle)
         record = OSMesaLoader.save_state(api)
         created = False
         try:
             loader.make_current()
-            ctx = wrap_loader(moderngl, loader, REQUIRED_GL)
+            ctx = wrap_loader(moderngl, loader, MIN_GL)
             created = True
         except Exception as exc:  # moderngl raises bare errors on a loader failure
             raise BackendUnavailable(f"moderngl could not use the OSMesa context: {exc}") from exc
@@ -242,6 +258,26 @@ class OSMesaBackend:
                 loader.release()
         self._loader = loader
         return ctx
+
+    @staticmethod
+    def _too_old(api: OSMesaApi) -> BackendUnavailable:
+        """Why no core context of GL_VERSIONS was made: :class:`DriverTooOld` naming the
+        version of a context without a profile, when one can be made."""
+        attribs = (ctypes.c_int * 7)(OSMESA_FORMAT, OSMESA_RGBA, OSMESA_DEPTH_BITS, 0,
+                                     OSMESA_PROFILE, OSMESA_COMPAT_PROFILE, 0)
+        handle = api.lib.OSMesaCreateContextAttribs(attribs, None)
+        if not handle:
+            return BackendUnavailable("OSMesaCreateContextAttribs failed for every OpenGL "
+                                      "version (4.5 and 3.3 core, and without a profile)")
+        probe = OSMesaLoader(api, handle)
+        record = OSMesaLoader.save_state(api)
+        try:
+            probe.make_current()
+            strings = gl_strings(probe.load_opengl_function)
+        finally:
+            OSMesaLoader.restore_state(api, record)
+            probe.release()
+        return driver_too_old(*strings)
 
     def release(self):
         self._loader = None
