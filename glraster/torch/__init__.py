@@ -16,6 +16,7 @@ Layouts and gradients: :mod:`glraster.torch.ops`; docs/differentiable.md, "PyTor
 
 from glraster.torch.context import RasterizeCudaContext, RasterizeGLContext
 from glraster.torch.ops import DepthPeeler, interpolate, rasterize
+from glraster.torch.texture import texture
 
 __all__ = ["DepthPeeler", "RasterizeCudaContext", "RasterizeGLContext", "interpolate",
-           "rasterize"]
+           "rasterize", "texture"]

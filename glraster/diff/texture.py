@@ -1,0 +1,391 @@
+"""Filtered, mipmapped texture lookups on the GPU, forward and backward (NumPy API).
+
+nvdiffrast's ``texture`` semantics (layouts in :mod:`glraster.diff.texture_reference`,
+derivations in docs/differentiable.md, "Texture"), in compute shaders
+(``shaders/diff/texture.comp``, ``shaders/diff/texture_mip.comp``):
+
+* the mip pyramid is built on the GPU (a box filter over each texel's footprint: 2 x 2 for
+  even extents, 3 taps per axis with weights (m - j, m, j + 1)/(2m + 1) for an odd 2m + 1),
+  down to 1 x 1, or taken from the caller (``mip``);
+* each pixel computes its level itself (seed 003: level = 0.5 log2 of the largest
+  eigenvalue of J^T J, J the texel-space Jacobian from ``uv_da``, plus ``mip_level_bias``,
+  clamped to the pyramid) and filters with texel fetches at texel centres (no GL sampler:
+  see :func:`sampler_probe` for why);
+* the backward sends gradients to every texel read (float atomics, a compare-and-swap loop,
+  or per-pixel (texel, weight) pairs summed on the host in float64, as
+  :mod:`glraster.diff.backward_gpu`), then pulls a built pyramid's level gradients back into
+  the base through the transpose of its box filter (a gather, one pass per level); to uv
+  (through the bilinear weights and, for cube maps, the face projection and the level), to
+  uv_da (through the level) and to the bias.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from glraster.diff import layout
+from glraster.diff import texture_reference as ref
+from glraster.diff.backward_gpu import (
+    _DEFINES,
+    _chunks,
+    _read,
+    _run,
+    _set,
+    _zeroed,
+    accumulation,
+)
+from glraster.gpu.context import Context, default_context
+from glraster.gpu.shaders import shader_path
+
+__all__ = ["TextureSaved", "backward", "build_mips", "forward", "sampler_probe"]
+
+_SHADER = "diff/texture.comp"
+_MIP_SHADER = "diff/texture_mip.comp"
+CONTRIB_SLOTS = 8
+
+
+@dataclass
+class TextureSaved:
+    """What :func:`backward` needs from :func:`forward`: the checked float32 arguments
+    (:class:`glraster.diff.texture_reference.TextureArgs`) and the context."""
+
+    args: ref.TextureArgs
+    ctx: Context
+
+
+def _geometry(args: ref.TextureArgs):
+    """(info (L, 4) int32 rows (first texel, H, W, 0), first texel per level, total texels)."""
+    faces = 6 if args.cube else 1
+    images = args.tex.shape[0] * faces
+    first, rows, firsts = 0, [], []
+    for h, w in args.shapes:
+        rows.append((first, h, w, 0))
+        firsts.append(first)
+        first += images * h * w
+    return np.array(rows, np.int32), firsts, first, images
+
+
+def _storage_limit(ctx: Context, nbytes: int, what: str) -> None:
+    limit = getattr(ctx, "max_storage_block_size", 0) or (1 << 27)
+    if nbytes > limit:
+        raise ValueError(f"{what} needs {nbytes / 2**20:.1f} MiB in one storage buffer, more than "
+                         f"the {limit / 2**20:.0f} MiB {ctx.renderer} allows: use a smaller "
+                         "texture, fewer channels or max_mip_level")
+
+
+def _upload_levels(ctx: Context, args: ref.TextureArgs, name: str = "texture.levels"):
+    """Every level in one storage buffer (base uploaded; mips uploaded or built on the GPU).
+    Inside ``with ctx``. Returns (buffer, info, firsts, total texels, images)."""
+    info, firsts, total, images = _geometry(args)
+    channels = args.channels
+    _storage_limit(ctx, total * channels * 4, "the texture and its mip levels")
+    buffer = ctx.scratch_buffer(name, total * channels * 4)
+    buffer.write(np.ascontiguousarray(args.tex, np.float32).tobytes(), offset=0)
+    if args.levels > 1 and args.mip is not None:
+        for k in range(1, args.levels):
+            level = np.ascontiguousarray(args.mip[k - 1], np.float32)
+            buffer.write(level.tobytes(), offset=firsts[k] * channels * 4)
+    elif args.levels > 1:
+        program = ctx.compute_program(shader_path(_MIP_SHADER), {})
+        buffer.bind_to_storage_buffer(0)
+        _set(program, "images", images)
+        _set(program, "channels", channels)
+        for k in range(1, args.levels):
+            (h0, w0), (h1, w1) = args.shapes[k - 1], args.shapes[k]
+            _set(program, "fine_first", firsts[k - 1] * channels)
+            _set(program, "coarse_first", firsts[k] * channels)
+            _set(program, "fine_size", (w0, h0))
+            _set(program, "coarse_size", (w1, h1))
+            _run(ctx, program, images * h1 * w1)
+    return buffer, info, firsts, total, images
+
+
+def _defines(args: ref.TextureArgs) -> dict:
+    defines = {"FILTER": ref.FILTER_CODE[args.filter_mode],
+               "BOUNDARY": ref.BOUNDARY_CODE[args.boundary_mode]}
+    if args.mipmapped and args.uv_da is not None:
+        defines["HAS_DA"] = None
+    if args.mipmapped and args.bias is not None:
+        defines["HAS_BIAS"] = None
+    return defines
+
+
+def _pixel_inputs(args: ref.TextureArgs):
+    n = int(np.prod(args.uv.shape[:3]))
+    uv = args.uv.reshape(n, -1)
+    da = args.uv_da.reshape(n, -1) if args.uv_da is not None else None
+    bias = args.bias.reshape(n) if args.bias is not None else None
+    return n, uv, da, bias
+
+
+def _bind_common(ctx, program, args, defines, part, uv, da, bias, info, count, first):
+    ctx.storage_buffer("texture.info", info).bind_to_storage_buffer(1)
+    ctx.storage_buffer("texture.uv", uv[part]).bind_to_storage_buffer(2)
+    if "HAS_DA" in defines:
+        ctx.storage_buffer("texture.uv_da", da[part]).bind_to_storage_buffer(3)
+    if "HAS_BIAS" in defines:
+        ctx.storage_buffer("texture.bias", bias[part]).bind_to_storage_buffer(4)
+    _set(program, "n_pixels", count)
+    _set(program, "first_pixel", first)
+    _set(program, "pixels_per_image", int(args.uv.shape[1] * args.uv.shape[2]))
+    _set(program, "tex_batch", int(args.tex.shape[0]))
+    _set(program, "n_levels", args.levels)
+    _set(program, "channels", args.channels)
+
+
+def forward(tex, uv, uv_da=None, mip_level_bias=None, mip=None, filter_mode="auto",
+            boundary_mode="wrap", max_mip_level=None, *, ctx: Context | None = None):
+    """Filtered texture lookups on the GPU (nvdiffrast's ``texture``).
+
+    Args:
+        tex: (Bt, Ht, Wt, C), or (Bt, 6, N, N, C) with ``boundary_mode="cube"``; Bt = 1
+            broadcasts over uv's batch. float32 (other numbers converted).
+        uv: (B, H, W, 2) texture coordinates (s, t), texel (i, j) = tex[b, j, i] centred at
+            ((i + 0.5)/Wt, (j + 0.5)/Ht); cube: (B, H, W, 3) directions.
+        uv_da: None or (B, H, W, 4) (ds/dX, ds/dY, dt/dX, dt/dY) per image pixel; cube
+            (B, H, W, 6) (dx/dX, dx/dY, dy/dX, dy/dY, dz/dX, dz/dY). Sets the level.
+        mip_level_bias: None or (B, H, W), added to the level.
+        mip: None (build the pyramid) or a list of levels 1, 2, ... each (Bt, Ht_k, Wt_k, C)
+            with Ht_k = max(1, Ht_{k-1} // 2) (same for Wt).
+        filter_mode: "nearest", "linear", "linear-mipmap-nearest", "linear-mipmap-linear" or
+            "auto" (linear-mipmap-linear with uv_da or mip_level_bias, else linear).
+        boundary_mode: "wrap", "clamp", "zero" or "cube".
+        max_mip_level: None (down to 1 x 1) or the number of levels after the base.
+        ctx: the context (default: the process-wide one).
+
+    Returns:
+        ``(out, saved)``: out (B, H, W, C) float32; saved a :class:`TextureSaved`.
+    """
+    ctx = ctx or default_context()
+    args = ref.check_arguments(tex, uv, uv_da, mip_level_bias, mip, filter_mode, boundary_mode,
+                               max_mip_level, dtype=np.float32)
+    n, uv_f, da, bias = _pixel_inputs(args)
+    channels = args.channels
+    out = np.empty((n, channels), np.float32)
+    defines = _defines(args)
+    coords = uv_f.shape[1]
+    with ctx:
+        program = ctx.compute_program(shader_path(_SHADER), defines)
+        levels, info, _, _, _ = _upload_levels(ctx, args)
+        levels.bind_to_storage_buffer(0)
+        for first, count in _chunks(n, 4 * (3 * coords + 1 + channels)):
+            part = slice(first, first + count)
+            _bind_common(ctx, program, args, defines, part, uv_f, da, bias, info, count, first)
+            result = ctx.scratch_buffer("texture.out", count * channels * 4)
+            result.bind_to_storage_buffer(5)
+            _run(ctx, program, count)
+            out[part] = _read(result, count * channels).reshape(count, channels)
+    return out.reshape(args.uv.shape[:3] + (channels,)), TextureSaved(args, ctx)
+
+
+def _pyramid_backward(ctx, grad, args, firsts, images):
+    """In the gradient buffer ``grad`` (every level, base first): add each level's
+    gradient into the finer one through the transpose of the box filter, coarsest first."""
+    program = ctx.compute_program(shader_path(_MIP_SHADER), {"BACKWARD": None})
+    grad.bind_to_storage_buffer(0)
+    channels = args.channels
+    _set(program, "images", images)
+    _set(program, "channels", channels)
+    for k in range(args.levels - 1, 0, -1):
+        (h0, w0), (h1, w1) = args.shapes[k - 1], args.shapes[k]
+        _set(program, "fine_first", firsts[k - 1] * channels)
+        _set(program, "coarse_first", firsts[k] * channels)
+        _set(program, "fine_size", (w0, h0))
+        _set(program, "coarse_size", (w1, h1))
+        _run(ctx, program, images * h0 * w0)
+
+
+def backward(saved: TextureSaved, grad_out, *, deterministic: bool = False,
+             accumulate: str | None = None):
+    """Gradients of :func:`forward`, on the GPU.
+
+    Args:
+        saved: the second value :func:`forward` returned.
+        grad_out: (B, H, W, C) dL/d out.
+        deterministic: bit-identical results from run to run (the texel gradients summed per
+            texel in pixel order in float64 on the host; the pyramid pass is a gather).
+        accumulate: force one of :data:`glraster.diff.backward_gpu.ACCUMULATIONS`.
+
+    Returns:
+        ``(grad_tex, grad_uv, grad_uv_da, grad_mip_level_bias, grad_mip)``, float32:
+        grad_tex of tex's shape (every level's gradient; a built pyramid's pulled back into
+        the base; summed over the batch where tex broadcast); grad_uv of uv's; grad_uv_da and
+        grad_mip_level_bias of theirs or None when not given (zeros unless the mode is
+        linear-mipmap-linear); grad_mip the user's mip levels' gradients (a list) or None.
+    """
+    args, ctx = saved.args, saved.ctx
+    want = args.uv.shape[:3] + (args.channels,)
+    grad_out = layout.image("grad_out", grad_out, shape=want, dtype=np.float32)
+    n, uv_f, da, bias = _pixel_inputs(args)
+    channels = args.channels
+    coords = uv_f.shape[1]
+    g_flat = grad_out.reshape(n, channels)
+    mode = accumulation(ctx, deterministic, accumulate)
+    defines = dict(_defines(args), BACKWARD=None, **{_DEFINES[mode]: None})
+    grad_uv = np.empty((n, coords), np.float32)
+    grad_da = np.zeros((n, 2 * coords), np.float32) if args.uv_da is not None else None
+    grad_bias = np.zeros(n, np.float32) if args.bias is not None else None
+    per_pixel = 4 * (3 * coords + 1 + 2 * channels + 3 * coords + 1) + (
+        8 * CONTRIB_SLOTS if mode == "per_pixel" else 0)
+    with ctx:
+        program = ctx.compute_program(shader_path(_SHADER), defines)
+        levels, info, firsts, total, images = _upload_levels(ctx, args)
+        levels.bind_to_storage_buffer(0)
+        if mode == "per_pixel":
+            totals = np.zeros((total, channels))
+        else:
+            grad = _zeroed(ctx, "texture.grad_tex", total * channels * 4)
+            grad.bind_to_storage_buffer(9)
+        for first, count in _chunks(n, per_pixel):
+            part = slice(first, first + count)
+            _bind_common(ctx, program, args, defines, part, uv_f, da, bias, info, count, first)
+            ctx.storage_buffer("texture.grad_out", g_flat[part]).bind_to_storage_buffer(5)
+            out_uv = ctx.scratch_buffer("texture.grad_uv", count * coords * 4)
+            out_uv.bind_to_storage_buffer(6)
+            if "HAS_DA" in defines:
+                out_da = ctx.scratch_buffer("texture.grad_uv_da", count * 2 * coords * 4)
+                out_da.bind_to_storage_buffer(7)
+            if "HAS_BIAS" in defines:
+                out_bias = ctx.scratch_buffer("texture.grad_bias", count * 4)
+                out_bias.bind_to_storage_buffer(8)
+            if mode == "per_pixel":
+                c_index = ctx.scratch_buffer("texture.contrib_index", count * CONTRIB_SLOTS * 4)
+                c_weight = ctx.scratch_buffer("texture.contrib_weight",
+                                              count * CONTRIB_SLOTS * 4)
+                c_index.bind_to_storage_buffer(9)
+                c_weight.bind_to_storage_buffer(10)
+            _run(ctx, program, count)
+            grad_uv[part] = _read(out_uv, count * coords).reshape(count, coords)
+            if "HAS_DA" in defines:
+                grad_da[part] = _read(out_da, count * 2 * coords).reshape(count, 2 * coords)
+            if "HAS_BIAS" in defines:
+                grad_bias[part] = _read(out_bias, count)
+            if mode == "per_pixel":
+                index = _read(c_index, count * CONTRIB_SLOTS, np.int32).reshape(count, -1)
+                weight = _read(c_weight, count * CONTRIB_SLOTS).reshape(count, -1)
+                live = index >= 0
+                keys = index[live]
+                w = weight[live].astype(np.float64)
+                g_rows = g_flat[part].astype(np.float64)
+                rows = np.broadcast_to(np.arange(count)[:, None], index.shape)[live]
+                for c in range(channels):
+                    totals[:, c] += np.bincount(keys, weights=w * g_rows[rows, c],
+                                                minlength=total)
+        if mode == "per_pixel":
+            flat = totals.astype(np.float32)
+            if args.levels > 1 and args.mip is None:
+                grad = ctx.storage_buffer("texture.grad_tex", flat)
+        if args.levels > 1 and args.mip is None:
+            _pyramid_backward(ctx, grad, args, firsts, images)
+            flat = _read(grad, firsts[1] * channels).reshape(-1, channels)
+        elif mode != "per_pixel":
+            flat = _read(grad, total * channels).reshape(-1, channels)
+    grad_tex = np.array(flat[:firsts[1] if args.levels > 1 else total].reshape(args.tex.shape))
+    grad_mip = None
+    if args.mip is not None:
+        grad_mip = []
+        for k, m in enumerate(args.mip):
+            if k + 1 < args.levels:
+                start, stop = firsts[k + 1], (firsts[k + 2] if k + 2 < args.levels else total)
+                grad_mip.append(np.array(flat[start:stop].reshape(m.shape)))
+            else:
+                grad_mip.append(np.zeros(m.shape, np.float32))
+    shape3 = args.uv.shape[:3]
+    return (grad_tex, grad_uv.reshape(args.uv.shape),
+            None if grad_da is None else grad_da.reshape(shape3 + (2 * coords,)),
+            None if grad_bias is None else grad_bias.reshape(shape3), grad_mip)
+
+
+def build_mips(tex, max_mip_level=None, *, boundary_mode="wrap", ctx: Context | None = None):
+    """The GPU's mip pyramid of ``tex`` (levels 1, 2, ..., float32), as :func:`forward`
+    builds it (for checks and for passing as ``mip``)."""
+    ctx = ctx or default_context()
+    coords = 3 if boundary_mode == "cube" else 2
+    tex_arr = np.asarray(tex)
+    batch = tex_arr.shape[0] if tex_arr.ndim in (4, 5) else 1
+    dummy = np.zeros((batch, 1, 1, coords), np.float32)
+    bias = np.zeros((batch, 1, 1), np.float32)
+    args = ref.check_arguments(tex_arr, dummy, None, bias, None, "linear-mipmap-linear",
+                               boundary_mode, max_mip_level, dtype=np.float32)
+    channels = args.channels
+    with ctx:
+        buffer, _, firsts, total, _ = _upload_levels(ctx, args)
+        flat = _read(buffer, total * channels).reshape(-1, channels)
+    lead = args.tex.shape[:-3]
+    out = []
+    for k in range(1, args.levels):
+        stop = firsts[k + 1] if k + 1 < args.levels else total
+        h, w = args.shapes[k]
+        out.append(np.array(flat[firsts[k]:stop].reshape(lead + (h, w, channels))))
+    return out
+
+
+def sampler_probe(tex, uv, level, *, boundary_mode="wrap", ctx: Context | None = None):
+    """The driver's own sampler against glraster's fetches, at the same explicit level.
+
+    Uploads ``tex`` (1, Ht, Wt, C <= 4) with the GPU-built pyramid as the levels of a GL
+    texture (RGBA32F), samples it with ``textureLod(sampler, uv, level)`` (LINEAR_MIPMAP_
+    LINEAR, the wrap mode as a GL wrap: REPEAT, CLAMP_TO_EDGE, CLAMP_TO_BORDER with a zero
+    border) in a compute shader, and returns ``(sampler_out, fetch_out)``, both (1, H, W, C)
+    float32; fetch_out is :func:`forward` with mip_level_bias = level.
+    """
+    ctx = ctx or default_context()
+    tex = np.ascontiguousarray(tex, np.float32)
+    uv = np.ascontiguousarray(uv, np.float32)
+    level = np.ascontiguousarray(level, np.float32)
+    if tex.ndim != 4 or tex.shape[0] != 1 or not 1 <= tex.shape[-1] <= 4:
+        raise ValueError(f"tex must have shape (1, Ht, Wt, C) with C <= 4, got {tex.shape}")
+    if boundary_mode not in ("wrap", "clamp", "zero"):
+        raise ValueError(f"boundary_mode must be 'wrap', 'clamp' or 'zero', got {boundary_mode!r}")
+    fetch, _ = forward(tex, uv, None, level, None, "linear-mipmap-linear", boundary_mode,
+                       ctx=ctx)
+    mips = build_mips(tex, ctx=ctx)
+    channels = tex.shape[-1]
+    levels = [tex[0], *[m[0] for m in mips]]
+    n = int(np.prod(uv.shape[:3]))
+    source = """#version 450
+layout(local_size_x = 64) in;
+layout(std430, binding = 2) readonly buffer Uv { vec2 uv[]; };
+layout(std430, binding = 3) readonly buffer Lod { float lod[]; };
+layout(std430, binding = 4) writeonly buffer Out { vec4 result[]; };
+uniform sampler2D tex;
+uniform uint n_pixels;
+void main() {
+    uint i = gl_GlobalInvocationID.x;
+    if (i >= n_pixels) return;
+    result[i] = textureLod(tex, uv[i], lod[i]);
+}
+"""
+    with ctx:
+        mgl = ctx.mgl
+        h, w = levels[0].shape[:2]
+        texture = mgl.texture((w, h), 4, dtype="f4")
+        sampler = program = None
+        try:
+            texture.build_mipmaps(0, len(levels) - 1)   # allocates the levels
+            for k, lv in enumerate(levels):
+                rgba = np.zeros(lv.shape[:2] + (4,), np.float32)
+                rgba[..., :channels] = lv
+                texture.write(rgba.tobytes(), level=k)
+            repeat = boundary_mode == "wrap"        # False: CLAMP_TO_EDGE
+            sampler = mgl.sampler(repeat_x=repeat, repeat_y=repeat, texture=texture,
+                                  filter=(mgl.LINEAR_MIPMAP_LINEAR, mgl.LINEAR))
+            if boundary_mode == "zero":           # CLAMP_TO_BORDER, border (0, 0, 0, 0)
+                sampler.border_color = (0.0, 0.0, 0.0, 0.0)
+            program = mgl.compute_shader(source)
+            sampler.use(location=0)
+            program["tex"].value = 0
+            program["n_pixels"].value = n
+            ctx.storage_buffer("texture.probe_uv", uv.reshape(n, 2)).bind_to_storage_buffer(2)
+            ctx.storage_buffer("texture.probe_lod", level.reshape(n)).bind_to_storage_buffer(3)
+            out = ctx.scratch_buffer("texture.probe_out", n * 16)
+            out.bind_to_storage_buffer(4)
+            _run(ctx, program, n)
+            result = _read(out, n * 4).reshape(n, 4)[:, :channels]
+        finally:
+            for obj in (program, sampler, texture):
+                if obj is not None:
+                    obj.release()
+    return result.reshape(uv.shape[:3] + (channels,)), fetch

@@ -1,0 +1,166 @@
+"""Texture filtering in plain PyTorch (``grid_sample`` + autograd): the yardstick that
+:func:`glraster.torch.texture` is timed against (``python -m glraster.torch.texture_baseline``).
+
+The same filters as :func:`glraster.torch.texture` for 2-D textures whose extents are
+powers of two (the 2 x 2 box pyramid), written the way one would without a custom kernel:
+
+* texel centres: ``grid_sample(align_corners=False)`` puts texel i of W at
+  grid x = (2 i + 1)/W - 1, i.e. uv = (i + 0.5)/W with grid = 2 uv - 1, as glraster;
+* boundaries: "clamp" is ``padding_mode="border"``, "zero" ``"zeros"``; "wrap" (which
+  grid_sample lacks) pads the level by one texel circularly and samples
+  ((s mod 1) W + 1)/(W + 2) of the padded level;
+* the pyramid by ``avg_pool2d(2)``; the level from uv_da by seed 003's formula in torch ops;
+* linear-mipmap-linear "by hand": every level sampled at every pixel and blended with the
+  hat weights max(0, 1 - |level - k|) (per-pixel levels differ, so grid_sample cannot pick
+  one); linear-mipmap-nearest with the weight 1 on round(level).
+
+Inputs are not validated (pass what glraster.torch.texture accepts, 2-D, power-of-two).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import torch
+import torch.nn.functional as F
+
+
+def _pyramid(tex: torch.Tensor, max_mip_level=None):
+    """Levels of (B, C, H, W), base first, 2 x 2 box down to 1 x 1 (powers of two)."""
+    levels = [tex]
+    while levels[-1].shape[-1] > 1 or levels[-1].shape[-2] > 1:
+        if max_mip_level is not None and len(levels) > max_mip_level:
+            break
+        lv = levels[-1]
+        kh, kw = (2 if lv.shape[-2] > 1 else 1), (2 if lv.shape[-1] > 1 else 1)
+        levels.append(F.avg_pool2d(lv, (kh, kw)))
+    return levels
+
+
+def _sample(level: torch.Tensor, uv: torch.Tensor, mode: str, boundary: str):
+    """level (B, C, h, w), uv (B, H, W, 2) -> (B, C, H, W)."""
+    if boundary == "wrap":
+        h, w = level.shape[-2:]
+        padded = F.pad(level, (1, 1, 1, 1), mode="circular")
+        frac = torch.remainder(uv, 1.0)
+        size = uv.new_tensor([w, h])
+        grid = 2 * (frac * size + 1) / (size + 2) - 1
+        return F.grid_sample(padded, grid, mode=mode, padding_mode="border",
+                             align_corners=False)
+    padding = "border" if boundary == "clamp" else "zeros"
+    return F.grid_sample(level, 2 * uv - 1, mode=mode, padding_mode=padding,
+                         align_corners=False)
+
+
+def mip_level(uv_da: torch.Tensor, height: int, width: int) -> torch.Tensor:
+    """Seed 003's level, 0.5 log2(lenMajorSqr), from uv_da (B, H, W, 4)."""
+    a, b = uv_da[..., 0] * width, uv_da[..., 1] * width
+    c, d = uv_da[..., 2] * height, uv_da[..., 3] * height
+    A, B, C = a * a + c * c, b * b + d * d, a * b + c * d
+    major = (A + B) / 2 + torch.sqrt(((A - B) / 2) ** 2 + C * C)
+    return 0.5 * torch.log2(major)
+
+
+def texture(tex, uv, uv_da=None, mip_level_bias=None, filter_mode="auto",
+            boundary_mode="wrap", max_mip_level=None):
+    """glraster.torch.texture's filters in plain PyTorch (2-D, power-of-two extents).
+    tex (B or 1, H, W, C), uv (B, H', W', 2) -> (B, H', W', C)."""
+    if filter_mode == "auto":
+        filter_mode = "linear-mipmap-linear" if (uv_da is not None or mip_level_bias is not None) \
+            else "linear"
+    base = tex.permute(0, 3, 1, 2)
+    if base.shape[0] != uv.shape[0]:
+        base = base.expand(uv.shape[0], -1, -1, -1)
+    if filter_mode in ("nearest", "linear"):
+        mode = "nearest" if filter_mode == "nearest" else "bilinear"
+        return _sample(base, uv, mode, boundary_mode).permute(0, 2, 3, 1)
+    levels = _pyramid(base, max_mip_level)
+    level = uv.new_zeros(uv.shape[:3])
+    if uv_da is not None:
+        level = mip_level(uv_da, tex.shape[1], tex.shape[2])
+    if mip_level_bias is not None:
+        level = level + mip_level_bias
+    level = level.clamp(0, len(levels) - 1)
+    out = 0
+    for k, lv in enumerate(levels):
+        if filter_mode == "linear-mipmap-nearest":
+            weight = (torch.floor(level.detach() + 0.5) == k).to(uv.dtype)
+        else:
+            weight = (1 - (level - k).abs()).clamp(min=0)
+        out = out + _sample(lv, uv, "bilinear", boundary_mode) * weight[:, None]
+    return out.permute(0, 2, 3, 1)
+
+
+# --------------------------------------------------------------------------- benchmark
+
+
+def _inputs(size: int, channels: int = 4, seed: int = 0):
+    """A size x size image of a size x size texture seen in perspective (levels ~0 .. 3)."""
+    g = torch.Generator().manual_seed(seed)
+    tex = torch.rand(1, size, size, channels, generator=g)
+    ys, xs = torch.meshgrid(torch.arange(size) + 0.5, torch.arange(size) + 0.5, indexing="ij")
+    depth = 1.0 + 3.0 * ys / size                       # farther up the image
+    s = (xs - size / 2) / size * 2.0 / depth + 0.5
+    t = 1.0 / depth
+    uv = torch.stack([s, t], dim=-1)[None].contiguous()
+    ds_dx = 2.0 / size / depth
+    ds_dy = -(xs - size / 2) / size * 2.0 * (3.0 / size) / depth ** 2
+    dt_dy = -(3.0 / size) / depth ** 2
+    uv_da = torch.stack([ds_dx, ds_dy, torch.zeros_like(ds_dx), dt_dy], dim=-1)[None]
+    return tex, uv, uv_da.contiguous()
+
+
+def _time(fn, repeat: int) -> float:
+    fn()
+    times = []
+    for _ in range(repeat):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return sorted(times)[len(times) // 2]
+
+
+def benchmark(sizes=(512, 1024), repeat: int = 5, boundary_mode: str = "wrap"):
+    """Rows (size, filter_mode, glraster ms, plain PyTorch ms, max |difference|) of forward
+    + backward (gradients to tex and uv, and uv_da in linear-mipmap-linear)."""
+    import glraster.torch as dr
+
+    rows = []
+    for size in sizes:
+        tex, uv, uv_da = _inputs(size)
+        for mode in ("nearest", "linear", "linear-mipmap-nearest", "linear-mipmap-linear"):
+            da = uv_da if mode.startswith("linear-mipmap") else None
+            results = {}
+
+            def run(impl, key):
+                t = tex.clone().requires_grad_()
+                u = uv.clone().requires_grad_()
+                d = None if da is None else da.clone().requires_grad_()
+                out = impl(t, u, d, None, filter_mode=mode, boundary_mode=boundary_mode)
+                out.backward(torch.ones_like(out))
+                results[key] = out.detach()
+
+            ms_gl = 1e3 * _time(lambda: run(dr.texture, "gl"), repeat)
+            ms_pt = 1e3 * _time(lambda: run(texture, "pt"), repeat)
+            diff = (results["gl"] - results["pt"]).abs()
+            rows.append((size, mode, ms_gl, ms_pt, float(diff.max()),
+                         float(diff.flatten().kthvalue(max(1, math.ceil(0.999 * diff.numel())))
+                               .values)))
+    return rows
+
+
+def main():  # pragma: no cover - a measurement, not a test
+    torch.set_num_threads(max(1, torch.get_num_threads()))
+    print(f"torch {torch.__version__}, {torch.get_num_threads()} threads; forward + backward, "
+          "median of 5, texture = image size, 4 channels, wrap")
+    print("| image and texture | filter_mode | glraster.torch (GL) ms | plain PyTorch ms | "
+          "ratio | max / p99.9 |out difference| |")
+    print("|---|---|---|---|---|---|")
+    for size, mode, gl, pt, dmax, d999 in benchmark():
+        print(f"| {size}² | {mode} | {gl:.0f} | {pt:.0f} | {pt / gl:.2f} | "
+              f"{dmax:.1e} / {d999:.1e} |")
+
+
+if __name__ == "__main__":  # pragma: no cover
+    main()

@@ -1,0 +1,398 @@
+#version 450
+// Filtered texture lookups (forward) and their gradients (with BACKWARD), one invocation per
+// pixel; the level and the filter are computed here from texel fetches (no GL sampler):
+//   level = 0.5 log2(lenMajorSqr) + bias, clamped to [0, n_levels - 1]   (seed 003)
+//   bilinear at texel centres: x = s W_l - 0.5, taps floor(x), floor(x) + 1 (y alike)
+// Defines: FILTER 0 nearest | 1 linear | 2 linear-mipmap-nearest | 3 linear-mipmap-linear;
+// BOUNDARY 0 wrap | 1 clamp | 2 zero | 3 cube; HAS_DA, HAS_BIAS; with BACKWARD one of
+// ACCUM_ATOMIC_FLOAT | ACCUM_CAS | ACCUM_PER_PIXEL (8 (texel, weight) pairs per pixel).
+// Layouts (flattened pixels of this dispatch, i = 0 .. n_pixels - 1):
+//   texels  every level (base first), level l from texel level_info[l].x on, texel
+//           ((image * faces + face) * H + j) * W + i, `channels` floats per texel
+//   uv      NCOORD floats per pixel; uv_da 2 NCOORD; bias 1; out / grad_out `channels`
+#if defined(BACKWARD) && defined(ACCUM_ATOMIC_FLOAT)
+#extension GL_NV_shader_atomic_float : require
+#endif
+
+layout(local_size_x = 64) in;
+
+#if BOUNDARY == 3
+#define NCOORD 3
+#define FACES 6
+#else
+#define NCOORD 2
+#define FACES 1
+#endif
+#define MIP (FILTER >= 2)
+
+layout(std430, binding = 0) readonly buffer Texels { float texels[]; };
+layout(std430, binding = 1) readonly buffer LevelInfo { ivec4 level_info[]; };  // first, H, W
+layout(std430, binding = 2) readonly buffer Uv { float uv[]; };
+#ifdef HAS_DA
+layout(std430, binding = 3) readonly buffer UvDa { float uv_da[]; };
+#endif
+#ifdef HAS_BIAS
+layout(std430, binding = 4) readonly buffer Bias { float bias[]; };
+#endif
+#ifndef BACKWARD
+layout(std430, binding = 5) writeonly buffer Out { float out_tex[]; };
+#else
+layout(std430, binding = 5) readonly buffer GradOut { float grad_out[]; };
+layout(std430, binding = 6) writeonly buffer GradUv { float grad_uv[]; };
+#ifdef HAS_DA
+layout(std430, binding = 7) writeonly buffer GradDa { float grad_da[]; };
+#endif
+#ifdef HAS_BIAS
+layout(std430, binding = 8) writeonly buffer GradBias { float grad_bias[]; };
+#endif
+#if defined(ACCUM_ATOMIC_FLOAT)
+layout(std430, binding = 9) buffer GradTex { float grad_tex[]; };
+#elif defined(ACCUM_CAS)
+layout(std430, binding = 9) buffer GradTex { uint grad_tex[]; };
+#else
+layout(std430, binding = 9) writeonly buffer ContribIndex { int contrib_index[]; };
+layout(std430, binding = 10) writeonly buffer ContribWeight { float contrib_weight[]; };
+#endif
+#endif
+
+uniform uint n_pixels;
+uniform uint first_pixel;
+uniform uint pixels_per_image;
+uniform int tex_batch;      // 1 (broadcast) or B
+uniform int n_levels;
+uniform int channels;
+
+// cube faces +x, -x, +y, -y, +z, -z (GL table 8.19): s_c = sigma_s d[axis_s],
+// t_c = sigma_t d[axis_t], m = sigma_m d[axis_m] > 0
+const ivec3 FACE_AXIS[6] = ivec3[6](ivec3(2, 1, 0), ivec3(2, 1, 0), ivec3(0, 2, 1),
+                                     ivec3(0, 2, 1), ivec3(0, 1, 2), ivec3(0, 1, 2));
+const ivec3 FACE_SIGN[6] = ivec3[6](ivec3(-1, -1, 1), ivec3(1, -1, -1), ivec3(1, 1, 1),
+                                     ivec3(1, -1, -1), ivec3(1, -1, 1), ivec3(-1, -1, -1));
+
+int major_face(vec3 d) {
+    vec3 a = abs(d);
+    int axis = (a.x >= a.y && a.x >= a.z) ? 0 : (a.y >= a.z ? 1 : 2);
+    return 2 * axis + (d[axis] >= 0.0 ? 0 : 1);
+}
+
+int major_face_i(ivec3 d) {
+    ivec3 a = abs(d);
+    int axis = (a.x >= a.y && a.x >= a.z) ? 0 : (a.y >= a.z ? 1 : 2);
+    return 2 * axis + (d[axis] >= 0 ? 0 : 1);
+}
+
+// the texel that continues `face` beyond its edge (one of i, j is -1 or n): the direction
+// of the texel centre, in half texels, projected onto the face of its major axis
+ivec3 cube_neighbour(int face, int i, int j, int n) {
+    ivec3 ax = FACE_AXIS[face], sg = FACE_SIGN[face];
+    ivec3 d = ivec3(0);
+    d[ax.x] = sg.x * (2 * i + 1 - n);
+    d[ax.y] = sg.y * (2 * j + 1 - n);
+    d[ax.z] = sg.z * n;
+    int f2 = major_face_i(d);
+    ivec3 ax2 = FACE_AXIS[f2], sg2 = FACE_SIGN[f2];
+    int m = sg2.z * d[ax2.z];
+    int s2 = sg2.x * d[ax2.x], t2 = sg2.y * d[ax2.y];
+    return ivec3(f2, ((s2 + m) * n) / (2 * m), ((t2 + m) * n) / (2 * m));
+}
+
+int wrap_index(int i, int n) {
+    if (i < 0) i += n * ((n - 1 - i) / n);
+    return i % n;
+}
+
+// four taps of one level: global texel index (-1: none), weight and its s, t derivatives
+struct Taps { ivec4 index; vec4 w; vec4 ds; vec4 dt; };
+
+Taps bilinear(int level, float s, float t, int image, int face) {
+    ivec4 info = level_info[level];
+    int H = info.y, W = info.z;
+    float x = s * float(W) - 0.5, y = t * float(H) - 0.5;
+    float fx0 = floor(x), fy0 = floor(y);
+    int i0 = int(fx0), j0 = int(fy0);
+    float fx = x - fx0, fy = y - fy0;
+    Taps r;
+    r.w = vec4((1.0 - fx) * (1.0 - fy), fx * (1.0 - fy), (1.0 - fx) * fy, fx * fy);
+    r.ds = vec4(-(1.0 - fy), 1.0 - fy, -fy, fy) * float(W);
+    r.dt = vec4(-(1.0 - fx), -fx, 1.0 - fx, fx) * float(H);
+    ivec4 ii = ivec4(i0, i0 + 1, i0, i0 + 1), jj = ivec4(j0, j0, j0 + 1, j0 + 1);
+#if BOUNDARY == 3
+    int corner = -1;
+    for (int k = 0; k < 4; ++k) {
+        bool oi = ii[k] < 0 || ii[k] >= W, oj = jj[k] < 0 || jj[k] >= H;
+        int f = face, a = ii[k], b = jj[k];
+        if (oi && oj) { corner = k; r.index[k] = -1; continue; }
+        if (oi || oj) { ivec3 nb = cube_neighbour(face, a, b, W); f = nb.x; a = nb.y; b = nb.z; }
+        r.index[k] = info.x + ((image * 6 + f) * H + b) * W + a;
+    }
+    if (corner >= 0) {  // no texel there: the mean of the three around the corner
+        float w3 = r.w[corner] / 3.0, s3 = r.ds[corner] / 3.0, t3 = r.dt[corner] / 3.0;
+        for (int k = 0; k < 4; ++k) {
+            if (k == corner) continue;
+            r.w[k] += w3; r.ds[k] += s3; r.dt[k] += t3;
+        }
+        r.w[corner] = 0.0; r.ds[corner] = 0.0; r.dt[corner] = 0.0;
+    }
+#else
+    for (int k = 0; k < 4; ++k) {
+        int a = ii[k], b = jj[k];
+#if BOUNDARY == 0
+        a = wrap_index(a, W); b = wrap_index(b, H);
+#elif BOUNDARY == 1
+        a = clamp(a, 0, W - 1); b = clamp(b, 0, H - 1);
+#else
+        if (a < 0 || a >= W || b < 0 || b >= H) {
+            r.index[k] = -1; r.w[k] = 0.0; r.ds[k] = 0.0; r.dt[k] = 0.0; continue;
+        }
+#endif
+        r.index[k] = info.x + (image * H + b) * W + a;
+    }
+#endif
+    return r;
+}
+
+int nearest_texel(float s, float t, int image, int face) {
+    ivec4 info = level_info[0];
+    int H = info.y, W = info.z;
+    int i = int(floor(s * float(W))), j = int(floor(t * float(H)));
+#if BOUNDARY == 0
+    i = wrap_index(i, W); j = wrap_index(j, H);
+#elif BOUNDARY == 2
+    if (i < 0 || i >= W || j < 0 || j >= H) return -1;
+#else
+    i = clamp(i, 0, W - 1); j = clamp(j, 0, H - 1);
+#endif
+    return ((image * FACES + face) * H + j) * W + i;
+}
+
+// everything one pixel needs: up to two levels of taps, the level weights, the level's
+// derivatives
+struct Pixel {
+    Taps t0, t1;
+    float frac;           // weight of t1 (linear-mipmap-linear)
+    bool live_level;      // 0 < level < top: the level carries a gradient
+    int nearest;          // FILTER 0
+    float dlevel_da[6];
+    vec3 dlevel_duv;
+    vec3 ds_duv, dt_duv;  // cube: face coordinates by the direction
+    bool ok;
+};
+
+Pixel setup(uint i, int image) {
+    Pixel p;
+    p.ok = true;
+    p.frac = 0.0;
+    p.live_level = false;
+    p.nearest = -1;
+    p.dlevel_duv = vec3(0.0);
+    p.ds_duv = vec3(0.0);
+    p.dt_duv = vec3(0.0);
+    for (int k = 0; k < 6; ++k) p.dlevel_da[k] = 0.0;
+    int face = 0;
+    float s, t;
+#if BOUNDARY == 3
+    vec3 d = vec3(uv[3u * i], uv[3u * i + 1u], uv[3u * i + 2u]);
+    face = major_face(d);
+    ivec3 ax = FACE_AXIS[face], sg = FACE_SIGN[face];
+    float m = float(sg.z) * d[ax.z];
+    p.ok = m > 0.0;
+    if (!p.ok) m = 1.0;
+    float sc = float(sg.x) * d[ax.x], tc = float(sg.y) * d[ax.y];
+    s = p.ok ? (sc / m + 1.0) * 0.5 : 0.5;
+    t = p.ok ? (tc / m + 1.0) * 0.5 : 0.5;
+    if (p.ok) {
+        p.ds_duv[ax.x] += float(sg.x) / (2.0 * m);
+        p.ds_duv[ax.z] -= sc * float(sg.z) / (2.0 * m * m);
+        p.dt_duv[ax.y] += float(sg.y) / (2.0 * m);
+        p.dt_duv[ax.z] -= tc * float(sg.z) / (2.0 * m * m);
+    }
+#else
+    s = uv[2u * i];
+    t = uv[2u * i + 1u];
+#endif
+#if FILTER == 0
+    p.nearest = nearest_texel(s, t, image, face);
+    if (p.nearest >= 0) p.nearest += level_info[0].x;
+#elif FILTER == 1
+    p.t0 = bilinear(0, s, t, image, face);
+#else
+    float level = 0.0;
+    int top = n_levels - 1;
+#ifdef HAS_DA
+    float h0 = float(level_info[0].y), w0 = float(level_info[0].z);
+    float a, b, c, dd;
+#if BOUNDARY == 3
+    float psx = float(sg.x) * uv_da[6u * i + uint(2 * ax.x)];
+    float psy = float(sg.x) * uv_da[6u * i + uint(2 * ax.x + 1)];
+    float ptx = float(sg.y) * uv_da[6u * i + uint(2 * ax.y)];
+    float pty = float(sg.y) * uv_da[6u * i + uint(2 * ax.y + 1)];
+    float mx = float(sg.z) * uv_da[6u * i + uint(2 * ax.z)];
+    float my = float(sg.z) * uv_da[6u * i + uint(2 * ax.z + 1)];
+    float kk = p.ok ? w0 * 0.5 : 0.0;
+    float im = 1.0 / m, im2 = im * im;
+    a = kk * (psx * im - sc * mx * im2);
+    b = kk * (psy * im - sc * my * im2);
+    c = kk * (ptx * im - tc * mx * im2);
+    dd = kk * (pty * im - tc * my * im2);
+#else
+    a = uv_da[4u * i] * w0;
+    b = uv_da[4u * i + 1u] * w0;
+    c = uv_da[4u * i + 2u] * h0;
+    dd = uv_da[4u * i + 3u] * h0;
+#endif
+    float A = a * a + c * c, B = b * b + dd * dd, C = a * b + c * dd;
+    float half_ab = (A - B) * 0.5;
+    float l2a = sqrt(half_ab * half_ab + C * C);
+    float major = (A + B) * 0.5 + l2a;
+    level = major > 0.0 ? 0.5 * log2(major) : -1.0e30;
+#ifdef BACKWARD
+    float inv = l2a > 0.0 ? 1.0 / l2a : 0.0;
+    float g = major > 0.0 ? 1.0 / (2.0 * 0.6931471805599453 * major) : 0.0;
+    float gA = g * (0.5 + half_ab * inv * 0.5), gB = g * (0.5 - half_ab * inv * 0.5);
+    float gC = g * C * inv;
+    float ga = 2.0 * a * gA + b * gC, gb = 2.0 * b * gB + a * gC;
+    float gc = 2.0 * c * gA + dd * gC, gd = 2.0 * dd * gB + c * gC;
+#if BOUNDARY == 3
+    float g_psx = ga * kk * im, g_psy = gb * kk * im, g_ptx = gc * kk * im, g_pty = gd * kk * im;
+    float g_mx = -kk * (ga * sc + gc * tc) * im2, g_my = -kk * (gb * sc + gd * tc) * im2;
+    float g_ps = -kk * (ga * mx + gb * my) * im2, g_pt = -kk * (gc * mx + gd * my) * im2;
+    float g_m = kk * (-(ga * psx + gb * psy + gc * ptx + gd * pty) * im2
+                      + 2.0 * ((ga * sc + gc * tc) * mx + (gb * sc + gd * tc) * my) * im2 * im);
+    p.dlevel_da[2 * ax.x] += float(sg.x) * g_psx; p.dlevel_da[2 * ax.x + 1] += float(sg.x) * g_psy;
+    p.dlevel_da[2 * ax.y] += float(sg.y) * g_ptx; p.dlevel_da[2 * ax.y + 1] += float(sg.y) * g_pty;
+    p.dlevel_da[2 * ax.z] += float(sg.z) * g_mx; p.dlevel_da[2 * ax.z + 1] += float(sg.z) * g_my;
+    p.dlevel_duv[ax.x] += float(sg.x) * g_ps;
+    p.dlevel_duv[ax.y] += float(sg.y) * g_pt;
+    p.dlevel_duv[ax.z] += float(sg.z) * g_m;
+#else
+    p.dlevel_da[0] = ga * w0; p.dlevel_da[1] = gb * w0;
+    p.dlevel_da[2] = gc * h0; p.dlevel_da[3] = gd * h0;
+#endif
+#endif
+#endif
+#ifdef HAS_BIAS
+    level += bias[i];
+#endif
+    p.live_level = level > 0.0 && level < float(top);
+    level = clamp(level, 0.0, float(top));
+#if FILTER == 2
+    int l0 = min(int(floor(level + 0.5)), top);
+    p.t0 = bilinear(l0, s, t, image, face);
+#else
+    int l0 = min(int(floor(level)), top);
+    p.frac = level - float(l0);
+    p.t0 = bilinear(l0, s, t, image, face);
+    p.t1 = bilinear(min(l0 + 1, top), s, t, image, face);
+#endif
+#endif
+    return p;
+}
+
+float texel(int index, int c) {
+    return index < 0 ? 0.0 : texels[index * channels + c];
+}
+
+#ifdef BACKWARD
+void add_tex(int index, float value) {
+#if defined(ACCUM_ATOMIC_FLOAT)
+    if (value != 0.0) atomicAdd(grad_tex[index], value);
+#elif defined(ACCUM_CAS)
+    if (value == 0.0) return;
+    uint seen = grad_tex[index];
+    while (true) {
+        uint want = floatBitsToUint(uintBitsToFloat(seen) + value);
+        uint got = atomicCompSwap(grad_tex[index], seen, want);
+        if (got == seen) break;
+        seen = got;
+    }
+#endif
+}
+
+void spread(uint i, int slot, int index, float w) {
+#if defined(ACCUM_PER_PIXEL)
+    contrib_index[8u * i + uint(slot)] = w == 0.0 ? -1 : index;
+    contrib_weight[8u * i + uint(slot)] = w;
+#else
+    if (index < 0 || w == 0.0) return;
+    for (int c = 0; c < channels; ++c)
+        add_tex(index * channels + c, w * grad_out[i * uint(channels) + uint(c)]);
+#endif
+}
+
+// sum_c g_c texel(index, c): the gradient of the loss by the tap's weight
+float tap_gradient(uint i, int index) {
+    if (index < 0) return 0.0;
+    float r = 0.0;
+    for (int c = 0; c < channels; ++c)
+        r += grad_out[i * uint(channels) + uint(c)] * texels[index * channels + c];
+    return r;
+}
+#endif
+
+void main() {
+    uint i = gl_GlobalInvocationID.x;
+    if (i >= n_pixels) return;
+    int image = tex_batch == 1 ? 0 : int((first_pixel + i) / pixels_per_image);
+    Pixel p = setup(i, image);
+#ifndef BACKWARD
+    for (int c = 0; c < channels; ++c) {
+        float v = 0.0;
+#if FILTER == 0
+        v = texel(p.nearest, c);
+#else
+        for (int k = 0; k < 4; ++k) v += p.t0.w[k] * texel(p.t0.index[k], c);
+#if FILTER == 3
+        float v1 = 0.0;
+        for (int k = 0; k < 4; ++k) v1 += p.t1.w[k] * texel(p.t1.index[k], c);
+        v = v + p.frac * (v1 - v);
+#endif
+#endif
+        out_tex[i * uint(channels) + uint(c)] = p.ok ? v : 0.0;
+    }
+#else
+    float gs = 0.0, gt = 0.0, glevel = 0.0;
+#if FILTER == 0
+    spread(i, 0, p.nearest, p.ok ? 1.0 : 0.0);
+    for (int k = 1; k < 8; ++k) spread(i, k, -1, 0.0);
+#else
+    float w0 = FILTER == 3 ? 1.0 - p.frac : 1.0;
+    float s0 = 0.0, s1 = 0.0;
+    float ok = p.ok ? 1.0 : 0.0;
+    for (int k = 0; k < 4; ++k) {
+        float tg = tap_gradient(i, p.t0.index[k]);
+        gs += p.t0.ds[k] * tg; gt += p.t0.dt[k] * tg;
+        s0 += p.t0.w[k] * tg;
+        spread(i, k, p.t0.index[k], ok * w0 * p.t0.w[k]);
+    }
+    gs *= w0; gt *= w0;
+#if FILTER == 3
+    float gs1 = 0.0, gt1 = 0.0;
+    for (int k = 0; k < 4; ++k) {
+        float tg = tap_gradient(i, p.t1.index[k]);
+        gs1 += p.t1.ds[k] * tg; gt1 += p.t1.dt[k] * tg;
+        s1 += p.t1.w[k] * tg;
+        spread(i, 4 + k, p.t1.index[k], ok * p.frac * p.t1.w[k]);
+    }
+    gs += p.frac * gs1; gt += p.frac * gt1;
+    glevel = p.live_level ? s1 - s0 : 0.0;
+#else
+    for (int k = 4; k < 8; ++k) spread(i, k, -1, 0.0);
+#endif
+#endif
+    if (!p.ok) { gs = 0.0; gt = 0.0; glevel = 0.0; }
+#if BOUNDARY == 3
+    vec3 gd = gs * p.ds_duv + gt * p.dt_duv + glevel * p.dlevel_duv;
+    grad_uv[3u * i] = gd.x; grad_uv[3u * i + 1u] = gd.y; grad_uv[3u * i + 2u] = gd.z;
+#else
+    grad_uv[2u * i] = FILTER == 0 ? 0.0 : gs;
+    grad_uv[2u * i + 1u] = FILTER == 0 ? 0.0 : gt;
+#endif
+#ifdef HAS_DA
+    for (int k = 0; k < 2 * NCOORD; ++k)
+        grad_da[uint(2 * NCOORD) * i + uint(k)] = glevel * p.dlevel_da[k];
+#endif
+#ifdef HAS_BIAS
+    grad_bias[i] = glevel;
+#endif
+#endif
+}
