@@ -128,43 +128,29 @@ class _RasterizeFunction(torch.autograd.Function):
 
 
 class _InterpolateOp:
-    """One interpolation. A ``diff_attrs`` that repeats an attribute is given to the core
-    once per attribute; ``columns`` picks out_da's channels from the core's (and backward
-    sums the gradients of repeats)."""
+    """One interpolation on the core the dtype selects (a ``diff_attrs`` that repeats an
+    attribute gives each repeat its channels on both cores; gradients of repeats add)."""
 
     def __init__(self, glctx, tri, diff_attrs):
         self.glctx = glctx
         self.tri = tri
-        self.diff_attrs = diff_attrs
-        self.core_attrs = self.columns = None
-        if diff_attrs is not None:
-            unique = list(dict.fromkeys(diff_attrs))
-            self.core_attrs = tuple(unique)
-            self.columns = np.array([2 * unique.index(k) + c for k in diff_attrs
-                                     for c in (0, 1)], np.intp)
+        self.diff_attrs = None if diff_attrs is None else tuple(diff_attrs)
 
     def forward(self, attr, rast, rast_db):
         if attr.dtype == np.float64:
             out, out_da, saved = _reference().interpolate_forward(
-                attr, rast, self.tri, rast_db, self.core_attrs)
+                attr, rast, self.tri, rast_db, self.diff_attrs)
         else:
             from glraster.diff import interpolate as gpu_interpolate
 
             ctx = None if self.glctx is None else self.glctx.context
             out, out_da, saved = gpu_interpolate.forward(attr, rast, self.tri, rast_db,
-                                                         self.core_attrs, ctx=ctx)
-        if out_da is None or self.diff_attrs is None:
+                                                         self.diff_attrs, ctx=ctx)
+        if out_da is None:
             out_da = np.zeros(out.shape[:-1] + (0,), out.dtype)
-        else:
-            out_da = out_da[..., self.columns]
         return out, out_da, saved
 
     def backward(self, saved, dtype, grad_out, grad_out_da):
-        if grad_out_da is not None:
-            core = np.zeros(grad_out_da.shape[:-1] + (2 * len(self.core_attrs),), dtype)
-            for j, column in enumerate(self.columns):
-                core[..., column] += grad_out_da[..., j]
-            grad_out_da = core
         if dtype == np.float64:
             return _reference().interpolate_backward(saved, grad_out, grad_out_da)
         from glraster.diff import interpolate as gpu_interpolate
