@@ -141,6 +141,7 @@ class CheckResult:
     control_failures: list = field(default_factory=list)  # scenes the control failed
     seconds: float = 0.0
     notes: list = field(default_factory=list)  # remarks for people (e.g. goldens skipped)
+    shard: tuple | None = None  # (I, N) when this run is shard I of N (shard_scenes)
 
     @property
     def ok(self) -> bool:
@@ -286,7 +287,8 @@ def run_mutants(ctx, candidates, references, mutant_list=None, progress=None):
 
 
 def run(ctx, names=None, *, method="hw", golden_dir=None, check_golden=True, mutants=False,
-        mutant_pattern=None, on_scene=None, progress=None, references=None) -> CheckResult:
+        mutant_pattern=None, on_scene=None, progress=None, references=None,
+        mutant_scenes=None) -> CheckResult:
     """Check the scenes ``names`` (default: the whole catalog) on ``ctx``, rendered with
     ``method`` (one of :data:`glraster.gpu.rasterize.METHODS`). The mutants are faults injected
     into the "hw" shaders, so ``mutants`` requires method "hw".
@@ -298,6 +300,10 @@ def run(ctx, names=None, *, method="hw", golden_dir=None, check_golden=True, mut
     :class:`SceneArtifacts` (None when the scene raised; e.g. to write report images);
     artifacts are dropped after.
     progress(index, total, label): called before each step.
+    mutant_scenes: optional scene names the mutant pass may also use beyond ``names`` (a
+    sharded run checks only its share of the catalog, but its mutants need every scene
+    that can catch them): they get a reference and the control run of the real shaders,
+    and are not reported as scenes.
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {sorted(METHODS)}, got {method!r}")
@@ -337,6 +343,16 @@ def run(ctx, names=None, *, method="hw", golden_dir=None, check_golden=True, mut
             mutant_refs[name] = art.ref
             passed.append(scene)
         del art
+    if mutants and mutant_scenes:
+        for name in mutant_scenes:
+            if name in names:
+                continue
+            scene = load_scene(name)
+            h, w = scene.resolution
+            if h * w <= REFERENCE_CACHE_PIXELS:
+                cached = references.get(name) if references is not None else None
+                mutant_refs[name] = cached if cached is not None else _golden.reference_for(scene)
+                passed.append(scene)
     if mutants:
         def mprog(j, label):
             if progress:
@@ -346,6 +362,59 @@ def run(ctx, names=None, *, method="hw", golden_dir=None, check_golden=True, mut
     if progress:
         progress(total, total, "done")
     out.seconds = time.perf_counter() - t0
+    return out
+
+
+def shard_scenes(names, index: int, count: int) -> list:
+    """The scenes of shard ``index`` (1-based) of ``count``: ``names`` split so that the
+    shards' costs (pixels + 20 x triangles per scene) are balanced, by longest first onto
+    the least loaded shard. Deterministic: every CI runner computes the same split from
+    the same catalog, each scene lands in exactly one shard. Returned in catalog order."""
+    if isinstance(index, bool) or isinstance(count, bool) or not (1 <= int(index) <= int(count)):
+        raise ValueError(f"shard must be I/N with 1 <= I <= N, got {index}/{count}")
+    names = list(names)
+    loads = [0.0] * int(count)
+    owner = {}
+    for name in sorted(names, key=lambda n: (-_cost(load_scene(n)), names.index(n))):
+        k = min(range(int(count)), key=lambda j: (loads[j], j))
+        loads[k] += _cost(load_scene(name))
+        owner[name] = k
+    return [n for n in names if owner[n] == int(index) - 1]
+
+
+def to_dict(result: CheckResult) -> dict:
+    """A :class:`CheckResult` as JSON-able data (the reports' figures, no arrays)."""
+    def values(rep):
+        if rep is None:
+            return {}
+        return {n: {"max": v.max, "p999": v.p999, "mean": v.mean, "worst_ratio": v.worst_ratio,
+                    "over_tolerance": v.over_tolerance, "waived": v.waived}
+                for n, v in rep.values.items()}
+
+    scenes = []
+    for s in result.scenes:
+        rep = s.report
+        scenes.append({
+            "name": s.name, "description": s.description, "status": s.status,
+            "resolution": list(s.resolution), "triangles": s.triangles,
+            "failures": list(s.failures), "error": s.error, "seconds": s.seconds,
+            "covered": rep.covered_gpu if rep else 0,
+            "coverage_mismatch": rep.coverage_mismatch if rep else 0,
+            "tri_id_mismatch": rep.tri_id_mismatch if rep else 0,
+            "nonfinite": s.nonfinite, "waived": dict(s.waived), "values": values(rep),
+            "golden": None if s.golden is None else ("exact" if s.golden.ok else "diff"),
+            "golden_max_error": s.golden_max_error,
+        })
+    out = {"ok": result.ok, "backend": result.backend, "renderer": result.renderer,
+           "gl_version": result.gl_version, "method": result.method,
+           "shard": f"{result.shard[0]}/{result.shard[1]}" if result.shard else None,
+           "seconds": result.seconds, "passed": sum(s.ok for s in result.scenes),
+           "scenes": scenes, "notes": list(result.notes), "mutants": None,
+           "control_failures": list(result.control_failures)}
+    if result.mutants is not None:
+        out["mutants"] = [{"name": m.name, "fault": m.fault, "caught_by": m.caught_by,
+                           "reason": m.reason, "scenes_tried": m.scenes_tried, "error": m.error,
+                           "seconds": m.seconds} for m in result.mutants]
     return out
 
 

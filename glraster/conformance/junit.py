@@ -5,6 +5,10 @@ One ``<testsuite name="glraster.conformance.check">`` with a ``<testcase>`` per 
 name="glraster.conformance.mutants">`` with a testcase per mutant (failing when it escaped) plus one
 for the control run of the real shaders. Failures carry a one-line message and the full
 comparison summary as text. The file is written atomically.
+
+A run that was one shard of a split catalog (``glraster check --shard I/N``) carries a
+``shard`` property ``I/N``; :func:`merge` joins the files of all shards (of one or several
+drivers and methods) into one report, and refuses an incomplete or overlapping set.
 """
 
 from __future__ import annotations
@@ -40,6 +44,9 @@ def to_xml(result) -> ET.ElementTree:
     for k, v in (("backend", result.backend), ("renderer", result.renderer),
                  ("gl_version", result.gl_version), ("method", result.method)):
         ET.SubElement(props, "property", name=k, value=str(v))
+    shard = getattr(result, "shard", None)
+    if shard:
+        ET.SubElement(props, "property", name="shard", value=f"{shard[0]}/{shard[1]}")
     fails = errors = 0
     cls = f"glraster.conformance.check.{result.backend}" + (
         f".{result.method}" if result.method != "hw" else "")
@@ -103,6 +110,126 @@ def to_xml(result) -> ET.ElementTree:
     root.set("time", f"{result.seconds:.3f}")
     ET.indent(root)
     return ET.ElementTree(root)
+
+
+def to_string(result) -> str:
+    """The JUnit XML of ``result`` as a string (with the XML declaration)."""
+    return ET.tostring(to_xml(result).getroot(), encoding="unicode", xml_declaration=True)
+
+
+class MergeError(ValueError):
+    """JUnit files that do not form one complete run: a shard missing or given twice, a
+    scene reported by two shards, shards of one driver that disagree on the renderer."""
+
+
+def _props(suite) -> dict:
+    return {p.get("name"): p.get("value") for p in suite.iterfind("properties/property")}
+
+
+def merge(sources) -> ET.ElementTree:
+    """One JUnit tree from the files (paths or ElementTrees) of ``glraster check`` runs.
+
+    Suites are grouped by name, backend and method: the shards of one driver's run become
+    one suite again (test cases in the shards' order, counts and times summed), runs of
+    different drivers or methods stay separate suites. For every group with ``shard``
+    properties, shards 1..N must each appear exactly once (MergeError otherwise), and no
+    test case may appear twice in a group.
+    """
+    groups: dict = {}
+    order = []
+    for src in sources:
+        tree = src if isinstance(src, ET.ElementTree) else ET.parse(src)
+        root = tree.getroot()
+        suites = [root] if root.tag == "testsuite" else list(root.iterfind("testsuite"))
+        for suite in suites:
+            props = _props(suite)
+            key = (suite.get("name"), props.get("backend"), props.get("method"))
+            if key not in groups:
+                groups[key] = []
+                order.append(key)
+            groups[key].append((suite, props, str(src)))
+    out = ET.Element("testsuites", name="glraster")
+    totals = [0, 0, 0, 0.0]
+    for key in order:
+        members = groups[key]
+        shards = [p.get("shard") for _, p, _ in members if p.get("shard")]
+        if shards:
+            counts = {s.split("/")[1] for s in shards}
+            if len(counts) != 1:
+                raise MergeError(f"suite {key[0]} ({key[1]}, {key[2]}): shards of different "
+                                 f"splits {sorted(set(shards))}")
+            n = int(counts.pop())
+            seen = sorted(int(s.split("/")[0]) for s in shards)
+            missing = sorted(set(range(1, n + 1)) - set(seen))
+            twice = sorted({i for i in seen if seen.count(i) > 1})
+            is_mutants = key[0] == "glraster.conformance.mutants"
+            if (missing and not is_mutants) or twice:
+                raise MergeError(
+                    f"suite {key[0]} ({key[1]}, method {key[2]}): "
+                    + (f"shards {missing} of {n} missing" if missing else "")
+                    + ("; " if missing and twice else "")
+                    + (f"shards {twice} given twice" if twice else ""))
+        renderers = {p.get("renderer") for _, p, _ in members if p.get("renderer")}
+        if len(renderers) > 1:
+            raise MergeError(f"suite {key[0]} ({key[1]}, method {key[2]}): the files come "
+                             f"from different renderers {sorted(renderers)}")
+        first, props, _ = members[0]
+        suite = ET.SubElement(out, "testsuite", name=first.get("name") or "")
+        stamps = [m.get("timestamp") for m, _, _ in members if m.get("timestamp")]
+        if stamps:
+            suite.set("timestamp", min(stamps))
+        hosts = sorted({m.get("hostname") for m, _, _ in members if m.get("hostname")})
+        if hosts:
+            suite.set("hostname", ",".join(hosts))
+        pe = ET.SubElement(suite, "properties")
+        for k, v in props.items():
+            if k != "shard":
+                ET.SubElement(pe, "property", name=k, value=v)
+        if shards:
+            ET.SubElement(pe, "property", name="shards", value=str(len(set(shards))))
+        names = set()
+        tests = fails = errs = 0
+        seconds = 0.0
+        for member, _, src in members:
+            for case in member.iterfind("testcase"):
+                ident = (case.get("classname"), case.get("name"))
+                if ident in names:
+                    raise MergeError(f"test case {ident[1]} ({ident[0]}) appears twice "
+                                     f"(again in {src})")
+                names.add(ident)
+                suite.append(case)
+                tests += 1
+                fails += case.find("failure") is not None
+                errs += case.find("error") is not None
+                seconds += float(case.get("time") or 0)
+        suite.set("tests", str(tests))
+        suite.set("failures", str(fails))
+        suite.set("errors", str(errs))
+        suite.set("skipped", "0")
+        suite.set("time", f"{seconds:.3f}")
+        totals = [totals[0] + tests, totals[1] + fails, totals[2] + errs, totals[3] + seconds]
+    out.set("tests", str(totals[0]))
+    out.set("failures", str(totals[1]))
+    out.set("errors", str(totals[2]))
+    out.set("time", f"{totals[3]:.3f}")
+    ET.indent(out)
+    return ET.ElementTree(out)
+
+
+def write_tree(tree: ET.ElementTree, path) -> Path:
+    """Write a JUnit ElementTree to ``path`` atomically; returns the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            tree.write(fh, encoding="utf-8", xml_declaration=True)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
 
 
 def write(result, path) -> Path:

@@ -32,6 +32,10 @@ def register(subparsers) -> None:
                    help="golden folder (default: $GLRASTER_GOLDEN_DIR or golden/)")
     p.add_argument("--no-golden", action="store_true", help="skip the golden comparison")
     p.add_argument("--list", action="store_true", help="list the matching scenes and exit")
+    p.add_argument("--shard", default=None, metavar="I/N",
+                   help="check only shard I of N of the matching scenes (balanced by cost, the "
+                        "same split on every runner); with --mutants, shard 1 runs the mutant "
+                        "pass. Join the shards' --junit files with 'glraster junit-merge'")
     p.set_defaults(func=run)
 
 
@@ -65,6 +69,26 @@ def run(args) -> int:
         print(f"glraster check: no scene matches {args.scenes!r}; known: "
               f"{', '.join(list_scenes())}", file=sys.stderr)
         return exit_codes.USAGE
+    shard = mutant_scenes = None
+    if args.shard:
+        from glraster.conformance.check import shard_scenes
+
+        try:
+            shard = tuple(int(v) for v in args.shard.split("/"))
+            if len(shard) != 2:
+                raise ValueError
+            all_names, names = names, shard_scenes(names, *shard)
+        except ValueError:
+            print(f"glraster check: --shard must be I/N with 1 <= I <= N, got {args.shard!r}",
+                  file=sys.stderr)
+            return exit_codes.USAGE
+        if args.mutants:
+            if shard[0] == 1:
+                mutant_scenes = all_names
+            else:
+                print(f"glraster check: shard {args.shard}: the mutant pass runs in shard 1",
+                      file=sys.stderr)
+                args.mutants = None
     if args.list:
         for n in names:
             print(f"{n:<28} {describe(n)}")
@@ -101,7 +125,9 @@ def run(args) -> int:
     result = check.run(ctx, names, method=args.method, golden_dir=args.golden_dir,
                        check_golden=not args.no_golden,
                        mutants=bool(args.mutants), mutant_pattern=args.mutants,
-                       on_scene=report.add_scene if report else None, progress=Progress())
+                       on_scene=report.add_scene if report else None, progress=Progress(),
+                       **({"mutant_scenes": mutant_scenes} if mutant_scenes else {}))
+    result.shard = shard
     print(check.format_table(result))
     if args.junit:
         from glraster.conformance import junit

@@ -30,6 +30,12 @@ def register(subparsers) -> None:
                    help="store only the bounding box of covered pixels (lossless)")
     p.add_argument("--png", default=None, metavar="OUT.png",
                    help="also write a preview PNG of the perspective barycentrics")
+    p.add_argument("--server", default=None, metavar="URL",
+                   help="render on a glraster service (glraster serve) instead of a local "
+                        "context; the arrays come back bit for bit. Token: --token-file or "
+                        "$GLRASTER_TOKEN")
+    p.add_argument("--token-file", default=None, metavar="FILE",
+                   help="bearer token for --server (the first token line of FILE)")
     p.set_defaults(func=run)
 
 
@@ -50,7 +56,16 @@ def run(args) -> int:
         print(f"glraster render: {exc}", file=sys.stderr)
         return exit_codes.USAGE
     t = time.perf_counter()
-    if args.reference:
+    if args.server:
+        try:
+            raster, producer = _remote(args, scene, outputs)
+        except ValueError as exc:
+            print(f"glraster render: {exc}", file=sys.stderr)
+            return exit_codes.USAGE
+        except ConnectionError as exc:
+            print(f"glraster render: {exc}", file=sys.stderr)
+            return exit_codes.NO_BACKEND
+    elif args.reference:
         from glraster.reference import rasterize as ref_rasterize
 
         raster = ref_rasterize(scene.pos, scene.tri, scene.resolution, outputs=outputs)
@@ -89,3 +104,44 @@ def run(args) -> int:
         write_png(Path(args.png), bary_rgb(bary, raster.mask))
         print(f"preview: {args.png}")
     return exit_codes.OK
+
+
+def _token(args):
+    import os
+
+    if args.token_file:
+        from pathlib import Path
+
+        try:
+            lines = [ln.strip() for ln in Path(args.token_file).read_text().splitlines()]
+        except OSError as exc:
+            raise ValueError(f"token file {args.token_file!r}: {exc.strerror or exc}") from None
+        tokens = [ln for ln in lines if ln and not ln.startswith("#")]
+        if not tokens:
+            raise ValueError(f"token file {args.token_file!r} holds no token")
+        return tokens[0]
+    return os.environ.get("GLRASTER_TOKEN") or None
+
+
+def _remote(args, scene, outputs):
+    """Render ``scene`` on the service at ``args.server``: (raster, producer). A request the
+    service refuses is a ValueError (exit 2); one it cannot serve a ConnectionError (exit 3)."""
+    from glraster.client import Client, ServiceError, ServiceUnavailable
+
+    try:
+        with Client(args.server, _token(args)) as client:
+            raster = client.rasterize(scene.pos, scene.tri, scene.resolution, outputs=outputs,
+                                      reference=args.reference)
+            renderer = raster.info["headers"].get("x-glraster-source", "gpu")
+            info = client.info().get("driver", {}) if not args.reference else {}
+    except ServiceUnavailable as exc:
+        raise ConnectionError(f"the service at {args.server} could not render: {exc}") from None
+    except ServiceError as exc:
+        raise ValueError(f"the service at {args.server} refused the request: {exc}") from None
+    if renderer == "reference":
+        producer = (f"glraster.reference.rasterize (float64, fill rule llvmpipe) at "
+                    f"{args.server}, rounded to float32")
+    else:
+        producer = (f"glraster.rasterize on {info.get('renderer', '?')} via "
+                    f"{info.get('backend', '?')}, {info.get('gl_version', '?')} at {args.server}")
+    return raster, producer

@@ -1,0 +1,367 @@
+"""The loopback load test of the service (``glraster serve-bench``): a benchmark, never a
+pass/fail test.
+
+What it measures (docs/service.md, "Measured"):
+
+1. throughput and p50 / p99 latency at concurrency 1, 4 and 16 for a 256x256 scene (the
+   catalog's torus, 4096 triangles) and a 1024x1024 scene of 20,000 triangles, result as .npz;
+2. the per-request overhead of the service over an in-process call at 256x256 with the JSON
+   result (no transfer of the result): service p50 minus the in-process p50 of the same work
+   (:func:`glraster.rasterize` plus the same statistics);
+3. sustained throughput of a 2-worker server against two in-process loops (two processes
+   each calling :func:`glraster.rasterize` back to back);
+4. the resident memory of the server and its workers over 10,000 requests.
+
+Traffic goes to loopback only: a ``--url`` whose host is not a loopback address is refused.
+Every loop is bounded in count and in time. The client is a minimal HTTP/1.1 client on
+asyncio streams (keep-alive, one connection per concurrent stream), so that its own cost,
+which shares the machine's cores with the server, stays small.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import io
+import json
+import multiprocessing
+import os
+import re
+import statistics
+import subprocess
+import sys
+import time
+import urllib.parse
+
+import numpy as np
+
+SCENES = {"256": (256, 256, 4096), "1024": (1024, 1024, 20_000)}
+
+
+def make_scene(name: str):
+    """Deterministic scenes: ``"256"``: the catalog's torus (256x256, 4096 triangles);
+    ``"1024"``: a 1024x1024 perspective grid of 20,000 triangles (w from 1 to 4)."""
+    h, w, t = SCENES[name]
+    if name == "256":
+        from glraster.conformance.scenes import load_scene
+
+        s = load_scene("torus")
+        return np.array(s.pos), np.array(s.tri), tuple(s.resolution)
+    rng = np.random.default_rng(13)
+    n = 100                                   # 100 x 100 quads = 20,000 triangles
+    gx, gy = np.meshgrid(np.linspace(-1, 1, n + 1), np.linspace(-1, 1, n + 1))
+    gx += rng.uniform(-0.3, 0.3, gx.shape) / n
+    gy += rng.uniform(-0.3, 0.3, gy.shape) / n
+    ww = 1.0 + 1.5 * (gy + 1) + rng.uniform(0, 0.05, gx.shape)
+    z = rng.uniform(-0.5, 0.5, gx.shape)
+    pos = np.stack([gx * ww, gy * ww, z * ww, ww], -1).reshape(-1, 4).astype(np.float32)
+    i = np.arange(n)[:, None] * (n + 1) + np.arange(n)[None, :]
+    quads = np.stack([i, i + 1, i + n + 2, i, i + n + 2, i + n + 1], -1).reshape(-1, 3)
+    return pos, quads.astype(np.int32), (h, w)
+
+
+def npz_body(pos, tri, resolution) -> bytes:
+    buf = io.BytesIO()
+    np.savez(buf, pos=pos, tri=tri, resolution=np.asarray(resolution, np.int64))
+    return buf.getvalue()
+
+
+# -- the client -----------------------------------------------------------------------------
+
+async def _exchange(reader, writer, request: bytes):
+    writer.write(request)
+    await writer.drain()
+    line = await reader.readline()
+    if not line:
+        raise ConnectionError("the server closed the connection")
+    status = int(line.split()[1])
+    length = 0
+    close = False
+    while True:
+        h = await reader.readline()
+        if h in (b"\r\n", b"\n", b""):
+            break
+        k, _, v = h.decode("latin-1").partition(":")
+        k = k.strip().lower()
+        if k == "content-length":
+            length = int(v)
+        elif k == "connection" and v.strip().lower() == "close":
+            close = True
+    await reader.readexactly(length)
+    return status, close
+
+
+async def run_load(host, port, request: bytes, count: int, concurrency: int,
+                   time_limit: float) -> dict:
+    """``count`` requests (at most ``time_limit`` seconds) over ``concurrency`` kept-alive
+    connections. Returns throughput, latency percentiles (ms) and status counts."""
+    latencies, statuses = [], {}
+    issued = 0
+    start = time.perf_counter()
+    stop_at = start + time_limit
+
+    async def stream():
+        nonlocal issued
+        reader, writer = await asyncio.open_connection(host, port)
+        try:
+            while issued < count and time.perf_counter() < stop_at:
+                issued += 1
+                t = time.perf_counter()
+                try:
+                    status, close = await _exchange(reader, writer, request)
+                except (ConnectionError, asyncio.IncompleteReadError):
+                    status, close = 0, True
+                latencies.append(time.perf_counter() - t)
+                statuses[status] = statuses.get(status, 0) + 1
+                if close:
+                    writer.close()
+                    reader, writer = await asyncio.open_connection(host, port)
+        finally:
+            writer.close()
+
+    await asyncio.gather(*(stream() for _ in range(concurrency)))
+    wall = time.perf_counter() - start
+    lat = np.array(latencies) * 1e3
+    return {"requests": len(latencies), "concurrency": concurrency, "seconds": wall,
+            "throughput": len(latencies) / wall if wall else 0.0,
+            "p50_ms": float(np.percentile(lat, 50)) if lat.size else None,
+            "p99_ms": float(np.percentile(lat, 99)) if lat.size else None,
+            "statuses": {str(k): v for k, v in sorted(statuses.items())}}
+
+
+def http_request(host, port, path, body, content_type, accept, token=None) -> bytes:
+    head = [f"POST {path} HTTP/1.1", f"Host: {host}:{port}", f"Content-Type: {content_type}",
+            f"Accept: {accept}", f"Content-Length: {len(body)}"]
+    if token:
+        head.append(f"Authorization: Bearer {token}")
+    return ("\r\n".join(head) + "\r\n\r\n").encode() + body
+
+
+# -- in-process baselines -------------------------------------------------------------------
+
+def in_process_times(backend, name: str, count: int, with_stats: bool, time_limit: float) -> list:
+    """Seconds per call of :func:`glraster.rasterize` (+ the service's statistics) for
+    scene ``name``, warm, in this process."""
+    import glraster as gr
+    from glraster.service.protocol import raster_stats
+
+    ctx = gr.Context(backend=backend)
+    pos, tri, res = make_scene(name)
+    try:
+        for _ in range(3):
+            gr.rasterize(pos, tri, res, ctx=ctx)
+        times = []
+        end = time.perf_counter() + time_limit
+        for _ in range(count):
+            t = time.perf_counter()
+            r = gr.rasterize(pos, tri, res, ctx=ctx)
+            if with_stats:
+                raster_stats(r)
+            times.append(time.perf_counter() - t)
+            if time.perf_counter() > end:
+                break
+        return times
+    finally:
+        ctx.release()
+
+
+def _loop_process(backend, name, count, time_limit, ready, go, out):
+    import glraster as gr
+
+    ctx = gr.Context(backend=backend)
+    pos, tri, res = make_scene(name)
+    for _ in range(3):
+        gr.rasterize(pos, tri, res, ctx=ctx)
+    ready.put(os.getpid())
+    go.wait(120)
+    t = time.perf_counter()
+    n = 0
+    end = t + time_limit
+    while n < count and time.perf_counter() < end:
+        gr.rasterize(pos, tri, res, ctx=ctx)
+        n += 1
+    out.put((n, time.perf_counter() - t))
+    ctx.release()
+
+
+def two_loops(backend, name, count, time_limit) -> dict:
+    """Throughput of two in-process loops in two processes started together (each warm)."""
+    mp = multiprocessing.get_context("spawn")
+    ready, go, out = mp.Queue(), mp.Event(), mp.Queue()
+    procs = [mp.Process(target=_loop_process,
+                        args=(backend, name, count, time_limit, ready, go, out))
+             for _ in range(2)]
+    for p in procs:
+        p.start()
+    try:
+        for _ in procs:
+            ready.get(timeout=120)
+        go.set()
+        results = [out.get(timeout=time_limit + 120) for _ in procs]
+    finally:
+        for p in procs:
+            p.join(30)
+            if p.is_alive():
+                p.kill()
+    calls = sum(n for n, _ in results)
+    wall = max(s for _, s in results)
+    return {"calls": calls, "seconds": wall, "throughput": calls / wall}
+
+
+# -- the server -----------------------------------------------------------------------------
+
+class StartedServer:
+    """``glraster serve`` in a subprocess on 127.0.0.1, any free port."""
+
+    def __init__(self, backend, workers, extra=()):
+        cmd = [sys.executable, "-m", "glraster.cli", "serve", "--host", "127.0.0.1",
+               "--port", "0", "--workers", str(workers), "--queue", "64", *extra]
+        if backend:
+            cmd += ["--backend", backend]
+        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                                     text=True)
+        line = self.proc.stdout.readline()
+        m = re.search(r"http://([\d.]+):(\d+)", line)
+        if not m:
+            self.proc.kill()
+            raise RuntimeError(f"glraster serve did not start: {line!r}")
+        self.host, self.port = m.group(1), int(m.group(2))
+        self.url = f"http://{self.host}:{self.port}"
+
+    def stop(self):
+        self.proc.terminate()
+        try:
+            self.proc.wait(60)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+
+
+def memory(client) -> dict:
+    """Resident MiB of the server and each worker, from /metrics."""
+    text = client.metrics()
+    out = {}
+    for line in text.splitlines():
+        if line.startswith("process_resident_memory_bytes "):
+            out["server"] = float(line.split()[1]) / 2**20
+        elif line.startswith("glraster_worker_resident_bytes"):
+            w = re.search(r'worker="(\d+)"', line).group(1)
+            out[f"worker{w}"] = float(line.split()[-1]) / 2**20
+    return out
+
+
+def main(args) -> int:
+    from glraster.client import Client
+    from glraster.service.config import is_loopback
+
+    quick = args.quick
+    token = None
+    if args.token_file:
+        from glraster.service.config import read_token_file
+
+        token = read_token_file(args.token_file)[0]
+    server = None
+    if args.url:
+        parts = urllib.parse.urlsplit(args.url)
+        if not parts.hostname or not is_loopback(parts.hostname):
+            print(f"glraster serve-bench: --url must be a loopback address (127.0.0.1, ::1, "
+                  f"localhost), got {args.url!r}", file=sys.stderr)
+            return 2
+        host, port = parts.hostname, parts.port or 80
+        url = args.url
+    else:
+        extra = ("--token-file", args.token_file) if args.token_file else ()
+        server = StartedServer(args.backend, args.workers, extra)
+        host, port, url = server.host, server.port, server.url
+    client = Client(url, token)
+    figures = {"quick": quick, "workers": args.workers, "scenes": {}, "machine": {
+        "cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()}}
+    try:
+        client.wait_ready(120)
+        figures["renderer"] = client.info()["driver"].get("renderer")
+        limit = 15.0 if quick else 60.0
+        # 1. throughput and latency by concurrency, .npz results
+        for name in ("256", "1024"):
+            pos, tri, res = make_scene(name)
+            body = npz_body(pos, tri, res)
+            req = http_request(host, port, "/v1/rasterize", body, "application/x-npz",
+                               "application/x-npz", token)
+            count = {"256": 12 if quick else 600, "1024": 4 if quick else 80}[name]
+            asyncio.run(run_load(host, port, req, min(count, 20), 2, limit))   # warm-up
+            rows = []
+            for c in (1, 4, 16):
+                rows.append(asyncio.run(run_load(host, port, req, count, c, limit)))
+                r = rows[-1]
+                print(f"{name}^2 npz  concurrency {c:>2}: {r['throughput']:8.1f} req/s  "
+                      f"p50 {r['p50_ms']:8.2f} ms  p99 {r['p99_ms']:8.2f} ms  {r['statuses']}",
+                      flush=True)
+            figures["scenes"][name] = {"resolution": list(res), "triangles": int(len(tri)),
+                                       "npz_bytes_request": len(body), "load": rows}
+        # 2. overhead per request over an in-process call, 256^2, no result transfer
+        n = 30 if quick else 1000
+        pos, tri, res = make_scene("256")
+        body = npz_body(pos, tri, res)
+        req = http_request(host, port, "/v1/rasterize", body, "application/x-npz",
+                           "application/json", token)
+        asyncio.run(run_load(host, port, req, 10 if quick else 50, 1, limit))
+        service = asyncio.run(run_load(host, port, req, n, 1, limit))
+        inproc = in_process_times(args.backend, "256", n, True, limit)
+        bare = in_process_times(args.backend, "256", n, False, limit)
+        over = {"service_p50_ms": service["p50_ms"],
+                "in_process_p50_ms": statistics.median(inproc) * 1e3,
+                "in_process_bare_p50_ms": statistics.median(bare) * 1e3}
+        over["overhead_ms"] = over["service_p50_ms"] - over["in_process_p50_ms"]
+        over["overhead_vs_bare_ms"] = over["service_p50_ms"] - over["in_process_bare_p50_ms"]
+        figures["overhead_256"] = over
+        print(f"overhead at 256^2 (JSON result): service p50 {over['service_p50_ms']:.3f} ms, "
+              f"in-process {over['in_process_p50_ms']:.3f} ms (bare rasterize "
+              f"{over['in_process_bare_p50_ms']:.3f} ms): +{over['overhead_ms']:.3f} ms",
+              flush=True)
+        # 3. sustained throughput: 2 workers against two in-process loops
+        if args.workers == 2 and server is not None:
+            figures["sustained"] = {}
+            for name, count in (("256", 40 if quick else 3000), ("1024", 6 if quick else 200)):
+                pos, tri, res = make_scene(name)
+                body = npz_body(pos, tri, res)
+                loops = two_loops(args.backend, name, count // 2, limit)
+                row = {"in_process_two_loops": loops["throughput"]}
+                for accept, label in (("application/json", "json"), ("application/x-npz", "npz")):
+                    req = http_request(host, port, "/v1/rasterize", body, "application/x-npz",
+                                       accept, token)
+                    r = asyncio.run(run_load(host, port, req, count, 8, limit))
+                    row[f"service_{label}"] = r["throughput"]
+                    row[f"ratio_{label}"] = r["throughput"] / loops["throughput"]
+                figures["sustained"][name] = row
+                print(f"sustained {name}^2: two in-process loops {row['in_process_two_loops']:.1f}"
+                      f"/s; service (2 workers, concurrency 8) JSON {row['service_json']:.1f}/s "
+                      f"({row['ratio_json']:.0%}), npz {row['service_npz']:.1f}/s "
+                      f"({row['ratio_npz']:.0%})", flush=True)
+        # 4. memory over many requests
+        total = args.memory_requests if not quick else min(args.memory_requests, 1000)
+        if total:
+            req = http_request(host, port, "/v1/rasterize", body_256 := npz_body(*make_scene("256")),
+                               "application/x-npz", "application/json", token)
+            del body_256
+            samples = []
+            done = 0
+            marks = sorted({min(total, m) for m in (total // 20, total // 4, total // 2,
+                                                    3 * total // 4, total)} - {0})
+            for mark in marks:
+                r = asyncio.run(run_load(host, port, req, mark - done, 4, 600.0))
+                done += r["requests"]
+                samples.append({"requests": done, **memory(client)})
+            first, last = samples[0], samples[-1]
+            growth = {k: last[k] - first[k] for k in first if k != "requests" and k in last}
+            figures["memory"] = {"samples": samples, "growth_mib_after_warmup": growth}
+            print(f"memory over {done} requests (MiB, after {first['requests']}): "
+                  + ", ".join(f"{k} {first[k]:.1f} -> {last[k]:.1f}" for k in growth), flush=True)
+    finally:
+        client.close()
+        if server is not None:
+            server.stop()
+    if args.json:
+        from pathlib import Path
+
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(figures, indent=2))
+        print(f"figures: {args.json}")
+    return 0

@@ -1,0 +1,493 @@
+"""The service's wire formats: parsing requests and encoding results (runs in a worker).
+
+Everything here works on bytes and plain values, never on paths taken from a request:
+a request cannot name a file to read or write. Every problem with a request is a
+:class:`RequestError` carrying the HTTP status and the name of the field at fault, which the
+app turns into ``{"error": message, "field": name, "status": code}``.
+
+Request bodies of ``POST /v1/rasterize`` (docs/service.md, docs/openapi.json):
+
+- ``application/json``: ``{"pos": [[x, y, z, w], ...], "tri": [[i, j, k], ...],
+  "resolution": [H, W]}`` plus the options below;
+- ``application/x-npz``: arrays ``pos`` (V, 4), ``tri`` (T, 3), ``resolution`` (2,); the
+  options come as query parameters (``?outputs=persp,depth&compare=true``).
+
+Options: ``outputs`` (subset of persp, screen, depth, tri_id; default all), ``method``
+(hw, divw, homogeneous, homogeneous64, solve4), ``reference`` (return the float64
+reference instead of the GPU raster), ``compare`` (compare the GPU raster with the reference
+under the method's error model), ``cull_backfaces``, ``crop`` (EXR: store only the covered
+pixels' bounding box).
+
+Results by ``Accept``: ``application/json`` (statistics, the comparison), ``application/x-npz``
+(the arrays, bit for bit as :func:`glraster.rasterize` returns them, plus ``mask``),
+``image/x-exr`` (the multi-channel EXR of :mod:`glraster.io.exr`).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+import tempfile
+import time
+import zipfile
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+OUTPUT_NAMES = ("persp", "screen", "depth", "tri_id")
+METHOD_NAMES = ("hw", "divw", "homogeneous", "homogeneous64", "solve4")
+ARRAY_FIELDS = ("pos", "tri", "resolution")
+OPTION_FIELDS = ("outputs", "method", "reference", "compare", "cull_backfaces", "crop")
+CHECK_FIELDS = ("scenes", "method", "golden", "mutants", "shard")
+
+JSON = "application/json"
+NPZ = "application/x-npz"
+EXR = "image/x-exr"
+JUNIT = "application/xml"
+RESULT_TYPES = {"json": JSON, "npz": NPZ, "exr": EXR}
+
+# Rows of the arrays a request may hold, and their columns (for .npz member sizes).
+_COLUMNS = {"pos": 4, "tri": 3}
+_MAX_NPZ_MEMBERS = 8
+
+
+class RequestError(Exception):
+    """A request the service refuses: HTTP ``status`` (4xx), the ``field`` at fault, a
+    message for people."""
+
+    def __init__(self, status: int, field: str, message: str, headers: dict | None = None):
+        super().__init__(message)
+        self.status = int(status)
+        self.field = field
+        self.message = message
+        self.headers = headers or {}
+
+    def body(self) -> dict:
+        return {"error": self.message, "field": self.field, "status": self.status}
+
+
+def error_json(status: int, field: str, message: str) -> bytes:
+    return json.dumps({"error": message, "field": field, "status": status}).encode()
+
+
+def field_of(message: str, default: str = "body") -> str:
+    """The argument a glraster ValueError names (its messages start with the argument:
+    ``"pos must have shape (V, 4), got (5, 3)"``, ``"tri index 7 is out of range ..."``)."""
+    head = message.split(" ", 1)[0].split(".", 1)[0].strip("'\":,")
+    known = ARRAY_FIELDS + OPTION_FIELDS + CHECK_FIELDS
+    return head if head in known else default
+
+
+# -- options --------------------------------------------------------------------------------
+
+def _bool(name, value):
+    if isinstance(value, bool):
+        return value
+    if isinstance(value, str) and value.lower() in ("true", "1", "yes"):
+        return True
+    if isinstance(value, str) and value.lower() in ("false", "0", "no"):
+        return False
+    raise RequestError(422, name, f"{name} must be a boolean (true or false), got {value!r}")
+
+
+def _outputs(value):
+    if isinstance(value, str):
+        value = [v.strip() for v in value.split(",") if v.strip()]
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        raise RequestError(422, "outputs", f"outputs must be a list of names from "
+                                           f"{list(OUTPUT_NAMES)}, got {value!r}"[:300])
+    unknown = [v for v in value if v not in OUTPUT_NAMES]
+    if unknown:
+        raise RequestError(422, "outputs", f"outputs has unknown names {unknown[:8]}; "
+                                           f"choose from {list(OUTPUT_NAMES)}"[:300])
+    if not value:
+        raise RequestError(422, "outputs", f"outputs must name at least one of {list(OUTPUT_NAMES)}")
+    return tuple(n for n in OUTPUT_NAMES if n in value)
+
+
+def _method(value):
+    if not isinstance(value, str) or value not in METHOD_NAMES:
+        raise RequestError(422, "method", f"method must be one of {list(METHOD_NAMES)}, "
+                                          f"got {value!r}"[:300])
+    return value
+
+
+@dataclass
+class RasterizeRequest:
+    """A parsed, limit-checked ``POST /v1/rasterize``: arrays as given (validated in full
+    by :func:`glraster.rasterize`), options checked."""
+
+    pos: np.ndarray
+    tri: np.ndarray
+    resolution: tuple
+    outputs: tuple = OUTPUT_NAMES
+    method: str = "hw"
+    reference: bool = False
+    compare: bool = False
+    cull_backfaces: bool = False
+    crop: bool = False
+
+
+def _options(given: dict) -> dict:
+    out = {}
+    for key, value in given.items():
+        if key == "outputs":
+            out[key] = _outputs(value)
+        elif key == "method":
+            out[key] = _method(value)
+        else:
+            out[key] = _bool(key, value)
+    return out
+
+
+def _merge(body: dict, query: dict) -> dict:
+    for key in query:
+        if key not in OPTION_FIELDS:
+            raise RequestError(422, key, f"unknown query parameter {key!r}; the options are "
+                                         f"{', '.join(OPTION_FIELDS)}"[:300])
+        if key in body:
+            raise RequestError(422, key, f"{key} is given both in the body and as a query "
+                                         "parameter")
+    return {**body, **query}
+
+
+# -- the body -------------------------------------------------------------------------------
+
+def _reject_constant(name):
+    raise ValueError(f"{name} is not valid JSON")
+
+
+def parse_json(body: bytes, what: str = "body") -> object:
+    """JSON strictly (no NaN / Infinity literals); a RequestError 400 naming ``body``."""
+    try:
+        return json.loads(body, parse_constant=_reject_constant)
+    except RecursionError:
+        raise RequestError(400, "body", f"{what} is nested too deeply") from None
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise RequestError(400, "body", f"{what} is not valid JSON: {exc}"[:300]) from None
+
+
+def _rows_limit(name: str, rows: int, limits) -> None:
+    limit = {"pos": limits.max_vertices, "tri": limits.max_triangles}.get(name)
+    if limit is not None and rows > limit:
+        what = "vertices" if name == "pos" else "triangles"
+        raise RequestError(413, name, f"{name} has {rows} rows, above this server's limit of "
+                                      f"{limit} {what}")
+
+
+def _json_array(name: str, value, limits) -> np.ndarray:
+    if not isinstance(value, list):
+        raise RequestError(422, name, f"{name} must be a JSON array, got {type(value).__name__}")
+    _rows_limit(name, len(value), limits)
+    try:
+        arr = np.array(value)
+    except (ValueError, TypeError, OverflowError, RecursionError) as exc:
+        raise RequestError(422, name, f"{name} must be a rectangular array of numbers "
+                                      f"({exc})"[:300]) from None
+    if arr.dtype.kind not in "fiub" and arr.size:
+        raise RequestError(422, name, f"{name} must hold numbers, got "
+                                      f"{'a mix of types' if arr.dtype == object else arr.dtype}")
+    return arr
+
+
+def _npz_arrays(body: bytes, limits) -> dict:
+    """The arrays of an .npz body, read member by member after checking each header
+    (dtype, shape and declared size) against the limits: nothing is decompressed beyond
+    what the limits allow, and nothing is unpickled."""
+    try:
+        archive = zipfile.ZipFile(io.BytesIO(body))
+        infos = archive.infolist()
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, ValueError, OSError, EOFError) as exc:
+        raise RequestError(400, "body", f"body is not an .npz (zip) archive: {exc}"[:300]) from None
+    if len(infos) > _MAX_NPZ_MEMBERS:
+        raise RequestError(422, "body", f"the .npz holds {len(infos)} members; expected pos, "
+                                        "tri and resolution")
+    arrays = {}
+    for info in infos:
+        name = info.filename[:-4] if info.filename.endswith(".npy") else info.filename
+        if name not in ARRAY_FIELDS:
+            raise RequestError(422, name[:40] or "body",
+                               f"unexpected array {name[:40]!r} in the .npz; expected "
+                               "pos, tri and resolution")
+        if name in arrays:
+            raise RequestError(422, name, f"array {name!r} appears twice in the .npz")
+        cap = limits.max_body_bytes if name != "resolution" else 4096
+        if info.file_size > cap:
+            raise RequestError(413, name, f"{name} holds {info.file_size} bytes uncompressed, "
+                                          f"above this server's limit of {cap}")
+        try:
+            with archive.open(info) as fh:
+                version = np.lib.format.read_magic(fh)
+                if version == (1, 0):
+                    shape, fortran, dtype = np.lib.format.read_array_header_1_0(fh)
+                elif version in ((2, 0), (3, 0)):
+                    shape, fortran, dtype = np.lib.format.read_array_header_2_0(fh)
+                else:
+                    raise ValueError(f"unsupported .npy version {version}")
+                if dtype.hasobject or dtype.kind not in "biuf" or dtype.fields is not None \
+                        or dtype.subdtype is not None:
+                    raise RequestError(422, name, f"{name} must hold numbers, got dtype {dtype}")
+                if shape:
+                    _rows_limit(name, int(shape[0]), limits)
+                count = math.prod(shape)
+                nbytes = count * dtype.itemsize
+                if nbytes > cap:
+                    raise RequestError(413, name, f"{name} takes {nbytes} bytes, above this "
+                                                  f"server's limit of {cap}")
+                data = fh.read(nbytes)
+                if len(data) != nbytes:
+                    raise ValueError(f"{name} holds {len(data)} of its {nbytes} bytes")
+        except RequestError:
+            raise
+        except (ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error,
+                NotImplementedError, RuntimeError, SyntaxError, TypeError, OverflowError) as exc:
+            raise RequestError(400, name, f"{name}: not a readable .npy member ({exc})"[:300]) from None
+        arrays[name] = np.frombuffer(data, dtype=dtype).reshape(shape, order="F" if fortran else "C")
+    return arrays
+
+
+def _resolution(value, limits, driver_max: int | None) -> tuple:
+    if isinstance(value, np.ndarray):
+        if value.dtype.kind not in "iu" or value.shape != (2,):
+            raise RequestError(422, "resolution", f"resolution must be 2 integers (H, W), got "
+                                                  f"{value.dtype} {value.shape}")
+        value = value.tolist()
+    if not isinstance(value, (list, tuple)) or len(value) != 2 \
+            or not all(isinstance(v, int) and not isinstance(v, bool) for v in value):
+        raise RequestError(422, "resolution", f"resolution must be [height, width] integers, "
+                                              f"got {value!r}"[:300])
+    limit = limits.max_resolution if driver_max is None else min(limits.max_resolution, driver_max)
+    for axis, v in zip(("height", "width"), value):
+        if v <= 0:
+            raise RequestError(422, "resolution", f"resolution {axis} must be > 0, got {v}")
+        if v > limit:
+            raise RequestError(422, "resolution",
+                               f"resolution {axis} {v} exceeds this server's maximum of {limit} "
+                               f"(configured {limits.max_resolution}, driver "
+                               f"{driver_max if driver_max is not None else 'unknown'})")
+    return (int(value[0]), int(value[1]))
+
+
+def parse_rasterize(content_type: str, body: bytes, query: dict, limits,
+                    driver_max: int | None = None) -> RasterizeRequest:
+    """A :class:`RasterizeRequest` from a body (``application/json`` or
+    ``application/x-npz``) and its query options; RequestError naming the field."""
+    if content_type == JSON:
+        data = parse_json(body)
+        if not isinstance(data, dict):
+            raise RequestError(400, "body", "body must be a JSON object with pos, tri and "
+                                            f"resolution, got {type(data).__name__}")
+        unknown = [k for k in data if k not in ARRAY_FIELDS + OPTION_FIELDS]
+        if unknown:
+            raise RequestError(422, str(unknown[0])[:40],
+                               f"unknown field {str(unknown[0])[:40]!r}; the fields are "
+                               f"{', '.join(ARRAY_FIELDS + OPTION_FIELDS)}")
+        data = _merge(data, query)
+        for key in ARRAY_FIELDS:
+            if key not in data:
+                raise RequestError(422, key, f"missing field {key!r}")
+        arrays = {k: _json_array(k, data[k], limits) for k in ("pos", "tri")}
+        arrays["resolution"] = data["resolution"]
+        options = {k: v for k, v in data.items() if k in OPTION_FIELDS}
+    elif content_type == NPZ:
+        arrays = _npz_arrays(body, limits)
+        for key in ARRAY_FIELDS:
+            if key not in arrays:
+                raise RequestError(422, key, f"missing array {key!r} in the .npz")
+        options = _merge({}, query)
+    else:  # the app negotiates the content type first
+        raise RequestError(415, "content-type", f"unsupported content type {content_type!r}")
+    resolution = _resolution(arrays["resolution"], limits, driver_max)
+    req = RasterizeRequest(arrays["pos"], arrays["tri"], resolution, **_options(options))
+    if req.reference and req.cull_backfaces:
+        raise RequestError(422, "cull_backfaces", "cull_backfaces applies to the GPU raster; "
+                                                  "the reference draws every triangle")
+    if req.reference and req.method != "hw":
+        raise RequestError(422, "method", "method chooses how the GPU computes barycentrics; "
+                                          "it cannot be combined with reference")
+    return req
+
+
+@dataclass
+class CheckRequest:
+    """A parsed ``POST /v1/check``."""
+
+    scenes: list
+    method: str = "hw"
+    golden: bool = True
+    mutants: str | None = None
+    shard: tuple | None = None
+
+
+def parse_shard(value) -> tuple[int, int]:
+    """``"I/N"`` as (I, N) with 1 <= I <= N; RequestError naming ``shard``."""
+    try:
+        i, n = (int(v) for v in str(value).split("/"))
+    except ValueError:
+        raise RequestError(422, "shard", f"shard must be I/N (e.g. 2/4), got {value!r}"[:200]) from None
+    if not (1 <= i <= n <= 10_000):
+        raise RequestError(422, "shard", f"shard I/N needs 1 <= I <= N, got {value!r}")
+    return i, n
+
+
+def parse_check(body: bytes, catalog: list) -> CheckRequest:
+    """A :class:`CheckRequest` from a JSON body (empty: the whole catalog)."""
+    data = parse_json(body) if body.strip() else {}
+    if not isinstance(data, dict):
+        raise RequestError(400, "body", f"body must be a JSON object, got {type(data).__name__}")
+    unknown = [k for k in data if k not in CHECK_FIELDS]
+    if unknown:
+        raise RequestError(422, str(unknown[0])[:40], f"unknown field {str(unknown[0])[:40]!r}; "
+                                                      f"the fields are {', '.join(CHECK_FIELDS)}")
+    import fnmatch
+
+    scenes = data.get("scenes")
+    if scenes is None:
+        names = list(catalog)
+    else:
+        if isinstance(scenes, str):
+            scenes = [s.strip() for s in scenes.split(",") if s.strip()]
+        if not isinstance(scenes, list) or not all(isinstance(s, str) for s in scenes) \
+                or not scenes:
+            raise RequestError(422, "scenes", "scenes must be a non-empty list of scene names "
+                                              "or fnmatch patterns")
+        names = [n for n in catalog if any(fnmatch.fnmatchcase(n, p) for p in scenes)]
+        if not names:
+            raise RequestError(422, "scenes", f"no catalog scene matches {scenes[:8]}"[:300])
+    method = _method(data.get("method", "hw"))
+    golden = _bool("golden", data.get("golden", True))
+    mutants = data.get("mutants", False)
+    if mutants is True:
+        mutants = "all"
+    elif mutants is False or mutants is None:
+        mutants = None
+    elif not isinstance(mutants, str) or not mutants:
+        raise RequestError(422, "mutants", "mutants must be a boolean or a pattern of mutant names")
+    if mutants and method != "hw":
+        raise RequestError(422, "mutants", "mutants are faults in the hw shaders: use method hw")
+    shard = parse_shard(data["shard"]) if data.get("shard") is not None else None
+    return CheckRequest(names, method, golden, mutants, shard)
+
+
+# -- results --------------------------------------------------------------------------------
+
+def _finite_list(values) -> list:
+    return [float(v) if math.isfinite(v) else None for v in np.atleast_1d(values).tolist()]
+
+
+def raster_stats(raster) -> dict:
+    """Cheap statistics of a raster for the JSON result: covered pixels and, per output, the
+    smallest and largest value over the whole frame and all channels (empty pixels hold
+    barycentrics 0, depth 1, id -1); ``finite`` is false when some value is NaN or Inf
+    (min / max are then null). Flat reductions only: well under a millisecond per MiB."""
+    covered = int(np.count_nonzero(raster.mask))
+    values = {}
+    for name in OUTPUT_NAMES:
+        a = getattr(raster, name)
+        if a is None:
+            continue
+        lo, hi = a.min(), a.max()
+        if name == "tri_id":
+            values[name] = {"min": int(lo), "max": int(hi), "dtype": str(a.dtype)}
+            continue
+        finite = bool(np.isfinite(lo) and np.isfinite(hi))
+        values[name] = {"min": float(lo) if finite else None,
+                        "max": float(hi) if finite else None, "finite": finite,
+                        "dtype": str(a.dtype)}
+    return {"covered": covered, "values": values}
+
+
+def _jsonable(value):
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, (np.integer,)):
+        return int(value)
+    if isinstance(value, (np.floating, float)):
+        v = float(value)
+        return v if math.isfinite(v) else None
+    if isinstance(value, (np.bool_,)):
+        return bool(value)
+    if isinstance(value, (str, int, bool)) or value is None:
+        return value
+    return str(value)
+
+
+def comparison_dict(evaluation) -> dict:
+    """A :class:`glraster.conformance.check.Evaluation` as JSON-able data."""
+    rep = evaluation.report
+    return {
+        "ok": bool(evaluation.ok),
+        "failures": list(evaluation.failures),
+        "covered_gpu": int(rep.covered_gpu), "covered_reference": int(rep.covered_ref),
+        "coverage_mismatch": int(rep.coverage_mismatch),
+        "coverage_mismatch_in_band": int(rep.coverage_mismatch_in_band),
+        "tri_id_mismatch": int(rep.tri_id_mismatch),
+        "nonfinite": int(evaluation.nonfinite),
+        "values": {n: _jsonable(vars(v)) for n, v in rep.values.items()},
+        "summary": rep.summary(),
+    }
+
+
+def encode_npz(raster, outputs, extra: dict | None = None) -> bytes:
+    """The requested outputs of ``raster`` and its mask as an uncompressed .npz (arrays
+    unchanged: bit for bit what the rasterizer returned); ``extra`` entries are stored as
+    0-d JSON strings (e.g. ``comparison``)."""
+    arrays = {n: getattr(raster, n) for n in outputs if getattr(raster, n) is not None}
+    arrays["mask"] = raster.mask
+    for key, value in (extra or {}).items():
+        arrays[key] = np.array(json.dumps(_jsonable(value)))
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    return buf.getvalue()
+
+
+_TMP = None
+
+
+def _private_tmp() -> Path:
+    """A folder only this worker writes to (EXR encoding goes through a file; its name
+    never comes from the request)."""
+    global _TMP
+    if _TMP is None:
+        base = "/dev/shm" if os.path.isdir("/dev/shm") and os.access("/dev/shm", os.W_OK) else None
+        _TMP = Path(tempfile.mkdtemp(prefix="glraster-service-", dir=base))
+    return _TMP
+
+
+def encode_exr(raster, outputs, crop: bool, metadata: dict) -> bytes:
+    """The requested outputs as a glraster EXR (:func:`glraster.io.exr.write_raster`)."""
+    from glraster.io import exr
+
+    kept = {n: getattr(raster, n) for n in outputs if getattr(raster, n) is not None}
+    path = _private_tmp() / f"result-{os.getpid()}-{time.monotonic_ns()}.exr"
+    try:
+        exr.write_raster(path, **kept, window="covered" if crop else "full", metadata=metadata)
+        return path.read_bytes()
+    finally:
+        path.unlink(missing_ok=True)
+
+
+def decode_npz_result(data: bytes) -> dict:
+    """The arrays of an .npz result (for clients and tests): name -> array; ``comparison``
+    decoded from JSON."""
+    with np.load(io.BytesIO(data), allow_pickle=False) as z:
+        out = {k: z[k] for k in z.files}
+    if "comparison" in out:
+        out["comparison"] = json.loads(str(out["comparison"]))
+    return out
+
+
+@dataclass
+class Result:
+    """What a worker answers: status, content type, extra headers, body bytes."""
+
+    status: int
+    content_type: str
+    body: bytes
+    headers: dict = field(default_factory=dict)
