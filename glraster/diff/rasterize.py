@@ -104,6 +104,7 @@ class _Forward:
 
     def __init__(self, pos, tri, resolution, ctx, ranges, grad_db, space):
         self.ctx = ctx if ctx is not None else default_context()
+        self.ctx.require_gl(45, "glraster.diff.rasterize", "shader storage buffers, GLSL 4.50")
         self.pos = layout.positions(pos, np.float32)
         self.tri = layout.triangles(tri, self.pos.shape[-2])
         self.height, self.width = validate.resolution(resolution, self.ctx.max_texture_size)

@@ -20,6 +20,7 @@ from glraster.diff import rasterize as dr
 from glraster.diff import reference as diff_reference
 from glraster.geometry import synthetic
 from glraster.gpu import pipeline
+from glraster.gpu.context import Context
 from glraster.gpu.methods import error_model
 from glraster.verify.tolerance import EPS32, value_tolerance
 
@@ -372,3 +373,15 @@ def test_depth_peel_needs_a_positive_layer_count(ctx):
     pos, tri = synthetic.random_soup(2, seed=1)
     with pytest.raises(ValueError, match="layers"):
         dr.depth_peel(pos, tri, (8, 8), ctx=ctx, layers=0)
+
+
+def test_needs_gl45_and_says_so_on_a_gl33_context(gl_backend):
+    """On a 3.3 context the differentiable rasterize names the version it needs instead of
+    failing in the shader compiler."""
+    ctx = Context(backend=gl_backend, max_gl=33)
+    try:
+        pos = np.array([[-0.5, -0.5, 0, 1], [0.5, -0.5, 0, 1], [0, 0.5, 0, 1]], np.float32)
+        with pytest.raises(ValueError, match=r"glraster.diff.rasterize needs OpenGL 4.5"):
+            dr.forward(pos, [[0, 1, 2]], (8, 8), ctx=ctx)
+    finally:
+        ctx.release()
