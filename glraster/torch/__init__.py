@@ -14,9 +14,10 @@ float64 reference, so ``torch.autograd.gradcheck`` checks the closed-form gradie
 Layouts and gradients: :mod:`glraster.torch.ops`; docs/differentiable.md, "PyTorch".
 """
 
+from glraster.torch.antialias import antialias, antialias_construct_topology_hash
 from glraster.torch.context import RasterizeCudaContext, RasterizeGLContext
 from glraster.torch.ops import DepthPeeler, interpolate, rasterize
 from glraster.torch.texture import texture
 
-__all__ = ["DepthPeeler", "RasterizeCudaContext", "RasterizeGLContext", "interpolate",
-           "rasterize", "texture"]
+__all__ = ["DepthPeeler", "RasterizeCudaContext", "RasterizeGLContext", "antialias",
+           "antialias_construct_topology_hash", "interpolate", "rasterize", "texture"]

@@ -1,0 +1,299 @@
+"""Antialiasing with visibility gradients on the GPU (NumPy API; seed 003, "Antialias").
+
+:func:`antialias` blends the colours of neighbouring pixels across the silhouette edges of
+the rendered mesh, so that the image depends continuously on the vertex positions there;
+:func:`backward` returns the gradients of the colour and of the clip-space positions (the
+two vertices of each crossing edge). The model, its derivation and its float64 twin are in
+:mod:`glraster.diff.antialias_reference` and docs/differentiable.md, "Antialias":
+
+- pairs of horizontally or vertically adjacent pixels whose triangle ids differ; from the
+  nearer pixel's triangle (by ``rast``'s z/w) a walk along the segment between their
+  centres crosses triangle edges, continuing into the mesh's neighbour beyond each (the
+  topology hash), until an edge with no neighbour beyond it: the silhouette, handled by
+  the pair whose axis is most across it;
+- where it crosses the segment between the centres (tau in (0, 1) from the first pixel A),
+  the pixel whose box holds the crossing takes alpha = |1/2 - tau| of the other's colour.
+
+Three compute passes (shaders/diff/antialias_pairs.comp, antialias_blend.comp,
+antialias_backward.comp) over lists the host makes (the candidate pairs, their pixels):
+the pair records (one invocation per candidate pair), the blend (one per listed pixel, a
+gather over its four incident pairs: deterministic), and the
+backward (colour gradients by gather, position gradients summed per vertex by float
+atomics, a compare-and-swap loop, or with ``deterministic=True`` per pair in float64 on the
+host, as :mod:`glraster.diff.backward_gpu`).
+
+Layouts (rows [y, x] with row 0 at the bottom): color (B, H, W, C); rast (B, H, W, 4) from
+the rasterizer (u, v, z/w, id); pos (V, 4) shared by the B images or (B, V, 4) one per
+image; tri (T, 3).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from glraster.diff import antialias_reference as _ref
+from glraster.diff import backward_gpu as _gpu
+from glraster.gpu.context import Context, default_context
+from glraster.gpu.shaders import shader_path
+
+__all__ = ["AntialiasSaved", "TopologyHash", "antialias", "antialias_construct_topology_hash",
+           "backward", "pair_records"]
+
+TopologyHash = _ref.TopologyHash
+antialias_construct_topology_hash = _ref.antialias_construct_topology_hash
+
+PAIRS = "diff/antialias_pairs.comp"
+BLEND = "diff/antialias_blend.comp"
+BACKWARD = "diff/antialias_backward.comp"
+
+
+@dataclass(frozen=True, eq=False)
+class AntialiasSaved:
+    """What :func:`backward` needs (checked float32 arrays; ``pos`` as given)."""
+
+    color: np.ndarray
+    rast: np.ndarray
+    pos: np.ndarray
+    tri: np.ndarray
+    topology_hash: TopologyHash
+    pos_gradient_boost: float
+    convex: bool
+    ctx: Context
+    ids: np.ndarray
+
+
+def _images_per_chunk(batch: int, pixels_per_image: int, bytes_per_pixel: int) -> int:
+    per_image = max(1, pixels_per_image * bytes_per_pixel)
+    return max(1, min(batch, _gpu.MAX_CHUNK_BYTES // per_image))
+
+
+class _Passes:
+    """The compute passes over one set of inputs, image chunk by image chunk. The host lists
+    each chunk's candidate pairs (neighbours whose triangle ids differ) and their pixels;
+    the passes run over those lists only (every other pixel keeps its colour, and its
+    colour gradient is g)."""
+
+    def __init__(self, ctx: Context, color, rast, pos, tri, th: TopologyHash, ids):
+        self.ctx = ctx
+        self.color, self.rast, self.tri, self.th, self.ids = color, rast, tri, th, ids
+        self.batch, self.height, self.width, self.channels = color.shape
+        self.hw = self.height * self.width
+        self.pos3 = pos if pos.ndim == 3 else pos[None]
+        self.stride = self.pos3.shape[1] if pos.ndim == 3 else 0
+
+    def chunks(self, bytes_per_pixel: int):
+        step = _images_per_chunk(self.batch, self.hw, bytes_per_pixel)
+        for first in range(0, self.batch, step):
+            yield first, min(step, self.batch - first)
+
+    def lists(self, first: int, count: int):
+        """(pair codes 2 A + axis, sorted; listed pixels, sorted) of a chunk, local, uint32."""
+        ids = self.ids[first:first + count]
+        width = self.width
+        b, y, x = np.nonzero(ids[:, :, :-1] != ids[:, :, 1:])
+        a_x = (b * self.height + y) * width + x
+        b, y, x = np.nonzero(ids[:, :-1, :] != ids[:, 1:, :])
+        a_y = (b * self.height + y) * width + x
+        codes = np.sort(np.concatenate([2 * a_x, 2 * a_y + 1]))
+        mark = np.zeros(count * self.hw, bool)
+        for index in (a_x, a_x + 1, a_y, a_y + width):
+            mark[index] = True
+        return codes.astype(np.uint32), np.flatnonzero(mark).astype(np.uint32)
+
+    def run_pairs(self, first: int, count: int, codes: np.ndarray):
+        """Pass 1 over images first .. first + count - 1; returns the records buffer."""
+        ctx = self.ctx
+        program = ctx.compute_program(shader_path(PAIRS), {"MAX_WALK": _ref.MAX_WALK})
+        table = self.th.table()
+        ctx.storage_buffer("antialias.pos", self.pos3.reshape(-1, 4)).bind_to_storage_buffer(0)
+        ctx.storage_buffer("antialias.tri", self.tri).bind_to_storage_buffer(1)
+        ctx.storage_buffer("antialias.table", table).bind_to_storage_buffer(3)
+        entries = self.th.entries if len(self.th.entries) else np.zeros(1, np.int32)
+        ctx.storage_buffer("antialias.entries", entries).bind_to_storage_buffer(4)
+        canon = self.th.canon.astype(np.int32) if len(self.th.canon) else np.zeros(1, np.int32)
+        ctx.storage_buffer("antialias.canon", canon).bind_to_storage_buffer(5)
+        n = count * self.hw
+        rast = self.rast.reshape(-1, 4)[first * self.hw:(first + count) * self.hw]
+        ctx.storage_buffer("antialias.rast", rast).bind_to_storage_buffer(2)
+        records = _gpu._zeroed(ctx, "antialias.records", n * 32)
+        records.bind_to_storage_buffer(6)
+        ctx.storage_buffer("antialias.pair_list", codes).bind_to_storage_buffer(7)
+        _gpu._set(program, "n_pairs", len(codes))
+        _gpu._set(program, "first_image", first)
+        _gpu._set(program, "size", (self.width, self.height))
+        _gpu._set(program, "vertex_stride", self.stride)
+        _gpu._set(program, "n_tri", len(self.tri))
+        _gpu._set(program, "table_mask", len(table) - 1)
+        if len(codes):
+            _gpu._run(ctx, program, len(codes))
+        return records
+
+    def run_blend(self, first: int, count: int, records, pixels: np.ndarray, convex: bool,
+                  write_out: bool):
+        """Pass 2 over the listed pixels: binds the chunk's colour (0) and the records (1);
+        returns the compact out buffer and the (full-size) scales."""
+        ctx = self.ctx
+        defines = {}
+        if convex:
+            defines["CONVEX"] = None
+        if write_out:
+            defines["WRITE_OUT"] = None
+        program = ctx.compute_program(shader_path(BLEND), defines)
+        n = count * self.hw
+        color = self.color.reshape(-1, self.channels)[first * self.hw:(first + count) * self.hw]
+        ctx.storage_buffer("antialias.color", color).bind_to_storage_buffer(0)
+        records.bind_to_storage_buffer(1)
+        out = ctx.scratch_buffer("antialias.out", len(pixels) * self.channels * 4)
+        out.bind_to_storage_buffer(2)
+        scale = ctx.scratch_buffer("antialias.scale", n * 4)
+        scale.bind_to_storage_buffer(3)
+        ctx.storage_buffer("antialias.pixel_list", pixels).bind_to_storage_buffer(4)
+        _gpu._set(program, "n_list", len(pixels))
+        _gpu._set(program, "size", (self.width, self.height))
+        _gpu._set(program, "n_channels", self.channels)
+        if len(pixels):
+            _gpu._run(ctx, program, len(pixels))
+        return out, scale
+
+
+def _check(color, rast, pos, tri, topology_hash, pos_gradient_boost, convex):
+    """The checked inputs (float32) and the decoded triangle ids (B, H, W)."""
+    return _ref.check_inputs(color, rast, pos, tri, topology_hash, pos_gradient_boost,
+                             convex, dtype=np.float32, ids=True)
+
+
+def antialias(color, rast, pos, tri, topology_hash=None, pos_gradient_boost=1.0, *,
+              ctx: Context | None = None, convex: bool = True):
+    """Antialias ``color`` across the silhouette edges of the mesh, on the GPU.
+
+    Args:
+        color: (B, H, W, C) the image to antialias (float32; other numbers converted).
+        rast: (B, H, W, 4) the rasterizer's output (u, v, z/w, id) the image was shaded from.
+        pos: (V, 4) or (B, V, 4) the clip-space positions it was rasterized from.
+        tri: (T, 3) integer vertex indices.
+        topology_hash: from :func:`antialias_construct_topology_hash` (None: built here).
+        pos_gradient_boost: factor on the gradients :func:`backward` gives ``pos``.
+        ctx: the context (default: the process-wide one).
+        convex: scale a pixel's weights to sum to 1 where they would sum past it (three or
+            more blends), so that the output stays within the inputs' range (False: the
+            plain sum, which can overshoot).
+
+    Returns:
+        ``(out, saved)``: out (B, H, W, C) float32; saved an :class:`AntialiasSaved`.
+    """
+    ctx = ctx or default_context()
+    color, rast, pos, tri, th, boost, convex, ids = _check(
+        color, rast, pos, tri, topology_hash, pos_gradient_boost, convex)
+    passes = _Passes(ctx, color, rast, pos, tri, th, ids)
+    out = color.copy()
+    flat_out = out.reshape(-1, passes.channels)
+    with ctx:
+        for first, count in passes.chunks(48 + 8 * passes.channels):
+            codes, pixels = passes.lists(first, count)
+            records = passes.run_pairs(first, count, codes)
+            values, _ = passes.run_blend(first, count, records, pixels, convex, True)
+            flat_out[first * passes.hw + pixels.astype(np.int64)] = _gpu._read(
+                values, len(pixels) * passes.channels).reshape(len(pixels), passes.channels)
+    saved = AntialiasSaved(color, rast, pos, tri, th, boost, convex, ctx, ids)
+    return out, saved
+
+
+def pair_records(color, rast, pos, tri, topology_hash=None, *, ctx: Context | None = None):
+    """The pass-1 records as (B, H, W, 2, 4) uint32 (code, row_a, row_b, bits of tau) per
+    pixel A and axis (0: the pair with the right neighbour, 1: with the one above); for
+    tests and error analysis."""
+    ctx = ctx or default_context()
+    color, rast, pos, tri, th, _, _, ids = _check(color, rast, pos, tri, topology_hash, 1.0,
+                                                  True)
+    passes = _Passes(ctx, color, rast, pos, tri, th, ids)
+    out = np.empty((passes.batch * passes.hw, 2, 4), np.uint32)
+    with ctx:
+        for first, count in passes.chunks(48):
+            codes, _ = passes.lists(first, count)
+            records = passes.run_pairs(first, count, codes)
+            n = count * passes.hw
+            out[first * passes.hw:first * passes.hw + n] = _gpu._read(
+                records, n * 8, np.uint32).reshape(n, 2, 4)
+    out[..., 0] &= 3
+    return out.reshape(passes.batch, passes.height, passes.width, 2, 4)
+
+
+def backward(saved: AntialiasSaved, grad_out, *, deterministic: bool = False,
+             accumulate: str | None = None):
+    """Gradients of :func:`antialias`, on the GPU.
+
+    Args:
+        saved: the second value :func:`antialias` returned.
+        grad_out: (B, H, W, C) dL/d out.
+        deterministic: bit-identical grad_pos from run to run (per-pair contributions
+            summed per vertex in pixel order, in float64 on the host).
+        accumulate: force one of :data:`glraster.diff.backward_gpu.ACCUMULATIONS`.
+
+    Returns:
+        ``(grad_color, grad_pos)``: grad_color (B, H, W, C) float32; grad_pos float32 of
+        pos' shape, (dL/dx, dL/dy, 0, dL/dw) per vertex times ``pos_gradient_boost`` (with
+        (V, 4) pos the images' contributions are summed). Which pairs blend stays fixed:
+        the gradient flows through the crossings' positions.
+    """
+    ctx = saved.ctx
+    color = saved.color
+    grad_out = _ref.layout.image("grad_out", grad_out, color.shape, np.float32)
+    mode = _gpu.accumulation(ctx, deterministic, accumulate)
+    passes = _Passes(ctx, color, saved.rast, saved.pos, saved.tri, saved.topology_hash,
+                     saved.ids)
+    hw, channels = passes.hw, passes.channels
+    total_rows = passes.pos3.shape[0] * passes.pos3.shape[1]
+    grad_color = grad_out.copy()
+    flat_gc = grad_color.reshape(-1, channels)
+    flat_g = grad_out.reshape(-1, channels)
+    defines = {_gpu._DEFINES[mode]: None}
+    if saved.convex:
+        defines["CONVEX"] = None
+    with ctx:
+        if mode == "per_pixel":
+            total = np.zeros((total_rows, 4))
+        else:
+            grad = _gpu._zeroed(ctx, "antialias.grad_pos", total_rows * 16)
+        for first, count in passes.chunks(48 + 12 * channels):
+            codes, pixels = passes.lists(first, count)
+            if len(pixels) == 0:
+                continue
+            part = slice(first * hw, (first + count) * hw)
+            records = passes.run_pairs(first, count, codes)
+            _, scale = passes.run_blend(first, count, records, pixels, saved.convex, False)
+            program = ctx.compute_program(shader_path(BACKWARD), defines)
+            # run_blend bound the chunk's colour at 0, the records at 1
+            scale.bind_to_storage_buffer(2)
+            ctx.storage_buffer("antialias.grad_out", flat_g[part]).bind_to_storage_buffer(3)
+            out_gc = ctx.scratch_buffer("antialias.grad_color", len(pixels) * channels * 4)
+            out_gc.bind_to_storage_buffer(4)
+            ctx.storage_buffer("antialias.pos", passes.pos3.reshape(-1, 4)
+                               ).bind_to_storage_buffer(5)
+            if mode == "per_pixel":
+                contrib = _gpu._zeroed(ctx, "antialias.contrib", len(codes) * 32)
+                contrib.bind_to_storage_buffer(6)
+            else:
+                grad.bind_to_storage_buffer(6)
+            ctx.storage_buffer("antialias.pixel_list", pixels).bind_to_storage_buffer(7)
+            _gpu._set(program, "n_list", len(pixels))
+            _gpu._set(program, "size", (passes.width, passes.height))
+            _gpu._set(program, "n_channels", channels)
+            _gpu._set(program, "boost", saved.pos_gradient_boost)
+            _gpu._run(ctx, program, len(pixels))
+            flat_gc[first * hw + pixels.astype(np.int64)] = _gpu._read(
+                out_gc, len(pixels) * channels).reshape(len(pixels), channels)
+            if mode == "per_pixel":
+                terms = _gpu._read(contrib, len(codes) * 8, np.uint32).reshape(-1, 4)
+                rows = terms[:, 2].astype(np.int64) - 1
+                live = rows >= 0
+                values = terms.view(np.float32)[live].astype(np.float64)
+                values[:, 2] = 0.0
+                _gpu._reduce(total, rows[live][:, None], values[:, None, :], (0, 1, 3))
+        if mode != "per_pixel":
+            total = _gpu._read(grad, total_rows * 4).reshape(-1, 4)
+    grad_pos = total.reshape(passes.pos3.shape)
+    if saved.pos.ndim == 2:
+        grad_pos = grad_pos[0]
+    return grad_color, grad_pos.astype(np.float32)

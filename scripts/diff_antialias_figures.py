@@ -1,0 +1,76 @@
+"""Timing of glraster.diff.antialias (GPU, forward + backward) against its float64 reference
+(glraster.diff.antialias_reference) at 256², 512² and 1024² (docs/differentiable.md,
+"Antialias"). Usage: python scripts/diff_antialias_figures.py [--repeat N]"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import time
+
+import numpy as np
+
+import glraster as gr
+from glraster.diff import antialias as gaa
+from glraster.diff import antialias_reference as aar
+from glraster.diff import interpolate as ginterp
+from glraster.diff import rasterize as grast
+from glraster.geometry import camera, shapes
+
+
+def scene(size: int, level: int = 4):
+    verts, faces = shapes.icosphere(level)
+    mvp = camera.perspective(40, 1.0, 0.5, 10) @ camera.look_at((0.3, 0.4, 3.0), (0, 0, 0))
+    pos = (np.concatenate([verts, np.ones((len(verts), 1))], 1) @ mvp.T).astype(np.float32)
+    colors = np.random.default_rng(0).uniform(0, 1, (len(verts), 3)).astype(np.float32)
+    return pos, faces.astype(np.int32), colors
+
+
+def best(fn, repeat: int) -> float:
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return min(times)
+
+
+def reference(color, rast, pos, tri, th, g):
+    _, saved = aar.antialias_forward(color, rast, pos, tri, th)
+    aar.antialias_backward(saved, g)
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--repeat", type=int, default=5)
+    args = parser.parse_args(argv)
+    ctx = gr.Context()
+    print(f"renderer: {ctx.renderer}")
+    print("| frame | triangles | blended pairs | GPU fwd ms | GPU bwd ms (atomic) | "
+          "GPU bwd ms (deterministic) | GPU fwd+bwd ms | float64 fwd+bwd ms | ratio |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for size in (256, 512, 1024):
+        pos, tri, colors = scene(size)
+        rast, _, _ = grast.forward(pos, tri, (size, size), ctx=ctx)
+        col, _, _ = ginterp.forward(colors, rast, tri, ctx=ctx)
+        g = np.random.default_rng(1).normal(size=col.shape).astype(np.float32)
+        th = gaa.antialias_construct_topology_hash(tri)
+        th.table()
+        _, saved = gaa.antialias(col, rast, pos, tri, th, ctx=ctx)
+        gaa.backward(saved, g)
+        fwd = best(functools.partial(gaa.antialias, col, rast, pos, tri, th, ctx=ctx),
+                   args.repeat)
+        bwd = best(functools.partial(gaa.backward, saved, g), args.repeat)
+        bwd_det = best(functools.partial(gaa.backward, saved, g, deterministic=True),
+                       args.repeat)
+        r64, c64, p64 = rast.astype(np.float64), col.astype(np.float64), pos.astype(np.float64)
+        ref = best(functools.partial(reference, c64, r64, p64, tri, th, g),
+                   max(1, args.repeat // 2))
+        _, s = aar.antialias_forward(c64, r64, p64, tri, th)
+        both = fwd + bwd
+        print(f"| {size}² | {len(tri)} | {len(s.pairs.tau)} | {fwd * 1e3:.1f} | {bwd * 1e3:.1f} | "
+              f"{bwd_det * 1e3:.1f} | {both * 1e3:.1f} | {ref * 1e3:.0f} | {ref / both:.1f} |")
+
+
+if __name__ == "__main__":
+    main()

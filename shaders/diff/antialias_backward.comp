@@ -1,0 +1,156 @@
+#version 450
+// Antialias, pass 3: the backward. One invocation per listed pixel P (pixel_list, as pass
+// 2; every other pixel's dL/dc is g), after passes 1 and 2 (the records and the listed
+// pixels' scales s). With g = dL/d out:
+//   dL/dc_P = g_P (1 - s_P sum_k alpha_k) + sum over the pixels N taking colour from P of
+//             s_N alpha g_N                                         (deterministic gather)
+//   per pair k that P blends: D_k = g_P . (c_k - c_P), dL/dalpha_k = s_P (D_k - [convex and
+//             sum alpha > 1] s_P sum_j alpha_j D_j), dL/dtau = -+ dL/dalpha_k (1 at A, 2 at B),
+//             times pos_gradient_boost;
+//   tau = -r_w / r_d, r = v'_a x v'_b in the frame of the pair's A: dtau/dr = -C / r_d,
+//             C = (tau d, 1); G = dL/dr, dL/dv'_a = v'_b x G, dL/dv'_b = G x v'_a; clip:
+//             dL/dx = (W/2) G_X, dL/dy = (H/2) G_Y, dL/dw = G_w - n_x dL/dx - n_y dL/dy.
+// Defines: CONVEX; ACCUM_ATOMIC_FLOAT | ACCUM_CAS | ACCUM_PER_PIXEL (per listed pair i:
+// contrib[2 i + j] = bits of (dL/dx, dL/dy), row + 1, bits of dL/dw of the edge's vertex j; the
+// host clears the buffer, so unblended pairs read row + 1 = 0).
+#ifdef ACCUM_ATOMIC_FLOAT
+#extension GL_NV_shader_atomic_float : require
+#endif
+
+layout(local_size_x = 64) in;
+
+layout(std430, binding = 0) readonly buffer Color { float color[]; };
+layout(std430, binding = 1) readonly buffer Records { uvec4 records[]; };
+layout(std430, binding = 2) readonly buffer Scale { float scale_in[]; };
+layout(std430, binding = 3) readonly buffer GradOut { float grad_out[]; };
+layout(std430, binding = 4) writeonly buffer GradColor { float grad_color[]; };
+layout(std430, binding = 5) readonly buffer Pos { vec4 pos[]; };
+#if defined(ACCUM_ATOMIC_FLOAT)
+layout(std430, binding = 6) buffer GradPos { float grad_pos[]; };
+#elif defined(ACCUM_CAS)
+layout(std430, binding = 6) buffer GradPos { uint grad_pos[]; };
+#else
+layout(std430, binding = 6) writeonly buffer Contrib { uvec4 contrib[]; };
+#endif
+layout(std430, binding = 7) readonly buffer PixelList { uint pixel_list[]; };
+
+uniform uint n_list;
+uniform ivec2 size;          // (W, H)
+uniform int n_channels;
+uniform float boost;         // pos_gradient_boost
+
+void add(uint row, vec3 g) {
+#if defined(ACCUM_ATOMIC_FLOAT)
+    atomicAdd(grad_pos[4u * row + 0u], g.x);
+    atomicAdd(grad_pos[4u * row + 1u], g.y);
+    atomicAdd(grad_pos[4u * row + 3u], g.z);
+#elif defined(ACCUM_CAS)
+    for (int c = 0; c < 3; ++c) {
+        uint slot = 4u * row + uint(c == 2 ? 3 : c);
+        float value = g[c];
+        uint seen = grad_pos[slot];
+        while (true) {
+            uint want = floatBitsToUint(uintBitsToFloat(seen) + value);
+            uint got = atomicCompSwap(grad_pos[slot], seen, want);
+            if (got == seen) break;
+            seen = got;
+        }
+    }
+#endif
+}
+
+vec3 frame_vertex(uint row, vec2 n) {
+    vec4 p = pos[row];
+    return vec3((p.x - p.w * n.x) * (0.5 * float(size.x)),
+                (p.y - p.w * n.y) * (0.5 * float(size.y)), p.w);
+}
+
+// dL/dtau of the pair whose record is records[2 owner + axis] (owner: its pixel A), to
+// the edge's two vertices.
+void edge_gradient(uint owner, int axis, uvec4 rec, float dl_dtau) {
+    uint W = uint(size.x), hw = W * uint(size.y);
+    uint pix = owner % hw, y = pix / W, x = pix % W;
+    vec2 n = vec2(float(2u * x + 1u) / float(size.x) - 1.0,
+                  float(2u * y + 1u) / float(size.y) - 1.0);
+    vec3 va = frame_vertex(rec.y, n), vb = frame_vertex(rec.z, n);
+    vec3 r = cross(va, vb);
+    float tau = uintBitsToFloat(rec.w);
+    vec3 c = vec3(0.0, 0.0, 1.0);
+    c[axis] = tau;
+    vec3 G = (-dl_dtau / r[axis]) * c;
+    vec3 g[2] = vec3[2](cross(vb, G), cross(G, va));
+    uint rows[2] = uint[2](rec.y, rec.z);
+    for (int j = 0; j < 2; ++j) {
+        float gx = 0.5 * float(size.x) * g[j].x;
+        float gy = 0.5 * float(size.y) * g[j].y;
+        vec3 clip = vec3(gx, gy, g[j].z - n.x * gx - n.y * gy);
+#ifdef ACCUM_PER_PIXEL
+        contrib[2u * (rec.x >> 2) + uint(j)] = uvec4(floatBitsToUint(clip.x),
+            floatBitsToUint(clip.y), rows[j] + 1u, floatBitsToUint(clip.z));
+#else
+        add(rows[j], clip);
+#endif
+    }
+}
+
+void main() {
+    uint li = gl_GlobalInvocationID.x;
+    if (li >= n_list) return;
+    uint i = pixel_list[li];
+    uint W = uint(size.x), hw = W * uint(size.y);
+    uint pix = i % hw, y = pix / W, x = pix % W;
+    uint C = uint(n_channels);
+    // the four incident records: (owner pixel A, axis, the pixel on P's other side)
+    uint owner[4] = uint[4](i, i - 1u, i, i - W);
+    int axes[4] = int[4](0, 0, 1, 1);
+    uint other[4] = uint[4](i + 1u, i - 1u, i + W, i - W);
+    bool exists[4] = bool[4](x + 1u < W, x > 0u, y + 1u < uint(size.y), y > 0u);
+    uint own_code[4] = uint[4](1u, 2u, 1u, 2u);   // code with which P itself blends
+    uvec4 rec[4];
+    float alpha[4];      // P's own weights (P blends)
+    float alpha_in[4];   // weights of the neighbour taking P's colour
+    bool mine[4];        // P blends with pair k (alpha may be 0: tau = 1/2)
+    bool theirs[4];      // the neighbour of pair k blends with P's colour
+    for (int k = 0; k < 4; ++k) {
+        rec[k] = uvec4(0u);
+        alpha[k] = 0.0;
+        alpha_in[k] = 0.0;
+        mine[k] = false;
+        theirs[k] = false;
+        if (!exists[k]) continue;
+        rec[k] = records[2u * owner[k] + uint(axes[k])];
+        uint code = rec[k].x & 3u;
+        if (code == 0u) continue;
+        float tau = uintBitsToFloat(rec[k].w);
+        float a = code == 1u ? 0.5 - tau : tau - 0.5;
+        mine[k] = code == own_code[k];
+        theirs[k] = !mine[k];
+        if (mine[k]) alpha[k] = a; else alpha_in[k] = a;
+    }
+    float total = (alpha[0] + alpha[1]) + (alpha[2] + alpha[3]);
+    float s = scale_in[i];
+    float sum_w = s * total;
+    float D[4] = float[4](0.0, 0.0, 0.0, 0.0);
+    for (uint c = 0u; c < C; ++c) {
+        float g = grad_out[i * C + c];
+        float own = color[i * C + c];
+        float gc = g * (1.0 - sum_w);
+        for (int k = 0; k < 4; ++k) {
+            if (theirs[k])
+                gc += scale_in[other[k]] * alpha_in[k] * grad_out[other[k] * C + c];
+            if (mine[k]) D[k] += g * (color[other[k] * C + c] - own);
+        }
+        grad_color[li * C + c] = gc;
+    }
+    float weighted = 0.0;
+    for (int k = 0; k < 4; ++k) weighted += alpha[k] * D[k];
+    for (int k = 0; k < 4; ++k) {
+        if (!mine[k]) continue;
+        float dl_dalpha = s * D[k];
+#ifdef CONVEX
+        if (total > 1.0) dl_dalpha = s * (D[k] - s * weighted);
+#endif
+        float dl_dtau = boost * ((rec[k].x & 3u) == 1u ? -dl_dalpha : dl_dalpha);
+        edge_gradient(owner[k], axes[k], rec[k], dl_dtau);
+    }
+}
