@@ -138,30 +138,32 @@ def http_request(host, port, path, body, content_type, accept, token=None) -> by
 
 # -- in-process baselines -------------------------------------------------------------------
 
-def in_process_times(backend, name: str, count: int, with_stats: bool, time_limit: float) -> list:
-    """Seconds per call of :func:`glraster.rasterize` (+ the service's statistics) for
-    scene ``name``, warm, in this process."""
-    import glraster as gr
-    from glraster.service.protocol import raster_stats
+class InProcess:
+    """:func:`glraster.rasterize` of a scene in this process, on a context of its own."""
 
-    ctx = gr.Context(backend=backend)
-    pos, tri, res = make_scene(name)
-    try:
+    def __init__(self, backend, name: str):
+        import glraster as gr
+        from glraster.service.protocol import raster_stats
+
+        self.gr, self.stats = gr, raster_stats
+        self.ctx = gr.Context(backend=backend)
+        self.scene = make_scene(name)
         for _ in range(3):
-            gr.rasterize(pos, tri, res, ctx=ctx)
-        times = []
-        end = time.perf_counter() + time_limit
+            gr.rasterize(*self.scene, ctx=self.ctx)
+
+    def times(self, count: int, with_stats: bool) -> list:
+        """Seconds per warm call (+ the service's JSON statistics with ``with_stats``)."""
+        out = []
         for _ in range(count):
             t = time.perf_counter()
-            r = gr.rasterize(pos, tri, res, ctx=ctx)
+            r = self.gr.rasterize(*self.scene, ctx=self.ctx)
             if with_stats:
-                raster_stats(r)
-            times.append(time.perf_counter() - t)
-            if time.perf_counter() > end:
-                break
-        return times
-    finally:
-        ctx.release()
+                self.stats(r)
+            out.append(time.perf_counter() - t)
+        return out
+
+    def close(self):
+        self.ctx.release()
 
 
 def _loop_process(backend, name, count, time_limit, ready, go, out):
@@ -296,26 +298,40 @@ def main(args) -> int:
                       flush=True)
             figures["scenes"][name] = {"resolution": list(res), "triangles": int(len(tri)),
                                        "npz_bytes_request": len(body), "load": rows}
-        # 2. overhead per request over an in-process call, 256^2, no result transfer
-        n = 30 if quick else 1000
+        # 2. overhead per request over an in-process call, 256^2, no result transfer:
+        #    interleaved rounds (service block, in-process block), median of each round
+        rounds, per = (3, 10) if quick else (10, 100)
         pos, tri, res = make_scene("256")
         body = npz_body(pos, tri, res)
         req = http_request(host, port, "/v1/rasterize", body, "application/x-npz",
                            "application/json", token)
         asyncio.run(run_load(host, port, req, 10 if quick else 50, 1, limit))
-        service = asyncio.run(run_load(host, port, req, n, 1, limit))
-        inproc = in_process_times(args.backend, "256", n, True, limit)
-        bare = in_process_times(args.backend, "256", n, False, limit)
-        over = {"service_p50_ms": service["p50_ms"],
-                "in_process_p50_ms": statistics.median(inproc) * 1e3,
-                "in_process_bare_p50_ms": statistics.median(bare) * 1e3}
-        over["overhead_ms"] = over["service_p50_ms"] - over["in_process_p50_ms"]
+        local = InProcess(args.backend, "256")
+        diffs, svc, inp, bare = [], [], [], []
+        try:
+            for _ in range(rounds):
+                r = asyncio.run(run_load(host, port, req, per, 1, limit))
+                t_stats = statistics.median(local.times(per, True))
+                t_bare = statistics.median(local.times(per, False))
+                svc.append(r["p50_ms"])
+                inp.append(t_stats * 1e3)
+                bare.append(t_bare * 1e3)
+                diffs.append(r["p50_ms"] - t_stats * 1e3)
+        finally:
+            local.close()
+        over = {"rounds": rounds, "requests_per_round": per,
+                "service_p50_ms": statistics.median(svc),
+                "in_process_p50_ms": statistics.median(inp),
+                "in_process_bare_p50_ms": statistics.median(bare),
+                "overhead_ms": statistics.median(diffs),
+                "overhead_ms_rounds": diffs}
         over["overhead_vs_bare_ms"] = over["service_p50_ms"] - over["in_process_bare_p50_ms"]
         figures["overhead_256"] = over
-        print(f"overhead at 256^2 (JSON result): service p50 {over['service_p50_ms']:.3f} ms, "
-              f"in-process {over['in_process_p50_ms']:.3f} ms (bare rasterize "
-              f"{over['in_process_bare_p50_ms']:.3f} ms): +{over['overhead_ms']:.3f} ms",
-              flush=True)
+        print(f"overhead at 256^2 (JSON result, {rounds} interleaved rounds): service p50 "
+              f"{over['service_p50_ms']:.3f} ms, in-process {over['in_process_p50_ms']:.3f} ms "
+              f"(bare rasterize {over['in_process_bare_p50_ms']:.3f} ms): "
+              f"+{over['overhead_ms']:.3f} ms (rounds "
+              f"{', '.join(f'{d:.2f}' for d in diffs)})", flush=True)
         # 3. sustained throughput: 2 workers against two in-process loops
         if args.workers == 2 and server is not None:
             figures["sustained"] = {}
