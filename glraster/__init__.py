@@ -11,41 +11,47 @@ from typing import TYPE_CHECKING
 
 from glraster._version import __version__  # noqa: E402,F401
 
-from glraster import reference, types  # noqa: E402
+from glraster import types  # noqa: E402
 from glraster.errors import BackendUnavailable, GLError, ShaderCompileError  # noqa: E402
 from glraster.geometry import camera  # noqa: E402
 from glraster.geometry.mesh import Mesh, load_mesh  # noqa: E402
 from glraster.interpolate import interpolate  # noqa: E402
 from glraster.types import Raster  # noqa: E402
-from glraster.verify.compare import compare  # noqa: E402
 
 if TYPE_CHECKING:
+    from glraster import reference
     from glraster.gpu.context import Context
     from glraster.gpu.rasterize import rasterize
     from glraster.gpu.render import render_scene
+    from glraster.verify.compare import compare
 
-# The GPU names are imported on first use (PEP 562), so that ``import glraster.reference``
-# and the rest of the CPU side work where moderngl is not installed.
-_GPU_NAMES = {
+# Imported on first use (PEP 562): the GPU names, so that ``import glraster.reference`` and
+# the rest of the CPU side work where moderngl is not installed; the reference and compare,
+# so that light users (glraster.client) do not load numba (0.5 s).
+_LAZY_NAMES = {
     "Context": "glraster.gpu.context",
     "rasterize": "glraster.gpu.rasterize",
     "render_scene": "glraster.gpu.render",
+    "compare": "glraster.verify.compare",
 }
 
 
 def __getattr__(name: str):
-    module = _GPU_NAMES.get(name)
-    if module is None:
-        raise AttributeError(f"module 'glraster' has no attribute {name!r}")
     import importlib
 
-    value = getattr(importlib.import_module(module), name)
+    if name == "reference":
+        value = importlib.import_module("glraster.reference")
+    else:
+        module = _LAZY_NAMES.get(name)
+        if module is None:
+            raise AttributeError(f"module 'glraster' has no attribute {name!r}")
+        value = getattr(importlib.import_module(module), name)
     globals()[name] = value
     return value
 
 
 def __dir__():
-    return sorted(set(globals()) | set(_GPU_NAMES))
+    return sorted(set(globals()) | set(_LAZY_NAMES) | {"reference"})
 
 
 __all__ = [
