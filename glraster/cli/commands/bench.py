@@ -1,4 +1,11 @@
-"""`glraster bench`: run time against error for every method (see glraster.studies.bench)."""
+"""`glraster bench`: time every method against the fill limit, the reference and pyrender.
+
+For each method x scene x resolution x triangle count: first-run and warm median time,
+error against the float64 reference, ratio to the fill limit (a bare moderngl draw of the
+same targets), peak host memory, and pyrender (depth only) as the peer; then the README
+headline figures and each skip switch on/off. The quick preset takes ~1-2 minutes, the
+full one ~50 minutes on 2 cores (docs/performance.md).
+"""
 
 from __future__ import annotations
 
@@ -6,17 +13,11 @@ import json
 import sys
 
 from glraster.cli import exit_codes
+from glraster.cli.commands import add_command
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser(
-        "bench", help="time every method against the fill limit, the reference and pyrender",
-        description="For each method x scene x resolution x triangle count: first-run and "
-                    "warm median time, error against the float64 reference, ratio to the "
-                    "fill limit (a bare moderngl draw of the same targets), peak host "
-                    "memory, and pyrender (depth only) as the peer; then the README headline "
-                    "figures and each skip switch on/off. The quick preset takes ~1-2 "
-                    "minutes, the full one ~50 minutes on 2 cores (docs/performance.md).")
+    p = add_command(subparsers, "bench", __doc__)
     p.add_argument("--preset", choices=("quick", "full"), default="quick",
                    help="case grid (default: quick)")
     p.add_argument("--quick", dest="preset", action="store_const", const="quick",

@@ -1,4 +1,9 @@
-"""`glraster check`: the conformance run on the current driver (see glraster.conformance.check)."""
+"""`glraster check`: render the scene catalog and compare with the reference and goldens.
+
+Render every catalog scene on the current OpenGL driver, compare it pixel by pixel with
+the float64 reference (per-pixel tolerances from the error model, exact coverage where the
+fill rule is modeled) and check the golden EXRs bit for bit. Exits 1 on any failure.
+"""
 
 from __future__ import annotations
 
@@ -6,16 +11,11 @@ import sys
 import time
 
 from glraster.cli import exit_codes
-from glraster.cli.commands import add_backend_argument
+from glraster.cli.commands import add_backend_argument, add_command
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser(
-        "check", help="render the scene catalog and compare with the reference and goldens",
-        description="Render every catalog scene on the current OpenGL driver, compare it "
-                    "pixel by pixel with the float64 reference (per-pixel tolerances from "
-                    "the error model, exact coverage where the fill rule is modeled) and "
-                    "check the golden EXRs bit for bit. Exits 1 on any failure.")
+    p = add_command(subparsers, "check", __doc__)
     add_backend_argument(p)
     p.add_argument("--scenes", default=None, metavar="PATTERN",
                    help="comma-separated fnmatch patterns of scene names (default: all)")

@@ -1,17 +1,18 @@
-"""`glraster crosscheck pyrender`: linear depth from pyrender against glraster's."""
+"""`glraster crosscheck`: compare glraster with another renderer.
+
+Compare glraster's output with another renderer's.
+"""
 
 from __future__ import annotations
 
 import json
 
 from glraster.cli import exit_codes
-from glraster.cli.commands import add_backend_argument
+from glraster.cli.commands import add_backend_argument, add_command
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser(
-        "crosscheck", help="compare glraster with another renderer",
-        description="Compare glraster's output with another renderer's.")
+    p = add_command(subparsers, "crosscheck", __doc__)
     sub = p.add_subparsers(dest="crosscheck_target", metavar="TARGET", required=True)
     q = sub.add_parser(
         "pyrender", help="depth against pyrender (run in a subprocess)",

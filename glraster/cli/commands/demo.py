@@ -1,4 +1,9 @@
-"""`glraster demo`: the main job, end to end, on built-in scenes."""
+"""`glraster demo`: rasterize built-in scenes on the GPU and the reference and compare.
+
+Rasterize 500 random triangles and a shared-edge grid on the GPU and with the float64
+reference, print the comparison, then run the conformance check (HTML report) and write
+the distortion figure.
+"""
 
 from __future__ import annotations
 
@@ -6,15 +11,11 @@ import time
 from pathlib import Path
 
 from glraster.cli import exit_codes
-from glraster.cli.commands import add_backend_argument
+from glraster.cli.commands import add_backend_argument, add_command
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser(
-        "demo", help="rasterize built-in scenes on the GPU and the reference and compare",
-        description="Rasterize 500 random triangles and a shared-edge grid on the GPU and "
-                    "with the float64 reference, print the comparison, then run the "
-                    "conformance check (HTML report) and write the distortion figure.")
+    p = add_command(subparsers, "demo", __doc__)
     add_backend_argument(p)
     p.add_argument("--out", default="out", help="folder for reports and figures (default: out)")
     p.add_argument("--quick", action="store_true",

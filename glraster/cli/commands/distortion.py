@@ -1,18 +1,18 @@
-"""`glraster distortion`: the affine-against-perspective-correct texture figure."""
+"""`glraster distortion`: render the affine vs perspective-correct texture comparison.
+
+Render a tilted checkerboard plane and a checkered cube with affine (noperspective) and
+perspective-correct uv, and write PNGs (affine, correct, uv-error heatmap, labeled side-
+by-side figure), an EXR and the seed-001 worked example (affine depth 4.5 against true 4).
+"""
 
 from __future__ import annotations
 
 from glraster.cli import exit_codes
-from glraster.cli.commands import add_backend_argument
+from glraster.cli.commands import add_backend_argument, add_command
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser(
-        "distortion", help="render the affine vs perspective-correct texture comparison",
-        description="Render a tilted checkerboard plane and a checkered cube with affine "
-                    "(noperspective) and perspective-correct uv, and write PNGs (affine, "
-                    "correct, uv-error heatmap, labeled side-by-side figure), an EXR and the "
-                    "seed-001 worked example (affine depth 4.5 against true 4).")
+    p = add_command(subparsers, "distortion", __doc__)
     p.add_argument("--out", default="out/distortion", metavar="DIR",
                    help="output directory (out/distortion)")
     p.add_argument("--width", type=int, default=480, help="image width per panel (480)")

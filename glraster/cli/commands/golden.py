@@ -1,4 +1,8 @@
-"""`glraster golden update|check`: the golden EXRs of the scene catalog."""
+"""`glraster golden`: regenerate or verify the golden EXRs (reference output).
+
+Golden EXRs hold the float64 reference rounded to float32, one per catalog scene. 'update'
+rewrites them; 'check' recomputes the reference and requires every stored bit back.
+"""
 
 from __future__ import annotations
 
@@ -6,16 +10,13 @@ import sys
 import time
 
 from glraster.cli import exit_codes
+from glraster.cli.commands import add_command
 
 GOLDEN_BUDGET_BYTES = 20 * 1024 * 1024
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser(
-        "golden", help="regenerate or verify the golden EXRs (reference output)",
-        description="Golden EXRs hold the float64 reference rounded to float32, one per "
-                    "catalog scene. 'update' rewrites them; 'check' recomputes the "
-                    "reference and requires every stored bit back.")
+    p = add_command(subparsers, "golden", __doc__)
     sub = p.add_subparsers(dest="golden_command", metavar="{update,check}")
     sub.required = True
     for name, helptext in (("update", "regenerate golden EXRs from the reference"),

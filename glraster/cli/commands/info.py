@@ -1,4 +1,11 @@
-"""`glraster info`: what OpenGL driver glraster would use here."""
+"""`glraster info`: print the OpenGL backend, renderer, GL version and limits.
+
+Create a headless context and print backend, renderer, vendor, GL version, the draw path
+and methods that version allows, subpixel bits (GL_SUBPIXEL_BITS), maximum render size and
+which backends work on this machine. Without a context: whether a library is missing (with
+an install hint) or the driver's OpenGL is too old (which version it offers, which
+glraster needs).
+"""
 
 from __future__ import annotations
 
@@ -6,18 +13,11 @@ import json
 import sys
 
 from glraster.cli import exit_codes
-from glraster.cli.commands import add_backend_argument
+from glraster.cli.commands import add_backend_argument, add_command
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser(
-        "info", help="print the OpenGL backend, renderer, GL version and limits",
-        description="Create a headless context and print backend, renderer, vendor, GL "
-                    "version, the draw path and methods that version allows, subpixel bits "
-                    "(GL_SUBPIXEL_BITS), maximum render size and which backends work on "
-                    "this machine. Without a context: whether a library is missing (with "
-                    "an install hint) or the driver's OpenGL is too old (which version it "
-                    "offers, which glraster needs).")
+    p = add_command(subparsers, "info", __doc__)
     add_backend_argument(p)
     p.add_argument("--json", action="store_true", help="print JSON instead of text")
     p.set_defaults(func=run)

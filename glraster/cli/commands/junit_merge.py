@@ -1,21 +1,22 @@
-"""`glraster junit-merge`: join the JUnit files of sharded `glraster check` runs into one."""
+"""`glraster junit-merge`: merge the JUnit files of 'glraster check --shard I/N' runs.
+
+Join JUnit files written by 'glraster check --junit' (typically one per CI runner with
+--shard I/N, for one or several drivers) into one file: the shards of each driver and
+method become one suite again. Fails (exit 1) when a shard is missing or given twice, a
+scene appears in two files, or any test case failed; the merged file is written in every
+case but the first two.
+"""
 
 from __future__ import annotations
 
 import sys
 
 from glraster.cli import exit_codes
+from glraster.cli.commands import add_command
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser(
-        "junit-merge", help="merge the JUnit files of 'glraster check --shard I/N' runs",
-        description="Join JUnit files written by 'glraster check --junit' (typically one per "
-                    "CI runner with --shard I/N, for one or several drivers) into one file: "
-                    "the shards of each driver and method become one suite again. Fails "
-                    "(exit 1) when a shard is missing or given twice, a scene appears in two "
-                    "files, or any test case failed; the merged file is written in every "
-                    "case but the first two.")
+    p = add_command(subparsers, "junit-merge", __doc__)
     p.add_argument("inputs", nargs="+", metavar="JUNIT.xml", help="the shards' JUnit files")
     p.add_argument("-o", "--output", required=True, metavar="OUT.xml",
                    help="merged JUnit file to write")

@@ -1,4 +1,10 @@
-"""`glraster render`: render a catalog scene or a scene file to an EXR (headless)."""
+"""`glraster render`: render a catalog scene or a scene file (.npz/.json) to an EXR.
+
+Rasterize a scene on the GPU (or with the float64 reference) and write a multi-channel
+EXR: persp.b0..b2, screen.b0..b2, depth.Z and the exact triangle id, upright. Scene files:
+.npz with pos (V,4), tri (T,3), resolution (2,) = (H, W); or .json with the same keys, or
+a recipe {name, resolution, builder, params} as in the catalog.
+"""
 
 from __future__ import annotations
 
@@ -6,17 +12,11 @@ import sys
 import time
 
 from glraster.cli import exit_codes
-from glraster.cli.commands import add_backend_argument
+from glraster.cli.commands import add_backend_argument, add_command
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser(
-        "render", help="render a catalog scene or a scene file (.npz/.json) to an EXR",
-        description="Rasterize a scene on the GPU (or with the float64 reference) and write "
-                    "a multi-channel EXR: persp.b0..b2, screen.b0..b2, depth.Z and the exact "
-                    "triangle id, upright. Scene files: .npz with pos (V,4), tri (T,3), "
-                    "resolution (2,) = (H, W); or .json with the same keys, or a recipe "
-                    "{name, resolution, builder, params} as in the catalog.")
+    p = add_command(subparsers, "render", __doc__)
     p.add_argument("scene", metavar="SCENE_OR_FILE",
                    help="catalog scene name (see 'glraster check --list') or scene file")
     p.add_argument("-o", "--output", required=True, metavar="OUT.exr", help="EXR to write")

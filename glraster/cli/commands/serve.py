@@ -1,4 +1,11 @@
-"""`glraster serve`: the HTTP rendering service; `glraster serve-bench`: its load test."""
+"""`glraster serve`: run the HTTP rendering service (needs the [service] extra).
+
+Serve POST /v1/rasterize, POST /v1/check, GET /v1/info, /healthz, /readyz, /metrics and
+/openapi.json (docs/service.md). Each worker process owns one GL context; requests beyond
+the workers wait in a bounded queue (429 with Retry-After when it is full). SIGTERM or
+SIGINT drains in-flight requests, then stops. Binds to loopback unless --host says
+otherwise.
+"""
 
 from __future__ import annotations
 
@@ -6,17 +13,11 @@ import json
 import sys
 
 from glraster.cli import exit_codes
-from glraster.cli.commands import add_backend_argument
+from glraster.cli.commands import add_backend_argument, add_command
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser(
-        "serve", help="run the HTTP rendering service (needs the [service] extra)",
-        description="Serve POST /v1/rasterize, POST /v1/check, GET /v1/info, /healthz, /readyz, "
-                    "/metrics and /openapi.json (docs/service.md). Each worker process owns "
-                    "one GL context; requests beyond the workers wait in a bounded queue (429 "
-                    "with Retry-After when it is full). SIGTERM or SIGINT drains in-flight "
-                    "requests, then stops. Binds to loopback unless --host says otherwise.")
+    p = add_command(subparsers, "serve", __doc__)
     p.add_argument("--host", default="127.0.0.1",
                    help="address to bind (default 127.0.0.1; 0.0.0.0 for every interface)")
     p.add_argument("--port", type=int, default=8642, help="port (default 8642; 0: any free)")
@@ -72,8 +73,13 @@ def register(subparsers) -> None:
 
 
 def _config(args):
-    from glraster.service.config import (MiB, ServiceConfig, Limits, default_workers,
-                                         read_token_file)
+    from glraster.service.config import (
+        Limits,
+        MiB,
+        ServiceConfig,
+        default_workers,
+        read_token_file,
+    )
 
     workers = args.workers if args.workers is not None else default_workers()
     tokens = read_token_file(args.token_file) if args.token_file else ()

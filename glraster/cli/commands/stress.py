@@ -1,23 +1,23 @@
-"""`glraster stress`: numerical stability sweeps of every method (see glraster.studies.stress)."""
+"""`glraster stress`: error-vs-parameter sweeps (distance from origin, w ratio, aspect, ...).
+
+Render small stress scenes with every method and compare with an extended-precision truth:
+distance from the origin (0..16k px), w ratio (1..1e6), sliver aspect (1..1e6), triangle
+size (1e-3..1e3 px), distance to the near plane, huge coordinates. Prints max errors, the
+normalized error err / (eps32 (1 + |grad b| d)) and NaN/Inf counts; writes curves as JSON
+and PNG. About 3 minutes (the diagonal sweep renders 10000 x 10000 frames; up to 10 GiB of
+memory).
+"""
 
 from __future__ import annotations
 
 import sys
 
 from glraster.cli import exit_codes
-from glraster.cli.commands import add_backend_argument
+from glraster.cli.commands import add_backend_argument, add_command
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser(
-        "stress", help="error-vs-parameter sweeps (distance from origin, w ratio, aspect, ...)",
-        description="Render small stress scenes with every method and compare with an "
-                    "extended-precision truth: distance from the origin (0..16k px), w ratio "
-                    "(1..1e6), sliver aspect (1..1e6), triangle size (1e-3..1e3 px), distance "
-                    "to the near plane, huge coordinates. Prints max errors, the normalized "
-                    "error err / (eps32 (1 + |grad b| d)) and NaN/Inf counts; writes curves "
-                    "as JSON and PNG. About 3 minutes (the diagonal sweep renders 10000 x "
-                    "10000 frames; up to 10 GiB of memory).")
+    p = add_command(subparsers, "stress", __doc__)
     add_backend_argument(p)
     p.add_argument("--sweeps", default=None, metavar="LIST",
                    help="comma-separated sweeps (default: all of origin, origin_y, origin_xy, origin_w1, "
