@@ -34,3 +34,21 @@ def atomic_write(path, suffix: str | None = None, mode: int = 0o644):
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def write_image(path, spec, pixels, suffix: str) -> Path:
+    """Write one OpenImageIO image (``spec``, ``pixels``) to ``path`` atomically; the format
+    follows ``suffix`` (".png", ".exr"). OSError naming the file when OpenImageIO fails."""
+    import OpenImageIO as oiio
+
+    path = Path(path)
+    with atomic_write(path, suffix=suffix) as tmp:
+        out = oiio.ImageOutput.create(tmp)
+        if out is None:
+            raise OSError(f"OpenImageIO cannot write {suffix} files: {oiio.geterror()}")
+        try:
+            if not out.open(tmp, spec) or not out.write_image(pixels):
+                raise OSError(f"cannot write {path}: {out.geterror() or oiio.geterror()}")
+        finally:
+            out.close()
+    return path

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from glraster.io.atomic import atomic_write
+from glraster.io.atomic import write_image
 
 __all__ = ["EMPTY_RGB", "NONFINITE_RGB", "ORIENTATION", "bary_rgb", "to_uint8", "write_png"]
 
@@ -58,17 +58,7 @@ def write_png(path, rgb, *, bottom_up: bool = True, metadata: dict | None = None
     for key, value in (metadata or {}).items():
         spec.attribute(str(key), str(value))
 
-    path = Path(path)
-    with atomic_write(path, suffix=".png") as tmp:
-        out = oiio.ImageOutput.create("png")
-        if out is None:
-            raise OSError(f"OpenImageIO cannot write PNG files: {oiio.geterror()}")
-        try:
-            if not out.open(tmp, spec) or not out.write_image(img):
-                raise OSError(f"cannot write {path}: {out.geterror() or oiio.geterror()}")
-        finally:
-            out.close()
-    return path
+    return write_image(path, spec, img, ".png")
 
 
 def bary_rgb(bary, mask) -> np.ndarray:

@@ -30,7 +30,7 @@ from fractions import Fraction
 import numpy as np
 
 from glraster import validate
-from glraster.io.atomic import atomic_write
+from glraster.io.atomic import write_image
 from glraster.geometry import camera as cam
 from glraster.interpolate import interpolate
 
@@ -348,15 +348,7 @@ def _write_exr(path: str, results: list[DistortionResult]) -> None:
     spec.attribute("glraster:orientation", ORIENTATION)
     spec.attribute("glraster:producer", "glraster.studies.distortion")
     spec.attribute("glraster:uv_error_unit", "checker squares")
-    with atomic_write(path, suffix=".exr") as tmp:
-        out = oiio.ImageOutput.create(tmp)
-        if out is None:
-            raise OSError(f"OpenImageIO cannot write {path}: {oiio.geterror()}")
-        try:
-            if not out.open(tmp, spec) or not out.write_image(data):
-                raise OSError(f"OpenImageIO failed writing {path}: {out.geterror()}")
-        finally:
-            out.close()
+    write_image(path, spec, data, ".exr")
 
 
 def write_comparison(out_dir="out/distortion", resolution=(360, 480), supersample: int = 3,
