@@ -22,6 +22,8 @@ import time
 
 import torch
 
+from glraster.diff import layout
+
 ID_FLOAT_MAX = 1 << 24          # ids up to here are stored as the float value itself
 ID_BITS_OFFSET = 0x4A800000     # above: the float whose bit pattern is this + id
 
@@ -33,18 +35,6 @@ def decode_ids(id_channel: torch.Tensor) -> torch.Tensor:
     small = f.to(torch.int64)
     big = f.view(torch.int32).to(torch.int64) - ID_BITS_OFFSET
     return torch.where(f <= ID_FLOAT_MAX, small, big)
-
-
-def _selected(diff_attrs, num_attr: int):
-    if diff_attrs is None:
-        return None
-    if isinstance(diff_attrs, str):
-        if diff_attrs != "all":
-            raise ValueError(f"diff_attrs must be None, 'all' or a list of indices, got "
-                             f"{diff_attrs!r}")
-        return list(range(num_attr))
-    selected = [int(k) for k in diff_attrs]
-    return selected or None
 
 
 def interpolate(attr: torch.Tensor, rast: torch.Tensor, tri: torch.Tensor,
@@ -78,7 +68,7 @@ def interpolate(attr: torch.Tensor, rast: torch.Tensor, tri: torch.Tensor,
     zero = torch.zeros((), dtype=attr.dtype)
     out = torch.where(keep, u * a0 + v * a1 + w * a2, zero)
     out = out.reshape(batch, height, width, num_attr)
-    selected = _selected(diff_attrs, num_attr)
+    selected = list(layout.diff_attrs(diff_attrs, num_attr) or ()) or None
     if selected is None:
         return out, out.new_zeros((batch, height, width, 0))
     index = torch.tensor(selected, dtype=torch.int64)
