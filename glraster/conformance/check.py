@@ -16,6 +16,13 @@ Per scene, for one barycentric method (``method``, default "hw"):
 Pixels the error model waives (documented driver deviations, see
 :class:`glraster.verify.tolerance.ErrorModel`) are counted and shown ("waived"), never hidden.
 
+Before the catalog, the driver's rasterization rules are measured
+(:mod:`glraster.conformance.rules`: subpixel bits, tie rule, snapping) and coverage is
+judged against the detected rule exactly (the edge band where none is identified), and
+the probes of :mod:`glraster.conformance.probes` run; a failing probe is named beside
+every failed scene its defect can explain. The goldens stay llvmpipe's (driver
+independent): on a driver with another rule their values are compared where the ids agree.
+
 With ``mutants``, every mutant of :mod:`glraster.conformance.mutants` is rendered on the scenes that the
 real shaders passed (cheapest first) until one scene catches it; the real shaders go
 through the same mutant path as a control and must pass every one of those scenes.
@@ -31,6 +38,8 @@ import numpy as np
 
 from glraster.conformance import golden as _golden
 from glraster.conformance import mutants as _mutants
+from glraster.conformance import probes as _probes
+from glraster.conformance import rules as _rules
 from glraster.verify.compare import compare, waived_pixels
 from glraster.gpu.methods import METHODS, error_model
 from glraster.gpu.rasterize import rasterize
@@ -67,6 +76,7 @@ class SceneResult:
     error: str = ""
     failures: list = field(default_factory=list)
     timings: dict = field(default_factory=dict)
+    explained_by: list = field(default_factory=list)  # (probe name, diagnosis) of failed probes
 
     @property
     def ok(self) -> bool:
@@ -142,10 +152,12 @@ class CheckResult:
     seconds: float = 0.0
     notes: list = field(default_factory=list)  # remarks for people (e.g. goldens skipped)
     shard: tuple | None = None  # (I, N) when this run is shard I of N (shard_scenes)
+    rules: object = None   # the RuleDetection of glraster.conformance.rules (None: not run)
+    probes: list = field(default_factory=list)  # ProbeResults of glraster.conformance.probes
 
     @property
     def ok(self) -> bool:
-        scenes_ok = all(s.ok for s in self.scenes)
+        scenes_ok = all(s.ok for s in self.scenes) and all(p.ok for p in self.probes)
         if self.mutants is None:
             return scenes_ok
         return scenes_ok and all(m.caught for m in self.mutants) and not self.control_failures
@@ -206,11 +218,13 @@ def _golden_max_error(gpu, g) -> float:
 
 
 def run_scene(scene: Scene, ctx, *, method="hw", golden_dir=None, check_golden=True, keep=False,
-              ref=None):
+              ref=None, fill_rule=_golden.FILL_RULE):
     """Check one scene rendered with ``method``. Returns (SceneResult, artifacts) where
     artifacts is a :class:`SceneArtifacts` when ``keep`` (for reports) else None. ``ref``: the
     scene's reference raster when already computed (from
-    :func:`glraster.conformance.golden.reference_for`)."""
+    :func:`glraster.conformance.golden.reference_for` with ``fill_rule``). ``fill_rule``:
+    the driver's rule the coverage is judged by (a FillRule, "llvmpipe", or None for the
+    edge band); the golden is checked against llvmpipe's reference either way."""
     res = SceneResult(scene.name, scene.description, tuple(scene.resolution), len(scene.tri))
     artifacts = None
     try:
@@ -219,7 +233,7 @@ def run_scene(scene: Scene, ctx, *, method="hw", golden_dir=None, check_golden=T
                         method=method)
         res.timings["gpu"] = time.perf_counter() - t
         t = time.perf_counter()
-        ref = ref if ref is not None else _golden.reference_for(scene)
+        ref = ref if ref is not None else _golden.reference_for(scene, fill_rule=fill_rule)
         res.timings["reference"] = time.perf_counter() - t
         t = time.perf_counter()
         ev = evaluate(gpu, ref, ctx, error_model(method, ctx))
@@ -228,7 +242,8 @@ def run_scene(scene: Scene, ctx, *, method="hw", golden_dir=None, check_golden=T
         res.timings["compare"] = time.perf_counter() - t
         if check_golden:
             t = time.perf_counter()
-            res.golden = _golden.check_scene(scene, ref=ref, directory=golden_dir)
+            golden_ref = ref if _is_llvmpipe_rule(fill_rule) else None  # None: recomputed
+            res.golden = _golden.check_scene(scene, ref=golden_ref, directory=golden_dir)
             if res.golden.ok:
                 res.golden_max_error = _golden_max_error(gpu, res.golden.raster)
             else:
@@ -245,14 +260,35 @@ def run_scene(scene: Scene, ctx, *, method="hw", golden_dir=None, check_golden=T
     return res, artifacts
 
 
+def _is_llvmpipe_rule(fill_rule) -> bool:
+    from glraster.geometry.fill_rule import LLVMPIPE
+    return fill_rule == "llvmpipe" or fill_rule == LLVMPIPE
+
+
+def _reference_rule(detection):
+    """The fill rule the references are made with: the detected one (llvmpipe's as
+    "llvmpipe", so that the goldens' reference is shared), None when unidentified."""
+    if detection is None:
+        return _golden.FILL_RULE
+    if detection.rule is None:
+        return None
+    return "llvmpipe" if _is_llvmpipe_rule(detection.rule) else detection.rule
+
+
 def _cost(scene: Scene) -> float:
     h, w = scene.resolution
     return h * w + 20.0 * len(scene.tri)
 
 
-def run_mutants(ctx, candidates, references, mutant_list=None, progress=None):
+def run_mutants(ctx, candidates, references, mutant_list=None, progress=None, probes=None,
+                rules=None):
     """Run the control and each mutant over ``candidates`` (scenes the real shaders
-    passed), cheapest first, using ``references`` (name -> reference raster).
+    passed), cheapest first, using ``references`` (name -> reference raster). A mutant no
+    scene catches is run through the probes; one that fails a probe the real shaders
+    passed (``probes``: their ProbeResults) is caught by that probe ("probe NAME"), and
+    one that draws the rule probe scene unlike the real shaders (``rules``: their
+    RuleDetection) by "probe rules" (where coverage is judged by the edge band, a changed
+    tie rule shows nowhere else).
 
     Returns (list of MutantResult, list of scene names where the control failed)."""
     order = sorted(candidates, key=_cost)
@@ -281,6 +317,21 @@ def run_mutants(ctx, candidates, references, mutant_list=None, progress=None):
                 mr.caught_by = scene.name
                 mr.reason = "; ".join(failures)
                 break
+        if not mr.caught and not mr.error and probes:
+            passed_before = {p.name for p in probes if p.status == "pass"}
+            for p in _probes.run(ctx, _probes.mutant_render(m, ctx)):
+                if p.status == "fail" and p.name in passed_before:
+                    mr.caught_by, mr.reason = f"probe {p.name}", p.diagnosis
+                    break
+        if not mr.caught and not mr.error and rules is not None and rules.ids is not None:
+            scene = _rules.probe_scene()
+            ids = _mutants.render(m, scene.pos, scene.tri, scene.resolution, ctx=ctx,
+                                  outputs=("tri_id",)).tri_id
+            differ = int((ids != rules.ids).sum())
+            if differ:
+                mr.caught_by = "probe rules"
+                mr.reason = (f"{differ} pixels of the rule probes differ from the real "
+                             "shaders' (tie rule or snapping changed)")
         mr.seconds = time.perf_counter() - t
         results.append(mr)
     return results, control_failures
@@ -288,7 +339,7 @@ def run_mutants(ctx, candidates, references, mutant_list=None, progress=None):
 
 def run(ctx, names=None, *, method="hw", golden_dir=None, check_golden=True, mutants=False,
         mutant_pattern=None, on_scene=None, progress=None, references=None,
-        mutant_scenes=None) -> CheckResult:
+        mutant_scenes=None, probes=True) -> CheckResult:
     """Check the scenes ``names`` (default: the whole catalog) on ``ctx``, rendered with
     ``method`` (one of :data:`glraster.gpu.rasterize.METHODS`). The mutants are faults injected
     into the "hw" shaders, so ``mutants`` requires method "hw".
@@ -300,6 +351,8 @@ def run(ctx, names=None, *, method="hw", golden_dir=None, check_golden=True, mut
     :class:`SceneArtifacts` (None when the scene raised; e.g. to write report images);
     artifacts are dropped after.
     progress(index, total, label): called before each step.
+    probes: detect the driver's rules and run the probes first (False: judge coverage by
+    llvmpipe's rule, as without detection).
     mutant_scenes: optional scene names the mutant pass may also use beyond ``names`` (a
     sharded run checks only its share of the catalog, but its mutants need every scene
     that can catch them): they get a reference and the control run of the real shaders,
@@ -320,6 +373,14 @@ def run(ctx, names=None, *, method="hw", golden_dir=None, check_golden=True, mut
         check_golden = False
         out.notes.append(f"no golden folder at {_golden.golden_dir()}: golden comparison "
                          "skipped (set GLRASTER_GOLDEN_DIR or --golden-dir)")
+    if probes:
+        if progress:
+            progress(0, len(names), "rules and probes")
+        out.rules = _rules.detect_on(ctx)
+        out.probes = _probes.run(ctx)
+    rule = _reference_rule(out.rules)
+    key = (lambda n: n) if rule == _golden.FILL_RULE else (lambda n: (n, str(rule)))
+    failed_probes = [p for p in out.probes if p.failed]
     mutant_refs = {}
     passed = []
     mutant_list = _mutants.select(mutant_pattern) if mutants else []
@@ -328,14 +389,19 @@ def run(ctx, names=None, *, method="hw", golden_dir=None, check_golden=True, mut
         if progress:
             progress(i, total, name)
         scene = load_scene(name)
-        cached = references.get(name) if references is not None else None
+        cached = references.get(key(name)) if references is not None else None
         res, art = run_scene(scene, ctx, method=method, golden_dir=golden_dir,
                              check_golden=check_golden,
                              keep=bool(on_scene) or mutants or references is not None,
-                             ref=cached)
+                             ref=cached, fill_rule=rule)
+        res.explained_by = [(p.name, p.diagnosis) for p in failed_probes
+                            if p.explains_scene(scene, res)]
+        for p in failed_probes:
+            if p.explains_scene(scene, res):
+                p.explains.append(name)
         h, w = scene.resolution
         if references is not None and art is not None and h * w <= REFERENCE_CACHE_PIXELS:
-            references[name] = art.ref
+            references[key(name)] = art.ref
         out.scenes.append(res)
         if on_scene:
             on_scene(res, art)
@@ -350,15 +416,17 @@ def run(ctx, names=None, *, method="hw", golden_dir=None, check_golden=True, mut
             scene = load_scene(name)
             h, w = scene.resolution
             if h * w <= REFERENCE_CACHE_PIXELS:
-                cached = references.get(name) if references is not None else None
-                mutant_refs[name] = cached if cached is not None else _golden.reference_for(scene)
+                cached = references.get(key(name)) if references is not None else None
+                mutant_refs[name] = (cached if cached is not None
+                                     else _golden.reference_for(scene, fill_rule=rule))
                 passed.append(scene)
     if mutants:
         def mprog(j, label):
             if progress:
                 progress(len(names) + j, total, f"mutant {label}")
         out.mutants, out.control_failures = run_mutants(ctx, passed, mutant_refs,
-                                                        mutant_list, mprog)
+                                                        mutant_list, mprog, out.probes,
+                                                        out.rules)
     if progress:
         progress(total, total, "done")
     out.seconds = time.perf_counter() - t0
@@ -422,6 +490,11 @@ def format_table(result: CheckResult) -> str:
     """The per-scene table (and the mutant table when present) as plain text."""
     lines = [f"backend {result.backend} | {result.renderer} | GL {result.gl_version} | "
              f"method {result.method}", ""]
+    if result.rules is not None:
+        lines[1:1] = [result.rules.summary()]
+    if result.probes:
+        lines[-1:-1] = [f"probes ({sum(p.ok for p in result.probes)}/{len(result.probes)} ok):"] \
+            + [f"  {line}" for p in result.probes for line in p.line().split("\n")]
     hdr = (f"{'scene':<28}{'size':>11}{'tris':>8}{'covered':>9}{'cov!':>6}{'id!':>5}"
            f"{'persp e/tol':>12}{'screen e/tol':>13}{'depth e/tol':>12}{'golden':>8}"
            f"{'secs':>7}  status")
@@ -445,6 +518,8 @@ def format_table(result: CheckResult) -> str:
             f"{ratio('depth'):>12}{gold:>8}{s.seconds:>7.2f}  {status}")
         for f in s.failures:
             lines.append(f"    - {f}")
+        for probe, diagnosis in s.explained_by:
+            lines.append(f"    explained by probe {probe}: {diagnosis}")
     n_ok = sum(s.ok for s in result.scenes)
     lines.append("")
     lines.append(f"{n_ok}/{len(result.scenes)} scenes pass")

@@ -46,12 +46,13 @@ def golden_path(name: str, directory=None) -> Path:
     return golden_dir(directory) / f"{name}.exr"
 
 
-def reference_for(scene: Scene):
+def reference_for(scene: Scene, fill_rule=FILL_RULE):
     """The float64 reference raster of a scene (all of the scene's outputs, plus tri_id,
-    which the tolerance model needs)."""
+    which the tolerance model needs). ``fill_rule``: llvmpipe's for the goldens; a driver's
+    detected FillRule (or None, the edge band) when judging that driver's coverage."""
     outputs = tuple(dict.fromkeys(scene.outputs + ("tri_id",)))
     return _reference.rasterize(scene.pos, scene.tri, scene.resolution, outputs=outputs,
-                                fill_rule=FILL_RULE)
+                                fill_rule=fill_rule)
 
 
 def write_golden(scene: Scene, ref=None, directory=None) -> Path:

@@ -199,6 +199,7 @@ ul.fail {{ color: #b00; }}
 <div class="meta">backend <b>{e(result.backend)}</b> &middot; {e(result.renderer)} &middot;
 GL {e(result.gl_version)} &middot; method <b>{e(result.method)}</b> &middot; {n_ok}/{len(result.scenes)} scenes pass &middot;
 {result.seconds:.1f} s</div>
+{_rules_html(result, e)}
 <p class="legend">Error heatmap: error / tolerance
 <span class="bar" style="width:200px;margin-left:6px"></span> 1e-3 &rarr; 1,
 <span style="background:#f00"></span>above 1 (failure).
@@ -282,6 +283,8 @@ Coverage: <span style="background:#6e6e6e"></span>both
             out.append(f'<p style="font-size:12px;color:#666">{note}</p>')
         if s.failures:
             out.append('<ul class="fail">' + "".join(f"<li>{e(f)}</li>" for f in s.failures)
+                       + "".join(f"<li>explained by probe {e(n)}: {e(d)}</li>"
+                                 for n, d in getattr(s, "explained_by", ()))
                        + "</ul>")
         rep = s.report
         if rep is not None:
@@ -307,6 +310,24 @@ Coverage: <span style="background:#6e6e6e"></span>both
                        + ", ".join(f"{k} {v:.3f} s" for k, v in s.timings.items()) + "</p>")
         out.append("</section>")
         return "\n".join(out)
+
+
+def _rules_html(result, e) -> str:
+    """The detected rules and the probes (glraster.conformance.rules, probes) for the
+    report header; empty when they were not run."""
+    parts = []
+    if getattr(result, "rules", None) is not None:
+        parts.append(f'<div class="meta">{e(result.rules.summary())}</div>')
+    probes = getattr(result, "probes", None) or []
+    if probes:
+        rows = "".join(
+            f"<li><b>{e(p.name)}</b> {e(p.status.upper())}: {e(p.expectation)}"
+            + (f" &rarr; {e(p.diagnosis)}" if p.diagnosis else "")
+            + (f" (explains {e(', '.join(p.explains))})" if p.explains else "") + "</li>"
+            for p in probes)
+        cls = "" if all(p.ok for p in probes) else ' class="fail"'
+        parts.append(f"<ul{cls}>{rows}</ul>")
+    return "\n".join(parts)
 
 
 def _pool_heat(ratio, compared, f):

@@ -34,6 +34,33 @@ def _case(parent, classname, name, seconds, failure=None, error=None, out=None):
     return case
 
 
+def _probe_suite(root, result, stamp, total):
+    """The ``glraster.conformance.probes`` suite: a test case per probe (a failure names
+    the defect; a documented deviation passes and says so); returns the updated totals."""
+    ps = ET.SubElement(root, "testsuite", name="glraster.conformance.probes", timestamp=stamp)
+    pf = pe = 0
+    for p in result.probes:
+        out = f"{p.expectation}\n{p.spec}\n{p.detail}".strip()
+        if p.explains:
+            out += f"\nexplains the failures of: {', '.join(p.explains)}"
+        if p.status == "error":
+            pe += 1
+            _case(ps, "glraster.conformance.probes", p.name, p.seconds, error=p.diagnosis, out=out)
+        elif p.status == "fail":
+            pf += 1
+            _case(ps, "glraster.conformance.probes", p.name, p.seconds,
+                  failure=(p.diagnosis, out), out=out)
+        else:
+            note = {"known": f"known driver deviation: {p.diagnosis}",
+                    "skipped": "not run on this context"}.get(p.status, "")
+            _case(ps, "glraster.conformance.probes", p.name, p.seconds,
+                  out=f"{note}\n{out}".strip())
+    for k, v in (("tests", len(result.probes)), ("failures", pf), ("errors", pe),
+                 ("skipped", 0), ("time", f"{sum(p.seconds for p in result.probes):.3f}")):
+        ps.set(k, str(v))
+    return (total[0] + len(result.probes), total[1] + pf, total[2] + pe)
+
+
 def to_xml(result) -> ET.ElementTree:
     """An ElementTree for a :class:`glraster.conformance.check.CheckResult`."""
     root = ET.Element("testsuites", name="glraster")
@@ -47,6 +74,8 @@ def to_xml(result) -> ET.ElementTree:
     shard = getattr(result, "shard", None)
     if shard:
         ET.SubElement(props, "property", name="shard", value=f"{shard[0]}/{shard[1]}")
+    if getattr(result, "rules", None) is not None:
+        ET.SubElement(props, "property", name="rules", value=result.rules.summary())
     fails = errors = 0
     cls = f"glraster.conformance.check.{result.backend}" + (
         f".{result.method}" if result.method != "hw" else "")
@@ -59,6 +88,8 @@ def to_xml(result) -> ET.ElementTree:
         h, w = s.resolution
         tris = f"{s.triangles} triangle" + ("" if s.triangles == 1 else "s")
         summary = f"{s.description}\n{w}x{h}, {tris}\n{summary}"
+        for probe, diagnosis in getattr(s, "explained_by", ()):
+            summary += f"\nexplained by probe {probe}: {diagnosis}"
         if s.status == "error":
             errors += 1
             _case(suite, cls, s.name, s.seconds, error=s.error, out=summary)
@@ -74,6 +105,8 @@ def to_xml(result) -> ET.ElementTree:
     suite.set("skipped", "0")
     suite.set("time", f"{sum(s.seconds for s in result.scenes):.3f}")
     total = (len(result.scenes), fails, errors)
+    if getattr(result, "probes", None) and (not shard or shard[0] == 1):
+        total = _probe_suite(root, result, stamp, total)  # one shard reports the probes
 
     if result.mutants is not None:
         ms = ET.SubElement(root, "testsuite", name="glraster.conformance.mutants", timestamp=stamp)

@@ -100,16 +100,18 @@ def depth_test(span_tri, span_y, span_x0, span_x1, depth_plane, screen_planes, d
 
 
 @_compiled
-def fixed_point_spans(tris, edges, bbox):
-    """The covered pixels of triangles with an llvmpipe fixed-point edge setup, as spans.
+def fixed_point_spans(tris, edges, bbox, one=FIXED_ONE):
+    """The covered pixels of triangles with a fixed-point edge setup, as spans.
 
     tris  (K,) int64        triangles, in draw order
-    edges (T, 3, 3) int64   per edge (dcdx, dcdy, c), see reference.llvmpipe_edges
+    edges (T, 3, 3) int64   per edge (dcdx, dcdy, c), see fill_rule.fixed_edges
     bbox  (T, 4) int64      inclusive pixel ranges x0, x1, y0, y1 (inside the viewport)
+    one   int               fixed-point units per pixel, 2^subpixel_bits (default 256,
+                            llvmpipe's)
     Returns (span_tri, span_y, span_x0, span_x1), int64 arrays of the nonempty spans.
 
-    Pixel (x, y) samples the fixed-point point (256 x, 256 y); edge k covers it when
-    c - dcdx 256 x + dcdy 256 y >= 1. On row y, with K = c + dcdy 256 y and s = 256 dcdx,
+    Pixel (x, y) samples the fixed-point point (one x, one y); edge k covers it when
+    c - dcdx one x + dcdy one y >= 1. On row y, with K = c + dcdy one y and s = one dcdx,
     that is s x <= K - 1: x <= floor((K - 1) / s) when s > 0, x >= -floor((K - 1) / -s)
     when s < 0, every x or none when s == 0. Exact integer arithmetic, so each row of a
     triangle is one span found in constant time and empty bbox parts cost nothing.
@@ -126,9 +128,9 @@ def fixed_point_spans(tris, edges, bbox):
         t = tris[i]
         for py in range(bbox[t, 2], bbox[t, 3] + 1):
             left, right = bbox[t, 0], bbox[t, 1]
-            sy = py * FIXED_ONE
+            sy = py * one
             for k in range(3):
-                slope = edges[t, k, 0] * FIXED_ONE
+                slope = edges[t, k, 0] * one
                 rhs = edges[t, k, 2] + edges[t, k, 1] * sy - 1
                 if slope > 0:
                     right = min(right, rhs // slope)

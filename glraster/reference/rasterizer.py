@@ -17,8 +17,9 @@ near/far crossings without splitting triangles, and the values are those of the 
 triangle, as GL requires. M^-1 = adj(M) / det(M); the rows of adj(M) are the three edge
 functions e_i(p), linear in window space.
 
-Coverage of triangles whose vertices lie inside the viewport follows Mesa llvmpipe's fill
-rule exactly (:func:`llvmpipe_edges`); other triangles (clipped by the near/far planes or
+Coverage of triangles whose vertices lie inside the viewport follows a driver's fixed-point
+fill rule exactly (:class:`~glraster.geometry.fill_rule.FillRule`: subpixel bits, tie rule,
+snapping; by default Mesa llvmpipe's, :func:`llvmpipe_edges`); other triangles (clipped by the near/far planes or
 reaching outside the viewport, where the driver's clipper makes new float vertices) and
 every triangle when ``fill_rule=None`` mark the pixel centers within ``edge_band_px`` of
 their edges in ``edge_band``, where either answer is accepted.
@@ -43,7 +44,9 @@ from glraster import validate
 from glraster.types import OUTPUTS
 from glraster.geometry.clipping import near_far_extents
 from glraster.geometry.conditioning import triangle_conditioning
-from glraster.geometry.fill_rule import FIXED_ONE, SUBPIXEL_BITS, llvmpipe_edges  # noqa: F401 (part of this API)
+from glraster.geometry.fill_rule import (  # noqa: F401 (part of this API)
+    FIXED_ONE, LLVMPIPE, SUBPIXEL_BITS, FillRule, fixed_edges, llvmpipe_edges,
+)
 from glraster.geometry.triangles import TriangleGeometry
 from glraster.geometry.triangles import edge_functions, homogeneous_vertices
 from glraster.geometry.window import window_float32
@@ -90,11 +93,12 @@ class TriangleSetup(TriangleGeometry):
     depth_plane, planes_crossed, x_plane_crossed, conditioning), plus what only the
     rasterizer's own loops use. T triangles.
 
-    exact  : (T,) bool  coverage modeled bit for bit (llvmpipe rule, no clipping)
-    fixed  : (T, 3, 3) int64   llvmpipe edges (dcdx, dcdy, c) where ``fixed_ok``
+    exact  : (T,) bool  coverage modeled bit for bit (the fill rule's, no clipping)
+    fixed  : (T, 3, 3) int64   fixed-point edges (dcdx, dcdy, c) where ``fixed_ok``
     fixed_ok : (T,) bool  ``fixed`` holds a valid edge setup, used for coverage
     bbox   : (T, 4) int64 x0, x1, y0, y1 inclusive pixel range (x1 < x0: no pixels)
     culled : (T,) bool    produces no fragment (zero area)
+    rule   : the FillRule of ``fixed`` (None: no fixed-point model)
     """
 
     exact: np.ndarray
@@ -102,6 +106,7 @@ class TriangleSetup(TriangleGeometry):
     fixed_ok: np.ndarray
     bbox: np.ndarray
     culled: np.ndarray
+    rule: FillRule | None = None
 
     def geometry(self) -> TriangleGeometry:
         """The public part, sharing its arrays (no copy)."""
@@ -112,8 +117,21 @@ class TriangleSetup(TriangleGeometry):
         )
 
 
-def setup(pos: np.ndarray, tri: np.ndarray, resolution, fill_rule: str | None) -> TriangleSetup:
-    """Per-triangle setup of the reference. pos (V, 4) float32, tri (T, 3) int32."""
+def fill_rule_of(fill_rule) -> FillRule | None:
+    """The :class:`FillRule` named by a ``fill_rule`` argument: "llvmpipe" is
+    :data:`LLVMPIPE`, a FillRule itself, None none (edge band everywhere)."""
+    if fill_rule is None or isinstance(fill_rule, FillRule):
+        return fill_rule
+    if isinstance(fill_rule, str) and fill_rule == "llvmpipe":
+        return LLVMPIPE
+    raise ValueError(f"fill_rule must be 'llvmpipe' or None (or a "
+                     f"glraster.geometry.fill_rule.FillRule), got {fill_rule!r}")
+
+
+def setup(pos: np.ndarray, tri: np.ndarray, resolution, fill_rule) -> TriangleSetup:
+    """Per-triangle setup of the reference. pos (V, 4) float32, tri (T, 3) int32;
+    fill_rule: "llvmpipe", a FillRule or None (see :func:`rasterize`)."""
+    rule = fill_rule_of(fill_rule)
     height, width = resolution
     clip32 = pos[tri]                                   # (T, 3, 4) float32
     clip = clip32.astype(np.float64)
@@ -132,13 +150,13 @@ def setup(pos: np.ndarray, tri: np.ndarray, resolution, fill_rule: str | None) -
         )
         # The fixed-point model stays meaningful (and inside int64) for unclipped
         # triangles within a wide guard band; past it only the float test is used.
-        limit = float(1 << 22)
+        limit = rule.window_limit if rule is not None else 0.0
         modeled = in_front & in_depth & (np.abs(win) < limit).all(axis=(1, 2))
     fixed = np.zeros((len(tri), 3, 3), np.int64)
     fixed_ok = np.zeros(len(tri), bool)
-    if fill_rule == "llvmpipe" and modeled.any():
-        fixed[modeled], fixed_ok[modeled] = llvmpipe_edges(win[modeled])
-    exact = inside if fill_rule == "llvmpipe" else np.zeros(len(tri), bool)
+    if rule is not None and modeled.any():
+        fixed[modeled], fixed_ok[modeled] = fixed_edges(win[modeled], rule)
+    exact = inside if rule is not None else np.zeros(len(tri), bool)
 
     x, y = clip[..., 0], clip[..., 1]
     outside = np.stack([x > w, x < -w, y > w, y < -w, z > w, z < -w], -1).any(1)
@@ -146,8 +164,8 @@ def setup(pos: np.ndarray, tri: np.ndarray, resolution, fill_rule: str | None) -
     with np.errstate(divide="ignore", invalid="ignore"):
         depth_plane = 0.5 * np.einsum("ti,tij->tj", z, adj) / det[:, None]
     depth_plane[:, 2] += 0.5
-    # Nothing to rasterize: zero window area (det = 0), or llvmpipe culls the triangle
-    # because it snaps to zero area.
+    # Nothing to rasterize: zero window area (det = 0), or the driver culls the triangle
+    # because it snaps to zero area (llvmpipe does).
     culled = (det == 0) | ~np.isfinite(depth_plane).all(1) | (exact & ~fixed_ok)
     bbox = _bounding_boxes(clip, resolution, w, z)
     bbox[culled] = (0, -1, 0, -1)
@@ -157,6 +175,7 @@ def setup(pos: np.ndarray, tri: np.ndarray, resolution, fill_rule: str | None) -
         x_plane_crossed=outside[:, :2].any(1),
         conditioning=triangle_conditioning(clip, planes_crossed == 0, resolution),
         exact=exact, fixed=fixed, fixed_ok=fixed_ok & modeled, bbox=bbox, culled=culled,
+        rule=rule,
     )
 
 
@@ -196,20 +215,25 @@ def rasterize(
     resolution,
     *,
     outputs=OUTPUTS,
-    fill_rule: str | None = "llvmpipe",
-    edge_band_px: float = DEFAULT_EDGE_BAND_PX,
+    fill_rule: str | FillRule | None = "llvmpipe",
+    edge_band_px: float | None = None,
 ) -> ReferenceRaster:
     """Rasterize analytically in float64, with the same conventions as :func:`glraster.rasterize`.
 
     Parameters
     ----------
     pos, tri, resolution, outputs : as for :func:`glraster.rasterize`
-    fill_rule : "llvmpipe" or None
-        "llvmpipe": coverage of unclipped triangles inside the viewport follows Mesa
-        llvmpipe's fixed-point rule bit for bit. None: a point-in-triangle test at pixel
-        centers, and every triangle's edges form the edge band.
-    edge_band_px : float
+    fill_rule : "llvmpipe", a :class:`~glraster.geometry.fill_rule.FillRule`, or None
+        A FillRule (subpixel bits, tie rule, snapping; e.g. the one
+        glraster.conformance.rules measured on a driver): coverage of unclipped triangles
+        inside the viewport follows that fixed-point rule bit for bit. "llvmpipe": the
+        rule of Mesa llvmpipe, :data:`~glraster.geometry.fill_rule.LLVMPIPE`. None: a
+        point-in-triangle test at pixel centers, and every triangle's edges form the edge
+        band.
+    edge_band_px : float or None
         Half-width, in pixels, of the band around edges where coverage is not judged.
+        None: the rule's :attr:`~glraster.geometry.fill_rule.FillRule.edge_band_px`
+        (4/256 px for llvmpipe's and without a rule, DEFAULT_EDGE_BAND_PX).
 
     Returns
     -------
@@ -217,8 +241,9 @@ def rasterize(
     ``edge_band`` and ``depth_tie`` (H, W) bool.
     """
     names = validate.outputs(outputs)
-    if fill_rule not in ("llvmpipe", None):
-        raise ValueError(f"fill_rule must be 'llvmpipe' or None, got {fill_rule!r}")
+    rule = fill_rule_of(fill_rule)
+    if edge_band_px is None:
+        edge_band_px = rule.edge_band_px if rule is not None else DEFAULT_EDGE_BAND_PX
     if not (np.isfinite(edge_band_px) and edge_band_px >= 0):
         raise ValueError(f"edge_band_px must be a finite number >= 0, got {edge_band_px!r}")
     pos = validate.positions(pos)
@@ -232,7 +257,7 @@ def rasterize(
     best_error = np.zeros(n)
     others_low = np.full(n, np.inf)
     band = np.zeros(n, bool)
-    ts = setup(pos, tri, (height, width), fill_rule) if len(tri) else None
+    ts = setup(pos, tri, (height, width), rule) if len(tri) else None
     if ts is not None:
         error = depth_error(ts)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -245,10 +270,12 @@ def rasterize(
         fixed = np.flatnonzero(ts.fixed_ok)
         loose = np.flatnonzero(~ts.exact | ~ts.fixed_ok)
         for spans in (
-            kernels.fixed_point_spans(fixed, ts.fixed, ts.bbox),
+            kernels.fixed_point_spans(fixed, ts.fixed, ts.bbox, rule.one if rule else 1),
             kernels.float_spans(loose, ts.adj, ts.det, ts.depth_plane, ts.bbox, ~ts.fixed_ok,
                                 ~ts.exact & ~ts.culled, edge_band_px, width, band),
         ):
+            if not len(spans[0]):
+                continue                                 # nothing to test (saves a launch)
             with _PARALLEL_KERNEL:
                 kernels.depth_test(*spans, ts.depth_plane, screen_planes, error, width,
                                    best_depth, best_tri, best_error, others_low,
@@ -262,7 +289,8 @@ def rasterize(
         edge_band=band.reshape(shape),
         depth_tie=(covered & (others_low <= best_depth + best_error + DEPTH_TIE)).reshape(shape),
         triangles=ts.geometry() if ts is not None else None,
-        info={"backend": "reference", "renderer": f"float64 (numba), fill rule {fill_rule}"},
+        info={"backend": "reference", "renderer": "float64 (numba), fill rule "
+              + ("llvmpipe" if rule == LLVMPIPE else str(rule))},
         **_values(ts, best_tri, shape, names),
     )
 
@@ -288,7 +316,7 @@ def _values(ts, best_tri, shape, names) -> dict:
     persp = np.zeros((n, 3) if "persp" in names else (0, 3))
     screen = np.zeros((n, 3) if "screen" in names else (0, 3))
     depth = np.ones(n if "depth" in names else 0)
-    if ts is not None:
+    if ts is not None and (len(persp) or len(screen) or len(depth)):
         with _PARALLEL_KERNEL:
             kernels.values(best_tri, width, ts.adj, ts.det,
                            np.ascontiguousarray(ts.clip[..., 3]),
