@@ -73,16 +73,19 @@ class Method:
     vertex_input: bool = False
     fallback: Method | None = None
 
-    def error_model(self, ctx=None) -> ErrorModel:
+    def error_model(self, ctx=None, clip_defect: bool | None = None) -> ErrorModel:
         """The per-pixel error model for this method on a context (None: llvmpipe).
 
         The driver model (:meth:`ErrorModel.for_context`) bounds every method that
         interpolates or solves in float32 from the driver's float32 window-space data;
         the compensated methods shrink its position terms; outputs built on the driver's
-        noperspective varyings are waived where the driver has the clipper defect.
+        noperspective varyings are waived where the driver has Mesa's clipper defect:
+        ``clip_defect`` says whether it has (the conformance probe ``noperspective_clip``
+        measures it); None assumes it on llvmpipe only.
         """
         base = ErrorModel.for_context(ctx)
-        waived = self.clip_defect_outputs if base.waived_outputs else ()
+        has_defect = bool(base.waived_outputs) if clip_defect is None else clip_defect
+        waived = self.clip_defect_outputs if has_defect else ()
         return replace(base, waived_outputs=waived, compensated=self.compensated,
                        persp_from_screen=self.persp_from_screen)
 
@@ -164,9 +167,9 @@ def available(ctx) -> dict[str, Method | None]:
     return out
 
 
-def error_model(method: str, ctx=None) -> ErrorModel:
+def error_model(method: str, ctx=None, clip_defect: bool | None = None) -> ErrorModel:
     """:meth:`Method.error_model` of the method called ``method``."""
-    return get(method).error_model(ctx)
+    return get(method).error_model(ctx, clip_defect)
 
 
 def value_numpy_dtype(method: Method):

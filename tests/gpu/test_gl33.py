@@ -267,13 +267,16 @@ def test_softpipe_check_runs_every_scene_and_the_mutants(gl_backend):
     scenes = "tiny_viewport,basic_triangle,quad_shared_diagonal,near_plane_crossing"
     proc = run_softpipe([sys.executable, "-m", "glraster.cli", "check", "--backend",
                          gl_backend, "--no-golden", "--scenes", scenes, "--mutants"])
-    if "softpipe" not in proc.stdout:
-        pytest.skip("GALLIUM_DRIVER=softpipe did not give softpipe")
-    assert proc.returncode in (0, 1), proc.stderr
-    assert "| softpipe | GL 3.3" in proc.stdout
+    # softpipe ships in the same Debian package as llvmpipe (libgl1-mesa-dri)
+    assert "| softpipe | GL 3.3" in proc.stdout, proc.stdout[-2000:]
+    # every scene passes: tie-rule differences are judged by the edge band (softpipe's rule
+    # is not a fixed-point one), Mesa's clipper defect, which the noperspective_clip probe
+    # finds on softpipe too, is waived and counted as on llvmpipe
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr
+    lines = proc.stdout.splitlines()
     for name in scenes.split(","):
-        assert any(line.startswith(name) and line.rstrip().endswith(("PASS", "FAIL"))
-                   for line in proc.stdout.splitlines()), name
+        assert any(line.startswith(name) and " PASS" in line for line in lines), name
+    assert any(line.startswith("near_plane_crossing") and "waived" in line for line in lines)
     assert "control (real shaders via the mutant path): no false alarm" in proc.stdout
     assert "Traceback" not in proc.stderr
 
