@@ -109,7 +109,7 @@ class Service:
             yield
         finally:
             self.draining = True
-            await asyncio.get_running_loop().run_in_executor(None, self.pool.stop)
+            await self.pool.stop()
 
     # -- errors ---------------------------------------------------------------------------
     async def _http_error(self, request, exc):

@@ -13,7 +13,7 @@ Exposed at ``GET /metrics``:
 - ``glraster_worker_resident_bytes{worker}``             gauge: RSS of each worker process
 - ``process_resident_memory_bytes``                      gauge: RSS of the server process
 
-Counters are updated from the event loop and from the pool's threads, under one lock.
+Counters are updated from the event loop (and, for safety, under one lock).
 """
 
 from __future__ import annotations

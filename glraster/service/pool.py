@@ -1,7 +1,9 @@
 """The worker pool: N worker processes, one bounded queue, deadlines, crash recovery.
 
-One thread per worker (a *slot*) takes jobs from the shared queue, hands each to its
-process over a pipe and waits for the answer up to the job's deadline:
+Everything runs on the server's event loop: one asyncio task per worker (a *slot*) takes
+jobs from the shared queue, writes each to its process over a socket pair and reads the
+answer, non-blocking, up to the job's deadline (no thread sits between the event loop and
+the worker, so a request costs one hand-off to the worker and one back):
 
 - answer in time: delivered to the waiting request;
 - no answer by the deadline (a hang, or simply too slow): the process is killed, the
@@ -10,23 +12,37 @@ process over a pipe and waits for the answer up to the job's deadline:
   once; a second death answers 503. No other request is affected: each slot owns only
   its job.
 
-A slot whose process died while idle replaces it before taking the next job. Requests
-beyond the workers wait in the queue (``queue_size``); when it is full :meth:`submit`
-raises :class:`QueueFull` with a Retry-After estimate from the recent service times.
+A slot whose process died while idle replaces it before taking the next job. A job goes
+straight to an idle slot; requests beyond the workers wait in the queue (``queue_size``);
+when it is full :meth:`submit` raises :class:`QueueFull` with a Retry-After estimate from
+the recent service times. Starting and joining processes (rare) run in the loop's default
+executor, so they never block the loop.
+
+The wire format is :class:`multiprocessing.connection.Connection`'s (the worker uses one):
+each message is a 4-byte big-endian length (or -1 and an 8-byte length) and its bytes; a
+job is a pickled header ``(kind, meta)`` and the raw body, an answer a pickled header
+``(status, content_type, headers)`` and the result bytes.
 """
 
 from __future__ import annotations
 
+import asyncio
+import collections
 import math
 import multiprocessing
-import queue
-import threading
+import pickle
+import socket
+import struct
 import time
+from multiprocessing.connection import Connection
 
 from glraster.service.worker import worker_main
 
 RETRIES = 1            # a job whose worker died is retried this many times
 STOP_TIMEOUT = 5.0     # seconds a worker gets to exit after "stop" before it is killed
+IDLE_CHECK = 0.25      # seconds between liveness checks of an idle worker
+_READ_LIMIT = 1 << 26  # the stream buffer pauses reading above twice this
+_SOCKET_BUFFER = 4 << 20   # bytes in flight on a worker's pipe (capped by net.core.wmem_max)
 
 
 class QueueFull(Exception):
@@ -58,53 +74,59 @@ def _error(status: int, field: str, message: str, worker=None) -> Outcome:
 
 
 class Job:
-    """One request for a worker. ``deadline`` is a ``time.monotonic()`` instant."""
+    """One request for a worker. ``deadline`` is a ``time.monotonic()`` instant. Used only
+    on the event loop's thread."""
 
     def __init__(self, kind: str, meta: dict, body: bytes, deadline: float, loop):
         self.kind, self.meta, self.body, self.deadline = kind, meta, body, deadline
         self.loop = loop
         self.future = loop.create_future()
         self.state = "queued"       # queued -> running -> done, or queued -> abandoned
-        self._lock = threading.Lock()
 
     def claim(self) -> bool:
         """A slot takes the job (False: the request gave up while it was queued)."""
-        with self._lock:
-            if self.state != "queued":
-                return False
-            self.state = "running"
-            return True
+        if self.state != "queued":
+            return False
+        self.state = "running"
+        return True
 
     def abandon(self) -> bool:
         """The request stops waiting; True when no worker had taken the job yet."""
-        with self._lock:
-            if self.state == "queued":
-                self.state = "abandoned"
-                return True
-            return False
+        if self.state == "queued":
+            self.state = "abandoned"
+            return True
+        return False
 
     def answer(self, outcome: Outcome) -> None:
-        with self._lock:
-            self.state = "done"
-
-        def resolve():
-            if not self.future.done():
-                self.future.set_result(outcome)
-        try:
-            self.loop.call_soon_threadsafe(resolve)
-        except RuntimeError:   # the loop is closed: nobody is waiting any more
-            pass
+        self.state = "done"
+        if not self.future.done():
+            self.future.set_result(outcome)
 
 
-class Slot(threading.Thread):
-    """One worker process and the thread that feeds it."""
+def _frame(data) -> bytes:
+    n = len(data)
+    return struct.pack("!i", n) if n <= 0x7FFFFFFF else struct.pack("!iQ", -1, n)
+
+
+async def _read_frame(reader: asyncio.StreamReader) -> bytes:
+    (n,) = struct.unpack("!i", await reader.readexactly(4))
+    if n == -1:
+        (n,) = struct.unpack("!Q", await reader.readexactly(8))
+    return await reader.readexactly(n)
+
+
+class _Died(Exception):
+    """The worker's pipe closed (the process died)."""
+
+
+class Slot:
+    """One worker process and the task that feeds it."""
 
     def __init__(self, pool: "WorkerPool", index: int):
-        super().__init__(name=f"glraster-slot-{index}", daemon=True)
         self.pool = pool
         self.index = index
         self.proc = None
-        self.conn = None
+        self.reader = self.writer = None
         self.state = "starting"
         self.info: dict = {}
         self.error = ""
@@ -112,28 +134,62 @@ class Slot(threading.Thread):
         self.restarts = 0
         self.started = 0.0
         self.job = None
+        self.task = None
+        self._waiter = None          # a future while idle: submit hands a job through it
+        self._reaping = []           # tasks joining killed processes
 
     # -- the process ----------------------------------------------------------------------
-    def _spawn(self) -> bool:
+    async def _spawn(self) -> bool:
         cfg = self.pool.config
+        loop = asyncio.get_running_loop()
         self.state = "starting"
         mp = multiprocessing.get_context("spawn")
-        parent, child = mp.Pipe(duplex=True)
+        parent, child_sock = socket.socketpair()
+        for sock in (parent, child_sock):   # a body or result in one write where allowed
+            try:
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, _SOCKET_BUFFER)
+            except OSError:
+                pass
+        child = Connection(child_sock.detach())
         proc = mp.Process(target=worker_main, args=(child, cfg.backend, cfg.limits),
                           name=f"glraster-worker-{self.index}", daemon=True)
-        proc.start()
-        child.close()
-        self.proc, self.conn = proc, parent
-        deadline = time.monotonic() + cfg.worker_start_timeout
         try:
-            while not parent.poll(0.2):
-                if not proc.is_alive() or time.monotonic() > deadline or self.pool.stopping.is_set():
-                    raise TimeoutError("no working context reported in "
-                                       f"{cfg.worker_start_timeout:g} s" if proc.is_alive()
-                                       else f"exited with code {proc.exitcode} while starting")
-            msg = parent.recv()
-        except (TimeoutError, EOFError, OSError) as exc:
-            msg = ("failed", str(exc) or type(exc).__name__)
+            await loop.run_in_executor(None, proc.start)
+        except BaseException as exc:  # noqa: BLE001 - reported as the slot's error
+            child.close()
+            parent.close()
+            self.error = f"could not start a worker: {exc}"[:300]
+            self.state = "failed"
+            return False
+        child.close()
+        self.proc = proc
+        self.reader, self.writer = await asyncio.open_unix_connection(sock=parent,
+                                                                      limit=_READ_LIMIT)
+        deadline = time.monotonic() + cfg.worker_start_timeout
+        first = asyncio.ensure_future(_read_frame(self.reader))
+        msg = None
+        try:
+            while msg is None:
+                done, _ = await asyncio.wait({first}, timeout=0.2)
+                if done:
+                    msg = pickle.loads(first.result())
+                elif time.monotonic() > deadline or self.pool.stopping:
+                    raise TimeoutError(f"no working context reported in "
+                                       f"{cfg.worker_start_timeout:g} s")
+        except (asyncio.IncompleteReadError, ConnectionError, OSError):
+            for _ in range(20):
+                if not proc.is_alive():
+                    break
+                await asyncio.sleep(0.05)
+            msg = ("failed", f"exited with code {proc.exitcode} while starting"
+                   if not proc.is_alive() else "the worker closed its pipe while starting")
+        except TimeoutError as exc:
+            msg = ("failed", str(exc))
+        except Exception as exc:  # noqa: BLE001 - an unreadable first message
+            msg = ("failed", f"{type(exc).__name__}: {exc}")
+        finally:
+            if not first.done():
+                first.cancel()
         if msg[0] != "ready":
             self.error = msg[1]
             self._kill()
@@ -146,74 +202,121 @@ class Slot(threading.Thread):
         return True
 
     def _kill(self) -> None:
-        proc, conn = self.proc, self.conn
-        self.proc = self.conn = None
+        """Kill the process (a signal: immediate) and close the pipe; it is joined in the
+        background."""
+        proc, writer = self.proc, self.writer
+        self.proc = self.reader = self.writer = None
+        if writer is not None:
+            writer.close()
         if proc is not None:
             if proc.is_alive():
                 proc.kill()
-            proc.join(STOP_TIMEOUT)
-        if conn is not None:
-            conn.close()
+            task = asyncio.ensure_future(
+                asyncio.get_running_loop().run_in_executor(None, proc.join, STOP_TIMEOUT))
+            self._reaping.append(task)
+            task.add_done_callback(self._reaping.remove)
 
-    def _stop_process(self) -> None:
-        proc, conn = self.proc, self.conn
-        if proc is not None and conn is not None and proc.is_alive():
+    async def _stop_process(self) -> None:
+        proc, writer = self.proc, self.writer
+        if proc is not None and writer is not None and proc.is_alive():
             try:
-                conn.send(("stop",))
-            except OSError:
+                data = pickle.dumps(("stop",))
+                writer.write(_frame(data) + data)
+                await asyncio.wait_for(writer.drain(), STOP_TIMEOUT)
+            except (OSError, ConnectionError, asyncio.TimeoutError):
                 pass
-            proc.join(STOP_TIMEOUT)
+            await asyncio.get_running_loop().run_in_executor(None, proc.join, STOP_TIMEOUT)
         self._kill()
+        if self._reaping:
+            await asyncio.wait(list(self._reaping))
         self.state = "stopped"
 
-    def _replace(self, reason: str) -> None:
+    async def _replace(self, reason: str, respawn: bool = True) -> None:
         self._kill()
         self.restarts += 1
         self.pool.metrics.restart(reason)
-        if not self.pool.stopping.is_set():
-            self._spawn()
+        if respawn and not self.pool.stopping:
+            await self._spawn()
 
     @property
     def pid(self):
         return self.proc.pid if self.proc is not None else None
 
     # -- the loop -------------------------------------------------------------------------
-    def run(self) -> None:
+    async def _next_job(self):
+        """The next job: from the queue, or handed over by :meth:`WorkerPool.submit`
+        while idle; None after ``IDLE_CHECK`` seconds without one."""
+        pool = self.pool
+        while pool.pending:
+            job = pool.pending.popleft()
+            if job.claim():
+                return job
+        waiter = asyncio.get_running_loop().create_future()
+        self._waiter = waiter
+        pool.idle.append(self)
+        try:
+            await asyncio.wait({waiter}, timeout=IDLE_CHECK)
+        finally:
+            if self._waiter is waiter:       # nobody handed a job over
+                self._waiter = None
+                pool.idle.remove(self)
+        if waiter.done() and not waiter.cancelled():
+            return waiter.result()            # already claimed by submit
+        waiter.cancel()
+        return None
+
+    async def run(self) -> None:
         pool = self.pool
         backoff = 0.5
-        while not pool.stopping.is_set():
-            if self.proc is None or not self.proc.is_alive():
-                if self.proc is not None:       # died while idle, or after answering a 500
-                    self.restarts += 1
-                    pool.metrics.restart("error" if self.proc.exitcode == 0 else "crash")
-                    self._kill()
-                if not self._spawn():
-                    pool.metrics.restart("startup")
-                    if pool.stopping.wait(backoff):
-                        break
-                    backoff = min(backoff * 2, 10.0)
+        try:
+            while not pool.stopping:
+                if self.proc is None or not self.proc.is_alive():
+                    if self.proc is not None:    # died while idle, or after answering a 500
+                        self.restarts += 1
+                        pool.metrics.restart("error" if self.proc.exitcode == 0 else "crash")
+                        self._kill()
+                    if not await self._spawn():
+                        pool.metrics.restart("startup")
+                        try:
+                            await asyncio.wait_for(pool.stopped.wait(), backoff)
+                            break
+                        except asyncio.TimeoutError:
+                            pass
+                        backoff = min(backoff * 2, 10.0)
+                        continue
+                    backoff = 0.5
+                job = await self._next_job()
+                if job is None:
                     continue
-                backoff = 0.5
-            try:
-                job = pool.queue.get(timeout=0.25)
-            except queue.Empty:
-                continue
-            if not job.claim():
-                continue
-            self.state = "busy"
-            self.job = job
-            try:
-                job.answer(self._execute(job))
-            except BaseException as exc:  # noqa: BLE001 - never leave a request unanswered
-                job.answer(_error(503, "server", f"worker slot failed: {exc}"[:300], self.index))
-                self._replace("crash")
-            finally:
-                self.job = None
-                if self.state == "busy":
-                    self.state = "ready"
-        self._stop_process()
+                self.state = "busy"
+                self.job = job
+                try:
+                    job.answer(await self._execute(job))
+                except asyncio.CancelledError:
+                    job.answer(_error(503, "server", "the server shut down while rendering "
+                                                     "this request", self.index))
+                    raise
+                except BaseException as exc:  # noqa: BLE001 - never leave a request unanswered
+                    job.answer(_error(503, "server", f"worker slot failed: {exc}"[:300],
+                                      self.index))
+                    await self._replace("crash")
+                finally:
+                    self.job = None
+                    if self.state == "busy":
+                        self.state = "ready"
+        finally:
+            await self._stop_process()
 
-    def _execute(self, job: Job) -> Outcome:
+    async def _exchange(self, job: Job):
+        header = pickle.dumps((job.kind, job.meta))
+        self.writer.write(_frame(header) + header + _frame(job.body))
+        self.writer.write(job.body)
+        await self.writer.drain()
+        status, ctype, headers = pickle.loads(await _read_frame(self.reader))
+        body = await _read_frame(self.reader)
+        return status, ctype, headers, body
+
+    async def _execute(self, job: Job) -> Outcome:
         attempts = 0
         while True:
             remaining = job.deadline - time.monotonic()
@@ -224,25 +327,24 @@ class Slot(threading.Thread):
                 return _error(503, "server", f"no worker: {self.error}"[:300], self.index)
             t0 = time.monotonic()
             try:
-                self.conn.send((job.kind, job.meta))
-                self.conn.send_bytes(job.body)
-                answered = self.conn.poll(remaining)
-                if answered:
-                    status, ctype, headers = self.conn.recv()
-                    body = self.conn.recv_bytes()
-            except (EOFError, OSError):
-                attempts += 1
-                self._replace("crash")
-                if attempts > RETRIES:
-                    return _error(503, "server", "the worker rendering this request died twice; "
-                                                 "it was not answered", self.index)
-                continue
-            if not answered:
-                self._replace("deadline")
+                status, ctype, headers, body = await asyncio.wait_for(self._exchange(job),
+                                                                      remaining)
+            except asyncio.TimeoutError:
+                # the worker is killed now and replaced after the answer
+                self._kill()
+                self.restarts += 1
+                self.pool.metrics.restart("deadline")
                 return _error(504, "deadline",
                               f"the request was not done by its deadline "
                               f"({job.meta.get('deadline', 0):g} s); it was cancelled and its "
                               "worker replaced", self.index)
+            except (asyncio.IncompleteReadError, ConnectionError, OSError):
+                attempts += 1
+                await self._replace("crash", respawn=attempts <= RETRIES)
+                if attempts > RETRIES:
+                    return _error(503, "server", "the worker rendering this request died twice; "
+                                                 "it was not answered", self.index)
+                continue
             self.requests += 1
             self.pool.note_service_time(time.monotonic() - t0)
             headers = dict(headers)
@@ -252,47 +354,55 @@ class Slot(threading.Thread):
 
 
 class WorkerPool:
-    """``config.workers`` worker slots sharing a queue of ``config.queue_size`` jobs."""
+    """``config.workers`` worker slots sharing a queue of ``config.queue_size`` jobs. Every
+    method is called on the event loop's thread."""
 
     def __init__(self, config, metrics):
         self.config = config
         self.metrics = metrics
-        self.queue: queue.Queue = queue.Queue(maxsize=max(config.queue_size, 0) or 1)
+        self.maxsize = max(config.queue_size, 0) or 1
+        self.pending: collections.deque = collections.deque()
+        self.idle: list = []
         self.capacity = config.queue_size
-        self.stopping = threading.Event()
+        self.stopping = False
+        self.stopped = None
         self.slots = [Slot(self, i) for i in range(config.workers)]
         self._ewma = 0.05
-        self._lock = threading.Lock()
 
     def start(self) -> None:
+        self.stopped = asyncio.Event()
         for slot in self.slots:
-            slot.start()
+            slot.task = asyncio.ensure_future(slot.run())
 
     def note_service_time(self, seconds: float) -> None:
-        with self._lock:
-            self._ewma = 0.9 * self._ewma + 0.1 * seconds
+        self._ewma = 0.9 * self._ewma + 0.1 * seconds
 
     def retry_after(self) -> int:
         """Seconds until a queued request would likely be taken (at least 1)."""
-        with self._lock:
-            per = self._ewma
-        waiting = self.queue.qsize() + len(self.slots)
-        return max(1, math.ceil(per * waiting / max(1, len(self.slots))))
+        waiting = len(self.pending) + len(self.slots)
+        return max(1, math.ceil(self._ewma * waiting / max(1, len(self.slots))))
 
     def submit(self, job: Job) -> None:
-        """Queue ``job``; :class:`QueueFull` when the queue is full, :class:`Unavailable`
-        when the pool is stopping or no worker has a working context."""
-        if self.stopping.is_set():
+        """Hand ``job`` to an idle worker or queue it; :class:`QueueFull` when the queue is
+        full, :class:`Unavailable` when the pool is stopping or no worker has a working
+        context."""
+        if self.stopping:
             raise Unavailable("the server is shutting down")
         if not any(s.state in ("ready", "busy", "starting") for s in self.slots):
             errors = "; ".join(sorted({s.error for s in self.slots if s.error}))
             raise Unavailable(f"no worker has a working GL context ({errors or 'starting'})")
+        while self.idle:
+            slot = self.idle.pop(0)
+            waiter, slot._waiter = slot._waiter, None
+            if waiter is not None and not waiter.done() and job.claim():
+                slot.state = "busy"
+                waiter.set_result(job)
+                return
         if self.capacity == 0 and not any(s.state == "ready" for s in self.slots):
             raise QueueFull(self.retry_after())
-        try:
-            self.queue.put_nowait(job)
-        except queue.Full:
-            raise QueueFull(self.retry_after()) from None
+        if len(self.pending) >= self.maxsize:
+            raise QueueFull(self.retry_after())
+        self.pending.append(job)
 
     def ready(self) -> bool:
         return any(s.state in ("ready", "busy") for s in self.slots)
@@ -306,19 +416,24 @@ class WorkerPool:
     def snapshot(self) -> dict:
         workers = [{"index": s.index, "pid": s.pid, "state": s.state, "requests": s.requests,
                     "restarts": s.restarts, "error": s.error} for s in self.slots]
-        return {"queue_depth": self.queue.qsize(), "queue_capacity": self.capacity,
+        return {"queue_depth": len(self.pending), "queue_capacity": self.capacity,
                 "inflight": sum(w["state"] == "busy" for w in workers), "workers": workers}
 
-    def stop(self) -> None:
-        """Stop taking jobs, answer what is still queued with 503, stop the workers."""
-        self.stopping.set()
-        while True:
-            try:
-                job = self.queue.get_nowait()
-            except queue.Empty:
-                break
+    async def stop(self) -> None:
+        """Stop taking jobs, answer what is still queued with 503, let the in-flight jobs
+        finish, stop the workers."""
+        self.stopping = True
+        if self.stopped is not None:
+            self.stopped.set()
+        while self.pending:
+            job = self.pending.popleft()
             if job.claim():
                 job.answer(_error(503, "server", "the server shut down before a worker took "
                                                  "this request"))
-        for slot in self.slots:
-            slot.join(STOP_TIMEOUT + 30.0)
+        tasks = [s.task for s in self.slots if s.task is not None]
+        if tasks:
+            done, pending = await asyncio.wait(tasks, timeout=STOP_TIMEOUT + 30.0)
+            for t in pending:
+                t.cancel()
+            if pending:
+                await asyncio.wait(pending, timeout=STOP_TIMEOUT + 5.0)
