@@ -156,3 +156,18 @@ class Timer:
                          for k in ("mean_ms", "median_ms")}
             out[name]["n"] = n
         return out
+
+
+def descend(timer: Timer, loss, optimizer, schedule, project=None) -> None:
+    """One optimizer step on ``loss``: the backward timed as "backward", the step, the
+    schedule and ``project`` (run without autograd: a renormalisation or clamp of the
+    parameters) as "step"."""
+    with timer("backward"):
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+    with timer("step"):
+        optimizer.step()
+        schedule.step()
+        if project is not None:
+            with torch.no_grad():
+                project()

@@ -24,6 +24,7 @@ from glraster.geometry import shapes
 from glraster.torch.fitting.common import (
     Timer,
     clip_positions,
+    descend,
     quaternion_matrices,
     random_quaternions,
     view_matrices,
@@ -134,12 +135,7 @@ def fit_cube(glctx, resolution: int, seed: int, *, iterations: int = 1000, views
             image = render_cube(glctx, mvp, pos, col, tri, resolution, antialias=antialias,
                                 topology=topology)
             loss = torch.mean((image - target) ** 2)
-        with timer("backward"):
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-        with timer("step"):
-            opt.step()
-            schedule.step()
+        descend(timer, loss, opt, schedule)
         losses.append(float(loss.detach()))
         if progress is not None:
             progress(it + 1, iterations, f"{resolution}x{resolution} seed {seed} "

@@ -33,6 +33,7 @@ from glraster.geometry import camera
 from glraster.torch.fitting.common import (
     Timer,
     angle_degrees,
+    descend,
     normalized,
     quaternion_matrices,
     random_quaternions,
@@ -166,14 +167,7 @@ def fit_pose(glctx, seed: int, *, resolution: int = 32, restarts: int = 8,
             timer.times["forward"].pop()
             final_loss = per_restart.detach().double().numpy()
             break
-        with timer("backward"):
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-        with timer("step"):
-            opt.step()
-            schedule.step()
-            with torch.no_grad():
-                q /= q.norm(dim=1, keepdim=True)
+        descend(timer, loss, opt, schedule, project=lambda: q.div_(q.norm(dim=1, keepdim=True)))
         losses.append(per_restart.detach().double().numpy())
         if progress is not None:
             best = int(np.argmin(losses[-1]))

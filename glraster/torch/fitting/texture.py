@@ -33,6 +33,7 @@ from glraster.geometry import shapes
 from glraster.torch.fitting.common import (
     Timer,
     clip_positions,
+    descend,
     psnr,
     quaternion_matrices,
     random_quaternions,
@@ -210,14 +211,7 @@ def fit_texture(glctx, seed: int, *, mip: bool, resolution: int = 128,
             image, _ = render_texture(glctx, train.mvp[pick], tex, resolution, mip=mip,
                                       mesh=mesh)
             loss = masked_mse(image, train.target[pick], train.mask[pick])
-        with timer("backward"):
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-        with timer("step"):
-            opt.step()
-            schedule.step()
-            with torch.no_grad():
-                tex.clamp_(0.0, 1.0)
+        descend(timer, loss, opt, schedule, project=lambda: tex.clamp_(0.0, 1.0))
         losses.append(float(loss.detach()))
         if progress is not None:
             progress(it + 1, iterations, f"{name} seed {seed} PSNR {eval_psnr[-1]:.2f} dB")
