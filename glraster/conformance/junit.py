@@ -21,6 +21,16 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 
+def _set_counts(element, tests, failures, errors, seconds, skipped=0) -> None:
+    """The JUnit count attributes of a <testsuite> (``skipped=None``: of <testsuites>)."""
+    element.set("tests", str(tests))
+    element.set("failures", str(failures))
+    element.set("errors", str(errors))
+    if skipped is not None:
+        element.set("skipped", str(skipped))
+    element.set("time", f"{seconds:.3f}")
+
+
 def _case(parent, classname, name, seconds, failure=None, error=None, out=None):
     case = ET.SubElement(parent, "testcase", classname=classname, name=name,
                          time=f"{seconds:.3f}")
@@ -55,9 +65,7 @@ def _probe_suite(root, result, stamp, total):
                     "skipped": "not run on this context"}.get(p.status, "")
             _case(ps, "glraster.conformance.probes", p.name, p.seconds,
                   out=f"{note}\n{out}".strip())
-    for k, v in (("tests", len(result.probes)), ("failures", pf), ("errors", pe),
-                 ("skipped", 0), ("time", f"{sum(p.seconds for p in result.probes):.3f}")):
-        ps.set(k, str(v))
+    _set_counts(ps, len(result.probes), pf, pe, sum(p.seconds for p in result.probes))
     return (total[0] + len(result.probes), total[1] + pf, total[2] + pe)
 
 
@@ -99,11 +107,7 @@ def to_xml(result) -> ET.ElementTree:
                   failure=("; ".join(s.failures), summary), out=summary)
         else:
             _case(suite, cls, s.name, s.seconds, out=summary)
-    suite.set("tests", str(len(result.scenes)))
-    suite.set("failures", str(fails))
-    suite.set("errors", str(errors))
-    suite.set("skipped", "0")
-    suite.set("time", f"{sum(s.seconds for s in result.scenes):.3f}")
+    _set_counts(suite, len(result.scenes), fails, errors, sum(s.seconds for s in result.scenes))
     total = (len(result.scenes), fails, errors)
     if getattr(result, "probes", None) and (not shard or shard[0] == 1):
         total = _probe_suite(root, result, stamp, total)  # one shard reports the probes
@@ -131,16 +135,9 @@ def to_xml(result) -> ET.ElementTree:
                             "false alarm on: " + ", ".join(result.control_failures))
         _case(ms, "glraster.conformance.mutants", "control_real_shaders", 0.0, failure=control_fail)
         n = len(result.mutants) + 1
-        ms.set("tests", str(n))
-        ms.set("failures", str(mf))
-        ms.set("errors", str(me))
-        ms.set("skipped", "0")
-        ms.set("time", f"{sum(m.seconds for m in result.mutants):.3f}")
+        _set_counts(ms, n, mf, me, sum(m.seconds for m in result.mutants))
         total = (total[0] + n, total[1] + mf, total[2] + me)
-    root.set("tests", str(total[0]))
-    root.set("failures", str(total[1]))
-    root.set("errors", str(total[2]))
-    root.set("time", f"{result.seconds:.3f}")
+    _set_counts(root, *total, result.seconds, skipped=None)
     ET.indent(root)
     return ET.ElementTree(root)
 
@@ -235,16 +232,9 @@ def merge(sources) -> ET.ElementTree:
                 fails += case.find("failure") is not None
                 errs += case.find("error") is not None
                 seconds += float(case.get("time") or 0)
-        suite.set("tests", str(tests))
-        suite.set("failures", str(fails))
-        suite.set("errors", str(errs))
-        suite.set("skipped", "0")
-        suite.set("time", f"{seconds:.3f}")
+        _set_counts(suite, tests, fails, errs, seconds)
         totals = [totals[0] + tests, totals[1] + fails, totals[2] + errs, totals[3] + seconds]
-    out.set("tests", str(totals[0]))
-    out.set("failures", str(totals[1]))
-    out.set("errors", str(totals[2]))
-    out.set("time", f"{totals[3]:.3f}")
+    _set_counts(out, *totals, skipped=None)
     ET.indent(out)
     return ET.ElementTree(out)
 
