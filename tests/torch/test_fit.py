@@ -21,7 +21,6 @@ torch = pytest.importorskip("torch")
 import glraster.torch as dr
 from glraster.cli import main
 from glraster.torch.fitting import common, cube, figures, pose, texture
-from glraster.torch.fitting.render import antialias_available
 
 
 @pytest.fixture
@@ -37,7 +36,7 @@ def test_cube_fit_at_8x8_cuts_the_vertex_error_tenfold(glctx):
     # Measured: 0.46 -> 0.031 (15x), colour 0.40 -> 0.055; the full run's 1000 iterations
     # reach 0.00044 (docs/fitting.md).
     f = cube.fit_cube(glctx, 8, seed=1, iterations=300, views=4)
-    assert f.antialias == antialias_available()
+    assert f.antialias is True
     assert f.error.shape == (301,) and f.loss.shape == (300,)
     assert 0.3 < f.error[0] < 0.7
     assert f.error[-1] < f.error[0] / 10, f.error[::50]
@@ -46,7 +45,6 @@ def test_cube_fit_at_8x8_cuts_the_vertex_error_tenfold(glctx):
     assert f.timing["forward"]["n"] == 300
 
 
-@pytest.mark.skipif(not antialias_available(), reason="needs glraster.torch.antialias")
 def test_pose_fit_recovers_the_rotation_with_symmetry_jumps(glctx):
     # Measured: 0.020 degrees (the full run's 8 restarts x 300 iterations: 3.4e-6).
     f = pose.fit_pose(glctx, 0, resolution=32, restarts=4, iterations=120)

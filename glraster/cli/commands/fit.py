@@ -181,16 +181,11 @@ def _finish(args, result, paths) -> None:
 
 def _run_cube(args) -> int:
     from glraster.torch.fitting import cube, figures
-    from glraster.torch.fitting.render import antialias_available
 
     resolutions = _ints(args.resolutions, "resolutions")
     _positive("views", args.views)
     seeds = _seeds(args)
     antialias = not args.no_antialias
-    if antialias and not antialias_available():
-        print("glraster fit cube: glraster.torch.antialias is not available: fitting "
-              "without it (no visibility gradient)", file=sys.stderr)
-        antialias = False
     with _session(args) as glctx:
         fits = []
         for res in resolutions:
@@ -224,15 +219,10 @@ def _run_cube(args) -> int:
 
 def _run_pose(args) -> int:
     from glraster.torch.fitting import figures, pose
-    from glraster.torch.fitting.render import antialias_available
 
     _positive("resolution", args.resolution)
     _positive("restarts", args.restarts)
     antialias = not args.no_antialias
-    if antialias and not antialias_available():
-        print("glraster fit pose: glraster.torch.antialias is not available: fitting "
-              "without it", file=sys.stderr)
-        antialias = False
     with _session(args) as glctx:
         fits = []
         for seed in _seeds(args):

@@ -29,7 +29,7 @@ from glraster.torch.fitting.common import (
     random_quaternions,
     view_matrices,
 )
-from glraster.torch.fitting.render import antialias_available, shade, topology_hash
+from glraster.torch.fitting.render import shade, topology_hash
 
 __all__ = ["CubeFit", "cube", "display_views", "fit_cube", "render_cube"]
 
@@ -94,16 +94,14 @@ def _first_below(curve, level):
 
 
 def fit_cube(glctx, resolution: int, seed: int, *, iterations: int = 1000, views: int = 4,
-             lr: float = 1e-2, lr_decay: float = 0.1, antialias: bool | None = None,
+             lr: float = 1e-2, lr_decay: float = 0.1, antialias: bool = True,
              progress=None) -> CubeFit:
     """Fit the cube from the random start of ``seed`` (see the module doc).
 
-    glctx: a :class:`glraster.torch.RasterizeGLContext`. antialias: None uses antialias when
-    :mod:`glraster.torch.antialias` is available. progress: optional callable
+    glctx: a :class:`glraster.torch.RasterizeGLContext`. antialias: False fits through
+    rasterize -> interpolate only (no visibility gradient). progress: optional callable
     ``(i, total, label)``, called every iteration.
     """
-    if antialias is None:
-        antialias = antialias_available()
     vertices, triangles, colors = cube()
     tri = torch.tensor(triangles, dtype=torch.int32)
     topology = topology_hash(tri) if antialias else None

@@ -39,7 +39,7 @@ from glraster.torch.fitting.common import (
     random_quaternions,
 )
 from glraster.torch.fitting.cube import DISTANCE, FOVY, cube
-from glraster.torch.fitting.render import antialias_available, shade, topology_hash
+from glraster.torch.fitting.render import shade, topology_hash
 
 __all__ = ["PoseFit", "cube_symmetries", "fit_pose", "multiply", "render_pose"]
 
@@ -126,12 +126,10 @@ class PoseFit:
 
 def fit_pose(glctx, seed: int, *, resolution: int = 32, restarts: int = 8,
              iterations: int = 300, lr: float = 3e-2, lr_decay: float = 0.03,
-             jumps=(0.25, 0.5), antialias: bool | None = None, progress=None) -> PoseFit:
+             jumps=(0.25, 0.5), antialias: bool = True, progress=None) -> PoseFit:
     """Recover the rotation of ``seed`` (see the module doc). ``jumps``: the fractions of
     the run after which every restart moves to its best symmetric variant (() for none).
     ``progress``: optional callable ``(i, total, label)`` called every iteration."""
-    if antialias is None:
-        antialias = antialias_available()
     _, triangles, _ = cube()
     topology = topology_hash(torch.tensor(triangles, dtype=torch.int32)) if antialias else None
     rng = np.random.default_rng(seed)
