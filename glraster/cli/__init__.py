@@ -29,6 +29,11 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+# optional dependency -> the pyproject extra that installs it
+OPTIONAL_EXTRAS = {"torch": "torch", "starlette": "service", "uvicorn": "service",
+                   "trimesh": "mesh", "pyrender": "mesh"}
+
+
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -42,4 +47,11 @@ def main(argv=None) -> int:
         return exit_codes.NO_BACKEND
     except (ValueError, FileNotFoundError, ShaderCompileError) as exc:
         print(f"glraster {args.command}: error: {exc}", file=sys.stderr)
+        return exit_codes.USAGE
+    except ModuleNotFoundError as exc:
+        extra = OPTIONAL_EXTRAS.get((exc.name or "").split(".")[0])
+        if extra is None:
+            raise
+        print(f"glraster {args.command}: error: this command needs {exc.name}: "
+              f"pip install 'glraster[{extra}]'", file=sys.stderr)
         return exit_codes.USAGE

@@ -39,3 +39,17 @@ def test_bad_input_is_exit_code_2(tmp_path):
 
 def test_no_command_is_exit_code_2():
     assert _glraster().returncode == exit_codes.USAGE
+
+
+def test_a_missing_optional_extra_is_a_usage_error_naming_it(tmp_path):
+    """Without torch (a stub that cannot be imported), `glraster fit` says which extra to
+    install instead of a traceback."""
+    stub = tmp_path / "stub" / "torch"
+    stub.mkdir(parents=True)
+    (stub / "__init__.py").write_text("raise ModuleNotFoundError(\"No module named 'torch'\", "
+                                      "name='torch')\n")
+    env = {**os.environ, "PYTHONPATH": str(tmp_path / "stub")}
+    result = _glraster("fit", "cube", "--out", str(tmp_path / "o"), env=env)
+    assert result.returncode == exit_codes.USAGE, result.stderr
+    assert "pip install 'glraster[torch]'" in result.stderr
+    assert "Traceback" not in result.stderr
