@@ -19,7 +19,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from typing import Callable
 
-import numpy as np
 
 from glraster.errors import GLVersionError
 from glraster.gpu import homogeneous as _homogeneous
@@ -127,7 +126,6 @@ METHODS: dict[str, Method] = {m.name: m for m in (
     Method("solve4", "seed 000's 4x4 linear system per pixel, float32 Gaussian elimination",
            "raster/pull.vert", "methods/solve4.frag", uniforms=_solve4_uniforms),
 )}
-METHOD_NOTES = {name: m.note for name, m in METHODS.items()}
 
 
 def get(name) -> Method:
@@ -170,8 +168,3 @@ def available(ctx) -> dict[str, Method | None]:
 def error_model(method: str, ctx=None, clip_defect: bool | None = None) -> ErrorModel:
     """:meth:`Method.error_model` of the method called ``method``."""
     return get(method).error_model(ctx, clip_defect)
-
-
-def value_numpy_dtype(method: Method):
-    """The NumPy dtype of persp / screen returned by ``method``."""
-    return np.float64 if method.value_dtype == "f8" else np.float32

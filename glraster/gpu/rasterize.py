@@ -16,7 +16,6 @@ from glraster.gpu import cull as _cull
 from glraster.gpu import pipeline
 from glraster.gpu.context import Context, default_context
 from glraster.gpu.methods import (  # noqa: F401 (public)
-    METHOD_NOTES,
     METHODS,
     Method,
     for_context,
