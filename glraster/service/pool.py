@@ -18,10 +18,9 @@ when it is full :meth:`submit` raises :class:`QueueFull` with a Retry-After esti
 the recent service times. Starting and joining processes (rare) run in the loop's default
 executor, so they never block the loop.
 
-The wire format is :class:`multiprocessing.connection.Connection`'s (the worker uses one):
-each message is a 4-byte big-endian length (or -1 and an 8-byte length) and its bytes; a
-job is a pickled header ``(kind, meta)`` and the raw body, an answer a pickled header
-``(status, content_type, headers)`` and the result bytes.
+The wire format is :mod:`glraster.service.wire`'s: one frame per message, a pickled header
+(``(kind, meta)`` for a job, ``(status, content_type, headers)`` for an answer) and the raw
+body, read by the event loop straight into the answer's final buffer.
 """
 
 from __future__ import annotations
@@ -30,18 +29,15 @@ import asyncio
 import collections
 import math
 import multiprocessing
-import pickle
 import socket
-import struct
 import time
-from multiprocessing.connection import Connection
 
+from glraster.service.wire import Died, FrameProtocol
 from glraster.service.worker import worker_main
 
 RETRIES = 1            # a job whose worker died is retried this many times
 STOP_TIMEOUT = 5.0     # seconds a worker gets to exit after "stop" before it is killed
 IDLE_CHECK = 0.25      # seconds between liveness checks of an idle worker
-_READ_LIMIT = 1 << 26  # the stream buffer pauses reading above twice this
 _SOCKET_BUFFER = 4 << 20   # bytes in flight on a worker's pipe (capped by net.core.wmem_max)
 
 
@@ -103,20 +99,9 @@ class Job:
             self.future.set_result(outcome)
 
 
-def _frame(data) -> bytes:
-    n = len(data)
-    return struct.pack("!i", n) if n <= 0x7FFFFFFF else struct.pack("!iQ", -1, n)
-
-
-async def _read_frame(reader: asyncio.StreamReader) -> bytes:
-    (n,) = struct.unpack("!i", await reader.readexactly(4))
-    if n == -1:
-        (n,) = struct.unpack("!Q", await reader.readexactly(8))
-    return await reader.readexactly(n)
-
-
-class _Died(Exception):
-    """The worker's pipe closed (the process died)."""
+def _expire(answer: asyncio.Future) -> None:
+    if not answer.done():
+        answer.set_exception(asyncio.TimeoutError())
 
 
 class Slot:
@@ -126,7 +111,7 @@ class Slot:
         self.pool = pool
         self.index = index
         self.proc = None
-        self.reader = self.writer = None
+        self.channel = None          # wire.FrameProtocol on the worker's socket pair
         self.state = "starting"
         self.info: dict = {}
         self.error = ""
@@ -150,33 +135,31 @@ class Slot:
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, _SOCKET_BUFFER)
             except OSError:
                 pass
-        child = Connection(child_sock.detach())
-        proc = mp.Process(target=worker_main, args=(child, cfg.backend, cfg.limits),
+        proc = mp.Process(target=worker_main, args=(child_sock, cfg.backend, cfg.limits),
                           name=f"glraster-worker-{self.index}", daemon=True)
         try:
             await loop.run_in_executor(None, proc.start)
         except BaseException as exc:  # noqa: BLE001 - reported as the slot's error
-            child.close()
+            child_sock.close()
             parent.close()
             self.error = f"could not start a worker: {exc}"[:300]
             self.state = "failed"
             return False
-        child.close()
+        child_sock.close()
         self.proc = proc
-        self.reader, self.writer = await asyncio.open_unix_connection(sock=parent,
-                                                                      limit=_READ_LIMIT)
+        _, self.channel = await loop.create_unix_connection(FrameProtocol, sock=parent)
         deadline = time.monotonic() + cfg.worker_start_timeout
-        first = asyncio.ensure_future(_read_frame(self.reader))
+        first = self.channel.expect()
         msg = None
         try:
             while msg is None:
                 done, _ = await asyncio.wait({first}, timeout=0.2)
                 if done:
-                    msg = pickle.loads(first.result())
+                    msg = first.result()[0]
                 elif time.monotonic() > deadline or self.pool.stopping:
                     raise TimeoutError(f"no working context reported in "
                                        f"{cfg.worker_start_timeout:g} s")
-        except (asyncio.IncompleteReadError, ConnectionError, OSError):
+        except (Died, ConnectionError, OSError):
             for _ in range(20):
                 if not proc.is_alive():
                     break
@@ -204,10 +187,10 @@ class Slot:
     def _kill(self) -> None:
         """Kill the process (a signal: immediate) and close the pipe; it is joined in the
         background."""
-        proc, writer = self.proc, self.writer
-        self.proc = self.reader = self.writer = None
-        if writer is not None:
-            writer.close()
+        proc, channel = self.proc, self.channel
+        self.proc = self.channel = None
+        if channel is not None:
+            channel.close()
         if proc is not None:
             if proc.is_alive():
                 proc.kill()
@@ -217,13 +200,11 @@ class Slot:
             task.add_done_callback(self._reaping.remove)
 
     async def _stop_process(self) -> None:
-        proc, writer = self.proc, self.writer
-        if proc is not None and writer is not None and proc.is_alive():
+        proc, channel = self.proc, self.channel
+        if proc is not None and channel is not None and proc.is_alive():
             try:
-                data = pickle.dumps(("stop",))
-                writer.write(_frame(data) + data)
-                await asyncio.wait_for(writer.drain(), STOP_TIMEOUT)
-            except (OSError, ConnectionError, asyncio.TimeoutError):
+                channel.send(("stop",))
+            except (OSError, ConnectionError, RuntimeError):
                 pass
             await asyncio.get_running_loop().run_in_executor(None, proc.join, STOP_TIMEOUT)
         self._kill()
@@ -307,13 +288,15 @@ class Slot:
         finally:
             await self._stop_process()
 
-    async def _exchange(self, job: Job):
-        header = pickle.dumps((job.kind, job.meta))
-        self.writer.write(_frame(header) + header + _frame(job.body))
-        self.writer.write(job.body)
-        await self.writer.drain()
-        status, ctype, headers = pickle.loads(await _read_frame(self.reader))
-        body = await _read_frame(self.reader)
+    async def _exchange(self, job: Job, timeout: float):
+        """Send the job, wait for the answer up to ``timeout`` seconds (TimeoutError)."""
+        self.channel.send((job.kind, job.meta), job.body)
+        answer = self.channel.expect()
+        timer = asyncio.get_running_loop().call_later(timeout, _expire, answer)
+        try:
+            (status, ctype, headers), body = await answer
+        finally:
+            timer.cancel()
         return status, ctype, headers, body
 
     async def _execute(self, job: Job) -> Outcome:
@@ -327,8 +310,7 @@ class Slot:
                 return _error(503, "server", f"no worker: {self.error}"[:300], self.index)
             t0 = time.monotonic()
             try:
-                status, ctype, headers, body = await asyncio.wait_for(self._exchange(job),
-                                                                      remaining)
+                status, ctype, headers, body = await self._exchange(job, remaining)
             except asyncio.TimeoutError:
                 # the worker is killed now and replaced after the answer
                 self._kill()
@@ -338,7 +320,7 @@ class Slot:
                               f"the request was not done by its deadline "
                               f"({job.meta.get('deadline', 0):g} s); it was cancelled and its "
                               "worker replaced", self.index)
-            except (asyncio.IncompleteReadError, ConnectionError, OSError):
+            except (Died, ConnectionError, OSError):
                 attempts += 1
                 await self._replace("crash", respawn=attempts <= RETRIES)
                 if attempts > RETRIES:

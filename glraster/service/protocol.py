@@ -161,10 +161,12 @@ def _reject_constant(name):
     raise ValueError(f"{name} is not valid JSON")
 
 
-def parse_json(body: bytes, what: str = "body") -> object:
-    """JSON strictly (no NaN / Infinity literals); a RequestError 400 naming ``body``."""
+def parse_json(body, what: str = "body") -> object:
+    """JSON strictly (no NaN / Infinity literals) from bytes or any buffer; a RequestError
+    400 naming ``body``."""
     try:
-        return json.loads(body, parse_constant=_reject_constant)
+        return json.loads(body if isinstance(body, (bytes, str)) else bytes(body),
+                          parse_constant=_reject_constant)
     except RecursionError:
         raise RequestError(400, "body", f"{what} is nested too deeply") from None
     except (ValueError, UnicodeDecodeError) as exc:
@@ -336,6 +338,7 @@ def parse_shard(value) -> tuple[int, int]:
 
 def parse_check(body: bytes, catalog: list) -> CheckRequest:
     """A :class:`CheckRequest` from a JSON body (empty: the whole catalog)."""
+    body = bytes(body)
     data = parse_json(body) if body.strip() else {}
     if not isinstance(data, dict):
         raise RequestError(400, "body", f"body must be a JSON object, got {type(data).__name__}")
