@@ -7,7 +7,7 @@ Exposed at ``GET /metrics``:
 - ``glraster_errors_total{endpoint, kind}``              counter: client (4xx), rejected
   (429, queue full), deadline (504), worker (a worker crashed or hung), server (5xx)
 - ``glraster_queue_depth`` / ``glraster_queue_capacity``  gauges: requests waiting for a worker
-- ``glraster_inflight_requests``                         gauge: requests being rendered
+- ``glraster_inflight_requests``                         gauge: requests held by workers
 - ``glraster_workers{state}``                            gauge: ready, starting, failed
 - ``glraster_worker_restarts_total{reason}``             counter: crash, deadline, error, startup
 - ``glraster_worker_resident_bytes{worker}``             gauge: RSS of each worker process
@@ -114,7 +114,7 @@ class Metrics:
                     "# HELP glraster_queue_capacity Waiting requests accepted before 429.",
                     "# TYPE glraster_queue_capacity gauge",
                     f"glraster_queue_capacity {snap['queue_capacity']}",
-                    "# HELP glraster_inflight_requests Requests being rendered by a worker.",
+                    "# HELP glraster_inflight_requests Requests held by a worker (rendering or next).",
                     "# TYPE glraster_inflight_requests gauge",
                     f"glraster_inflight_requests {snap['inflight']}",
                     "# HELP glraster_workers Worker processes by state.",

@@ -38,6 +38,9 @@ from glraster.service.worker import worker_main
 RETRIES = 1            # a job whose worker died is retried this many times
 STOP_TIMEOUT = 5.0     # seconds a worker gets to exit after "stop" before it is killed
 IDLE_CHECK = 0.25      # seconds between liveness checks of an idle worker
+PIPELINE = 2           # jobs a worker holds: the one it renders and the next, so that it
+                       # never waits for the event loop between jobs
+PIPELINE_GRACE = 0.05  # seconds a job that waited in a worker gets past its deadline
 _SOCKET_BUFFER = 4 << 20   # bytes in flight on a worker's pipe (capped by net.core.wmem_max)
 
 
@@ -78,6 +81,8 @@ class Job:
         self.loop = loop
         self.future = loop.create_future()
         self.state = "queued"       # queued -> running -> done, or queued -> abandoned
+        self.attempts = 0           # deaths of a worker rendering it
+        meta["expires"] = deadline  # the worker refuses the job after this (monotonic)
 
     def claim(self) -> bool:
         """A slot takes the job (False: the request gave up while it was queued)."""
@@ -118,7 +123,7 @@ class Slot:
         self.requests = 0
         self.restarts = 0
         self.started = 0.0
-        self.job = None
+        self.sent = collections.deque()   # jobs written to the worker, not yet answered
         self.task = None
         self._waiter = None          # a future while idle: submit hands a job through it
         self._reaping = []           # tasks joining killed processes
@@ -181,7 +186,7 @@ class Slot:
         self.info = msg[1]
         self.error = ""
         self.started = time.monotonic()
-        self.state = "busy" if self.job is not None else "ready"   # a retry keeps it busy
+        self.state = "busy" if self.sent else "ready"   # a retry keeps it busy
         return True
 
     def _kill(self) -> None:
@@ -227,30 +232,50 @@ class Slot:
     async def _next_job(self):
         """The next job: from the queue, or handed over by :meth:`WorkerPool.submit`
         while idle; None after ``IDLE_CHECK`` seconds without one."""
-        pool = self.pool
-        while pool.pending:
-            job = pool.pending.popleft()
-            if job.claim():
-                return job
+        job = self.pool.take()
+        if job is not None:
+            return job
         waiter = asyncio.get_running_loop().create_future()
         self._waiter = waiter
-        pool.idle.append(self)
+        self.pool.idle.append(self)
         try:
             await asyncio.wait({waiter}, timeout=IDLE_CHECK)
         finally:
             if self._waiter is waiter:       # nobody handed a job over
                 self._waiter = None
-                pool.idle.remove(self)
+                self.pool.idle.remove(self)
         if waiter.done() and not waiter.cancelled():
             return waiter.result()            # already claimed by submit
         waiter.cancel()
         return None
 
+    def can_take(self) -> bool:
+        """The worker is up and holds fewer than ``PIPELINE`` jobs."""
+        return (self.channel is not None and self.state == "busy"
+                and 0 < len(self.sent) < PIPELINE)
+
+    def send(self, job: Job) -> None:
+        """Write a claimed job to the worker (it answers jobs in the order they were sent)."""
+        self.channel.send((job.kind, job.meta), job.body)
+        self.sent.append(job)
+        self.state = "busy"
+
+    def _top_up(self) -> None:
+        while len(self.sent) < PIPELINE and not self.pool.stopping:
+            job = self.pool.take()
+            if job is None:
+                return
+            self.send(job)
+
+    def _answer_all(self, status: int, message: str) -> None:
+        while self.sent:
+            self.sent.popleft().answer(_error(status, "server", message, self.index))
+
     async def run(self) -> None:
         pool = self.pool
         backoff = 0.5
         try:
-            while not pool.stopping:
+            while not pool.stopping or self.sent:
                 if self.proc is None or not self.proc.is_alive():
                     if self.proc is not None:    # died while idle, or after answering a 500
                         self.restarts += 1
@@ -258,6 +283,7 @@ class Slot:
                         self._kill()
                     if not await self._spawn():
                         pool.metrics.restart("startup")
+                        self._answer_all(503, f"no worker: {self.error}"[:300])
                         try:
                             await asyncio.wait_for(pool.stopped.wait(), backoff)
                             break
@@ -266,73 +292,67 @@ class Slot:
                         backoff = min(backoff * 2, 10.0)
                         continue
                     backoff = 0.5
-                job = await self._next_job()
-                if job is None:
-                    continue
-                self.state = "busy"
-                self.job = job
+                    for job in self.sent:       # jobs a dead worker had not answered
+                        self.channel.send((job.kind, job.meta), job.body)
+                if not self.sent:
+                    job = await self._next_job()
+                    if job is None:
+                        continue
+                    self.send(job)
+                self._top_up()
                 try:
-                    job.answer(await self._execute(job))
+                    await self._settle_oldest()
                 except asyncio.CancelledError:
-                    job.answer(_error(503, "server", "the server shut down while rendering "
-                                                     "this request", self.index))
+                    self._answer_all(503, "the server shut down while rendering this request")
                     raise
                 except BaseException as exc:  # noqa: BLE001 - never leave a request unanswered
-                    job.answer(_error(503, "server", f"worker slot failed: {exc}"[:300],
-                                      self.index))
-                    await self._replace("crash")
-                finally:
-                    self.job = None
-                    if self.state == "busy":
-                        self.state = "ready"
+                    self._answer_all(503, f"worker slot failed: {exc}"[:300])
+                    await self._replace("crash", respawn=False)
+                if not self.sent and self.state == "busy":
+                    self.state = "ready"
         finally:
             await self._stop_process()
 
-    async def _exchange(self, job: Job, timeout: float):
-        """Send the job, wait for the answer up to ``timeout`` seconds (TimeoutError)."""
-        self.channel.send((job.kind, job.meta), job.body)
+    async def _settle_oldest(self) -> None:
+        """Wait for the answer to the oldest job sent, up to its deadline, and deliver it;
+        on a deadline or a death, settle what the worker held."""
+        job = self.sent[0]
+        t0 = time.monotonic()
         answer = self.channel.expect()
-        timer = asyncio.get_running_loop().call_later(timeout, _expire, answer)
+        # A job that waited behind another in the worker may start near its deadline: the
+        # worker answers 504 itself when it has passed, so it gets a moment for that.
+        timer = asyncio.get_running_loop().call_later(
+            max(job.deadline - t0, PIPELINE_GRACE), _expire, answer)
         try:
             (status, ctype, headers), body = await answer
+        except asyncio.TimeoutError:
+            self.sent.popleft()
+            self._kill()            # replaced at the top of the loop; the others are resent
+            self.restarts += 1
+            self.pool.metrics.restart("deadline")
+            job.answer(_error(504, "deadline", f"the request was not done by its deadline "
+                                               f"({job.meta.get('deadline', 0):g} s); it was "
+                                               "cancelled and its worker replaced", self.index))
+            return
+        except (Died, ConnectionError, OSError):
+            # the worker died rendering the oldest job; the jobs behind it never started
+            job.attempts += 1
+            if job.attempts > RETRIES:
+                self.sent.popleft()
+                job.answer(_error(503, "server", "the worker rendering this request died "
+                                                 "twice; it was not answered", self.index))
+            await self._replace("crash", respawn=False)
+            return
         finally:
             timer.cancel()
-        return status, ctype, headers, body
-
-    async def _execute(self, job: Job) -> Outcome:
-        attempts = 0
-        while True:
-            remaining = job.deadline - time.monotonic()
-            if remaining <= 0:
-                return _error(504, "deadline", "the request's deadline passed while it was "
-                                               "queued", self.index)
-            if self.proc is None:
-                return _error(503, "server", f"no worker: {self.error}"[:300], self.index)
-            t0 = time.monotonic()
-            try:
-                status, ctype, headers, body = await self._exchange(job, remaining)
-            except asyncio.TimeoutError:
-                # the worker is killed now and replaced after the answer
-                self._kill()
-                self.restarts += 1
-                self.pool.metrics.restart("deadline")
-                return _error(504, "deadline",
-                              f"the request was not done by its deadline "
-                              f"({job.meta.get('deadline', 0):g} s); it was cancelled and its "
-                              "worker replaced", self.index)
-            except (Died, ConnectionError, OSError):
-                attempts += 1
-                await self._replace("crash", respawn=attempts <= RETRIES)
-                if attempts > RETRIES:
-                    return _error(503, "server", "the worker rendering this request died twice; "
-                                                 "it was not answered", self.index)
-                continue
-            self.requests += 1
-            self.pool.note_service_time(time.monotonic() - t0)
-            headers = dict(headers)
-            if attempts:
-                headers["x-glraster-retried"] = str(attempts)
-            return Outcome(status, ctype, headers, body, self.index)
+        self.sent.popleft()
+        self._top_up()              # the worker gets its next job before anything else runs
+        self.requests += 1
+        self.pool.note_service_time(time.monotonic() - t0)
+        headers = dict(headers)
+        if job.attempts:
+            headers["x-glraster-retried"] = str(job.attempts)
+        job.answer(Outcome(status, ctype, headers, body, self.index))
 
 
 class WorkerPool:
@@ -380,11 +400,24 @@ class WorkerPool:
                 slot.state = "busy"
                 waiter.set_result(job)
                 return
+        if not self.pending:
+            for slot in sorted(self.slots, key=lambda s: len(s.sent)):
+                if slot.can_take() and job.claim():
+                    slot.send(job)
+                    return
         if self.capacity == 0 and not any(s.state == "ready" for s in self.slots):
             raise QueueFull(self.retry_after())
         if len(self.pending) >= self.maxsize:
             raise QueueFull(self.retry_after())
         self.pending.append(job)
+
+    def take(self):
+        """The next queued job a worker may start (claimed), or None."""
+        while self.pending:
+            job = self.pending.popleft()
+            if job.claim():
+                return job
+        return None
 
     def ready(self) -> bool:
         return any(s.state in ("ready", "busy") for s in self.slots)
@@ -396,10 +429,11 @@ class WorkerPool:
         return {}
 
     def snapshot(self) -> dict:
-        workers = [{"index": s.index, "pid": s.pid, "state": s.state, "requests": s.requests,
-                    "restarts": s.restarts, "error": s.error} for s in self.slots]
+        workers = [{"index": s.index, "pid": s.pid, "state": s.state, "jobs": len(s.sent),
+                    "requests": s.requests, "restarts": s.restarts, "error": s.error}
+                   for s in self.slots]
         return {"queue_depth": len(self.pending), "queue_capacity": self.capacity,
-                "inflight": sum(w["state"] == "busy" for w in workers), "workers": workers}
+                "inflight": sum(w["jobs"] for w in workers), "workers": workers}
 
     async def stop(self) -> None:
         """Stop taking jobs, answer what is still queued with 503, let the in-flight jobs

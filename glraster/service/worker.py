@@ -13,6 +13,7 @@ SIGTERM: the server stops it with a message after draining, or kills it.
 from __future__ import annotations
 
 import json
+import math
 import os
 import signal
 import sys
@@ -179,6 +180,10 @@ class Handler:
 
     def handle(self, kind: str, meta: dict, body: bytes):
         p = self.p
+        if time.monotonic() > meta.get("expires", math.inf):
+            # it waited behind another job here until its deadline (pool.PIPELINE)
+            return p.Result(504, p.JSON, p.error_json(
+                504, "deadline", "the request's deadline passed before a worker could start it"))
         try:
             if kind == "rasterize":
                 return self.rasterize(meta, body)

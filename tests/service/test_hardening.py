@@ -499,17 +499,21 @@ def test_full_queue_is_429_with_retry_after(lone_worker):
     pid = s.worker_pids()[0]
     os.kill(pid, signal.SIGSTOP)
     pos, tri = np.array(TRIANGLE["pos"]), np.array(TRIANGLE["tri"])
-    a = _in_thread(lambda: s.client(retries=0).rasterize(pos, tri, (32, 48), result="json"))
-    s.wait_worker("busy")
-    b = _in_thread(lambda: s.client(retries=0).rasterize(pos, tri, (32, 48), result="json"))
+    # the worker holds two jobs (the one it renders and the next, pool.PIPELINE), the
+    # queue one more; the fourth request is refused
+    held = [_in_thread(lambda: s.client(retries=0).rasterize(pos, tri, (32, 48), result="json"))
+            for _ in range(2)]
     end = time.monotonic() + 30
+    while s.info()["workers"][0]["jobs"] < 2 and time.monotonic() < end:
+        time.sleep(0.01)
+    queued = _in_thread(lambda: s.client(retries=0).rasterize(pos, tri, (32, 48), result="json"))
     while s.info()["queue_depth"] < 1 and time.monotonic() < end:
         time.sleep(0.01)
     status, headers, doc = _post(s, _scene())
     assert (status, doc["field"]) == (429, "queue")
     assert int(headers["retry-after"]) >= 1
     os.kill(pid, signal.SIGCONT)
-    for t, box in (a, b):
+    for t, box in (*held, queued):
         t.join(60)
         assert box["result"]["covered"] > 0, box
     with s.client() as c:
