@@ -21,13 +21,13 @@ their Retry-After (up to ``retries`` times) before they raise.
 from __future__ import annotations
 
 import http.client
-import io
 import json
 import time
 import urllib.parse
 
 import numpy as np
 
+from glraster.io.npz import read_npz, write_npz
 from glraster.types import OUTPUTS, Raster
 
 NPZ = "application/x-npz"
@@ -91,8 +91,8 @@ class Client:
 
     def request(self, method: str, path: str, body: bytes | None = None, *,
                 content_type: str | None = None, accept: str = JSON, query: dict | None = None):
-        """One HTTP exchange; returns (status, headers dict (lower-case), body bytes) for a
-        2xx answer, raises ServiceError / ServiceUnavailable otherwise."""
+        """One HTTP exchange; returns (status, headers dict (lower-case), body as a
+        bytearray) for a 2xx answer, raises ServiceError / ServiceUnavailable otherwise."""
         headers = {"Accept": accept}
         if content_type:
             headers["Content-Type"] = content_type
@@ -107,7 +107,7 @@ class Client:
                 conn = self._connection()
                 conn.request(method, url, body=body, headers=headers)
                 resp = conn.getresponse()
-                data = resp.read()
+                data = _read_body(resp)
                 rheaders = {k.lower(): v for k, v in resp.getheaders()}
                 if rheaders.get("connection", "").lower() == "close":
                     self.close()
@@ -189,7 +189,7 @@ class Client:
         if result == "json":
             return json.loads(data)
         if result == "exr":
-            return data
+            return bytes(data)
         return decode_raster(data, headers)
 
     def check(self, scenes=None, *, method: str = "hw", golden: bool = True, mutants=False,
@@ -208,7 +208,22 @@ class Client:
         return data.decode() if junit else json.loads(data)
 
 
-def _error(status: int, data: bytes) -> ServiceError:
+def _read_body(resp) -> bytearray:
+    """The whole body, read into one writeable buffer (the arrays of an .npz result are
+    views into it, so they are writeable like ``np.load``'s)."""
+    if resp.length is None:
+        return bytearray(resp.read())
+    buf = bytearray(resp.length)
+    view, got = memoryview(buf), 0
+    while got < len(buf):
+        n = resp.readinto(view[got:])
+        if not n:
+            raise http.client.IncompleteRead(bytes(view[:got]), len(buf) - got)
+        got += n
+    return buf
+
+
+def _error(status: int, data) -> ServiceError:
     try:
         doc = json.loads(data)
         field, message = str(doc.get("field", "")), str(doc.get("error", ""))
@@ -228,15 +243,15 @@ def encode_scene(pos, tri, resolution) -> bytes:
     tri = np.asarray(tri)
     if tri.dtype.kind in "iu" and tri.size and tri.min() >= 0 and tri.max() < 2**31:
         tri = tri.astype(np.int32)
-    buf = io.BytesIO()
-    np.savez(buf, pos=pos, tri=tri, resolution=np.asarray(resolution, dtype=np.int64))
-    return buf.getvalue()
+    return write_npz({"pos": pos, "tri": tri,
+                      "resolution": np.asarray(resolution, dtype=np.int64)})
 
 
-def decode_raster(data: bytes, headers: dict | None = None) -> Raster:
-    """A :class:`glraster.Raster` from an .npz result."""
-    with np.load(io.BytesIO(data), allow_pickle=False) as z:
-        arrays = {k: z[k] for k in z.files}
+def decode_raster(data, headers: dict | None = None) -> Raster:
+    """A :class:`glraster.Raster` from an .npz result. Its arrays are views into ``data``
+    (no copy): writeable when it is a bytearray (as :meth:`Client.request` returns),
+    read-only when it is ``bytes``."""
+    arrays = read_npz(data)
     mask = arrays.pop("mask")
     info = {}
     if "comparison" in arrays:

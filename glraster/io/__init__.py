@@ -1,1 +1,1 @@
-"""Files for people and tools: EXR rasters, PNG images, matplotlib figures."""
+"""Files for people and tools: EXR rasters, PNG images, matplotlib figures, .npz archives."""

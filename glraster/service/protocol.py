@@ -25,18 +25,17 @@ Results by ``Accept``: ``application/json`` (statistics, the comparison), ``appl
 
 from __future__ import annotations
 
-import io
 import json
 import math
 import os
 import tempfile
 import time
-import zipfile
-import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from glraster.io.npz import NpzError, npz_nbytes, read_npz, write_npz_into
 
 OUTPUT_NAMES = ("persp", "screen", "depth", "tri_id")
 METHOD_NAMES = ("hw", "divw", "homogeneous", "homogeneous64", "solve4")
@@ -196,60 +195,33 @@ def _json_array(name: str, value, limits) -> np.ndarray:
     return arr
 
 
-def _npz_arrays(body: bytes, limits) -> dict:
-    """The arrays of an .npz body, read member by member after checking each header
-    (dtype, shape and declared size) against the limits: nothing is decompressed beyond
-    what the limits allow, and nothing is unpickled."""
-    try:
-        archive = zipfile.ZipFile(io.BytesIO(body))
-        infos = archive.infolist()
-    except (zipfile.BadZipFile, zipfile.LargeZipFile, ValueError, OSError, EOFError) as exc:
-        raise RequestError(400, "body", f"body is not an .npz (zip) archive: {exc}"[:300]) from None
-    if len(infos) > _MAX_NPZ_MEMBERS:
-        raise RequestError(422, "body", f"the .npz holds {len(infos)} members; expected pos, "
-                                        "tri and resolution")
-    arrays = {}
-    for info in infos:
-        name = info.filename[:-4] if info.filename.endswith(".npy") else info.filename
+def _npz_arrays(body, limits) -> dict:
+    """The arrays of an .npz body (:func:`glraster.io.npz.read_npz`: stored members are
+    read in place, deflated ones inflated). Every member's name, dtype and shape is checked
+    against the limits before a byte of data is touched, so a zip bomb costs nothing."""
+
+    def check(name, dtype, shape):
         if name not in ARRAY_FIELDS:
-            raise RequestError(422, name[:40] or "body",
-                               f"unexpected array {name[:40]!r} in the .npz; expected "
-                               "pos, tri and resolution")
-        if name in arrays:
-            raise RequestError(422, name, f"array {name!r} appears twice in the .npz")
+            raise RequestError(422, name[:40], f"unexpected array {name[:40]!r} in the .npz; "
+                                               "expected pos, tri and resolution")
+        if dtype.kind not in "biuf":
+            raise RequestError(422, name, f"{name} must hold numbers, got dtype {dtype}")
+        if shape:
+            _rows_limit(name, int(shape[0]), limits)
         cap = limits.max_body_bytes if name != "resolution" else 4096
-        if info.file_size > cap:
-            raise RequestError(413, name, f"{name} holds {info.file_size} bytes uncompressed, "
-                                          f"above this server's limit of {cap}")
-        try:
-            with archive.open(info) as fh:
-                version = np.lib.format.read_magic(fh)
-                if version == (1, 0):
-                    shape, fortran, dtype = np.lib.format.read_array_header_1_0(fh)
-                elif version in ((2, 0), (3, 0)):
-                    shape, fortran, dtype = np.lib.format.read_array_header_2_0(fh)
-                else:
-                    raise ValueError(f"unsupported .npy version {version}")
-                if dtype.hasobject or dtype.kind not in "biuf" or dtype.fields is not None \
-                        or dtype.subdtype is not None:
-                    raise RequestError(422, name, f"{name} must hold numbers, got dtype {dtype}")
-                if shape:
-                    _rows_limit(name, int(shape[0]), limits)
-                count = math.prod(shape)
-                nbytes = count * dtype.itemsize
-                if nbytes > cap:
-                    raise RequestError(413, name, f"{name} takes {nbytes} bytes, above this "
-                                                  f"server's limit of {cap}")
-                data = fh.read(nbytes)
-                if len(data) != nbytes:
-                    raise ValueError(f"{name} holds {len(data)} of its {nbytes} bytes")
-        except RequestError:
-            raise
-        except (ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error,
-                NotImplementedError, RuntimeError, SyntaxError, TypeError, OverflowError) as exc:
-            raise RequestError(400, name, f"{name}: not a readable .npy member ({exc})"[:300]) from None
-        arrays[name] = np.frombuffer(data, dtype=dtype).reshape(shape, order="F" if fortran else "C")
-    return arrays
+        nbytes = math.prod(shape) * dtype.itemsize
+        if nbytes > cap:
+            raise RequestError(413, name, f"{name} takes {nbytes} bytes, above this server's "
+                                          f"limit of {cap}")
+
+    try:
+        return read_npz(body, check=check, max_members=_MAX_NPZ_MEMBERS)
+    except NpzError as exc:
+        # the archive itself is unreadable: 400; a member of it is: 422 naming the member
+        if exc.member is None:
+            raise RequestError(400, "body", f"body is not a readable .npz: {exc.message}"[:300]) \
+                from None
+        raise RequestError(422, exc.member[:40] or "body", str(exc)[:300]) from None
 
 
 def _resolution(value, limits, driver_max: int | None) -> tuple:
@@ -437,17 +409,20 @@ def comparison_dict(evaluation) -> dict:
     }
 
 
-def encode_npz(raster, outputs, extra: dict | None = None) -> bytes:
+def encode_npz(raster, outputs, extra: dict | None = None, into=None):
     """The requested outputs of ``raster`` and its mask as an uncompressed .npz (arrays
     unchanged: bit for bit what the rasterizer returned); ``extra`` entries are stored as
-    0-d JSON strings (e.g. ``comparison``)."""
+    0-d JSON strings (e.g. ``comparison``). Written into ``into`` (a uint8 array the caller
+    reuses) when it is large enough, else into a fresh one; returns a memoryview of the
+    archive's bytes."""
     arrays = {n: getattr(raster, n) for n in outputs if getattr(raster, n) is not None}
     arrays["mask"] = raster.mask
     for key, value in (extra or {}).items():
         arrays[key] = np.array(json.dumps(_jsonable(value)))
-    buf = io.BytesIO()
-    np.savez(buf, **arrays)
-    return buf.getvalue()
+    size = npz_nbytes(arrays)
+    out = into if into is not None and len(into) >= size else np.empty(size, np.uint8)
+    write_npz_into(arrays, out)
+    return memoryview(out)[:size]
 
 
 _TMP = None
@@ -476,11 +451,10 @@ def encode_exr(raster, outputs, crop: bool, metadata: dict) -> bytes:
         path.unlink(missing_ok=True)
 
 
-def decode_npz_result(data: bytes) -> dict:
+def decode_npz_result(data) -> dict:
     """The arrays of an .npz result (for clients and tests): name -> array; ``comparison``
     decoded from JSON."""
-    with np.load(io.BytesIO(data), allow_pickle=False) as z:
-        out = {k: z[k] for k in z.files}
+    out = read_npz(data)
     if "comparison" in out:
         out["comparison"] = json.loads(str(out["comparison"]))
     return out
