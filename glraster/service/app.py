@@ -27,7 +27,7 @@ from glraster._version import __version__
 from glraster.service import openapi, protocol
 from glraster.service.config import ServiceConfig
 from glraster.service.metrics import Metrics
-from glraster.service.pool import Job, QueueFull, Unavailable, WorkerPool
+from glraster.service.pool import Job, Outcome, QueueFull, Unavailable, WorkerPool
 
 _ACCEPT_RASTER = {"application/json": "json", "application/x-npz": "npz",
                   "application/npz": "npz", "image/x-exr": "exr", "image/exr": "exr",
@@ -155,23 +155,33 @@ class Service:
                 raise protocol.RequestError(413, "body", f"the body has {int(length)} bytes, "
                                             f"above this server's limit of {limit}")
         chunks, size = [], 0
+        # the read times out by a timer cancelling this task (no task of its own, which
+        # would cost the request two more turns of the event loop)
+        task = asyncio.current_task()
+        timed_out = []
 
-        async def read():
-            nonlocal size
+        def time_out():
+            timed_out.append(True)
+            task.cancel()
+
+        timer = asyncio.get_running_loop().call_later(self.config.body_timeout, time_out)
+        try:
             async for chunk in request.stream():
                 size += len(chunk)
                 if size > limit:
                     raise protocol.RequestError(413, "body", f"the body exceeds this server's "
                                                              f"limit of {limit} bytes")
                 chunks.append(chunk)
-        try:
-            await asyncio.wait_for(read(), self.config.body_timeout)
-        except asyncio.TimeoutError:
+        except asyncio.CancelledError:
+            if not timed_out:
+                raise
             raise protocol.RequestError(408, "body", f"the body was not received within "
                                         f"{self.config.body_timeout:g} s") from None
         except ClientDisconnect:
             raise protocol.RequestError(400, "body", "the client disconnected") from None
-        return b"".join(chunks)
+        finally:
+            timer.cancel()
+        return chunks[0] if len(chunks) == 1 else b"".join(chunks)
 
     def _deadline(self, request: Request, default: float) -> float:
         value = request.query_params.get("deadline")
@@ -214,15 +224,14 @@ class Service:
         except Unavailable as exc:
             return _json(503, {"error": str(exc), "field": "server", "status": 503},
                          {"retry-after": "5"})
+        # At the deadline a job still queued is dropped and answered 504 here; one a worker
+        # has is answered by its slot (which kills the worker).
+        timer = loop.call_later(max(0.0, job.deadline - time.monotonic()), _expire_queued,
+                                job, deadline)
         try:
-            outcome = await asyncio.wait_for(asyncio.shield(job.future),
-                                             max(0.0, job.deadline - time.monotonic()))
-        except asyncio.TimeoutError:
-            if job.abandon():
-                return _json(504, {"error": f"the request waited {deadline:g} s, its deadline, "
-                                            "for a worker", "field": "deadline", "status": 504})
-            # a worker has it: the slot answers at the deadline (after killing the worker)
             outcome = await job.future
+        finally:
+            timer.cancel()
         headers = dict(outcome.headers)
         if outcome.worker is not None:
             headers["x-glraster-worker"] = str(outcome.worker)
@@ -325,6 +334,12 @@ class Service:
 
     async def openapi_json(self, request: Request) -> Response:
         return Response(self._schema, media_type="application/json")
+
+
+def _expire_queued(job: Job, deadline: float) -> None:
+    if job.abandon():
+        job.answer(Outcome(504, protocol.JSON, {}, protocol.error_json(
+            504, "deadline", f"the request waited {deadline:g} s, its deadline, for a worker")))
 
 
 async def _async(value):

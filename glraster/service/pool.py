@@ -86,7 +86,7 @@ class Job:
 
     def claim(self) -> bool:
         """A slot takes the job (False: the request gave up while it was queued)."""
-        if self.state != "queued":
+        if self.state != "queued" or self.future.done():
             return False
         self.state = "running"
         return True
@@ -394,7 +394,7 @@ class WorkerPool:
             errors = "; ".join(sorted({s.error for s in self.slots if s.error}))
             raise Unavailable(f"no worker has a working GL context ({errors or 'starting'})")
         while self.idle:
-            slot = self.idle.pop(0)
+            slot = self.idle.pop()       # the last to become idle: its caches are warm
             waiter, slot._waiter = slot._waiter, None
             if waiter is not None and not waiter.done() and job.claim():
                 slot.state = "busy"
