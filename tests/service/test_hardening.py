@@ -449,6 +449,58 @@ def test_worker_killed_mid_request_is_replaced_and_the_request_retried(lone_work
         assert c.rasterize(pos, tri, (32, 48), result="json")["covered"] > 0
 
 
+def test_worker_killed_holding_two_jobs_retries_the_one_it_rendered_and_resends_the_next(
+        lone_worker, ctx):
+    """A worker holds the job it renders and the next one (pool.PIPELINE): when it dies,
+    the first is retried (X-Glraster-Retried: 1), the second, which never started, is
+    simply sent to the replacement; both come back bit for bit."""
+    s = lone_worker
+    pos, tri = np.array(TRIANGLE["pos"], np.float32), np.array(TRIANGLE["tri"])
+    old = s.worker_pids()[0]
+    os.kill(old, signal.SIGSTOP)
+    held = []
+    for _ in range(2):
+        held.append(_in_thread(lambda: s.client(retries=0).rasterize(pos, tri, (32, 48))))
+        end = time.monotonic() + 30
+        while s.info()["workers"][0]["jobs"] < len(held) and time.monotonic() < end:
+            time.sleep(0.01)    # in order: the first thread's request is the first job
+    assert s.info()["workers"][0]["jobs"] == 2
+    os.kill(old, signal.SIGKILL)
+    local = gr.rasterize(pos, tri, (32, 48), ctx=ctx)
+    for t, box in held:
+        t.join(120)
+        assert "error" not in box, box.get("error")
+        assert box["result"].depth.tobytes() == local.depth.tobytes()
+    retried = [box["result"].info["headers"].get("x-glraster-retried") for _, box in held]
+    assert retried == ["1", None]
+    worker = s.wait_worker("ready")
+    assert worker["pid"] != old and worker["restarts"] == 1
+
+
+def test_a_job_whose_deadline_passes_while_it_waits_in_a_worker_is_refused_by_it(lone_worker):
+    """The second job a hung worker holds is not rendered after its deadline: the slot
+    answers the first with 504 at its deadline and resends the second to the
+    replacement, which refuses it (504) because its deadline has passed too."""
+    s = lone_worker
+    pos, tri = np.array(TRIANGLE["pos"], np.float32), np.array(TRIANGLE["tri"])
+    old = s.worker_pids()[0]
+    os.kill(old, signal.SIGSTOP)
+    first = _in_thread(lambda: s.client(retries=0).rasterize(pos, tri, (32, 48), deadline=2))
+    end = time.monotonic() + 30
+    while s.info()["workers"][0]["jobs"] < 1 and time.monotonic() < end:
+        time.sleep(0.01)
+    second = _in_thread(lambda: s.client(retries=0).rasterize(pos, tri, (32, 48), deadline=1))
+    for t, box in (first, second):
+        t.join(120)
+        err = box.get("error")
+        assert isinstance(err, ServiceUnavailable) and err.status == 504, box
+        assert err.field == "deadline"
+    worker = s.wait_worker("ready")
+    assert worker["pid"] != old
+    with s.client() as c:
+        assert c.rasterize(pos, tri, (32, 48), result="json")["covered"] > 0
+
+
 def test_worker_dying_twice_answers_503(lone_worker):
     s = lone_worker
     first = s.worker_pids()[0]
