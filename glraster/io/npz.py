@@ -164,19 +164,21 @@ def read_npz(data, *, check=None, max_members: int = 64) -> dict[str, np.ndarray
     return out
 
 
-def _byte_view(data) -> memoryview:
-    """A flat unsigned-byte view of ``data``."""
+def _byte_view(buffer, name: str = "data", writable: bool = False) -> memoryview:
+    """A flat unsigned-byte view of ``buffer`` (the argument called ``name``); TypeError or
+    ValueError naming it when it is not a (writable) C-contiguous buffer."""
     try:
-        mv = memoryview(data)
+        mv = memoryview(buffer)
     except TypeError:
-        raise TypeError("data must be bytes, bytearray or memoryview, "
-                        f"got {type(data).__name__}") from None
+        raise TypeError(f"{name} must be a buffer (bytes, bytearray, memoryview, mmap, uint8 "
+                        f"numpy array), got {type(buffer).__name__}") from None
+    if writable and mv.readonly:
+        raise TypeError(f"{name} must be a writable buffer, got a read-only "
+                        f"{type(buffer).__name__}")
+    if not mv.c_contiguous:
+        raise ValueError(f"{name} must be a C-contiguous buffer")
     if mv.format != "B" or mv.ndim != 1:
-        if not mv.c_contiguous:
-            raise ValueError("data must be a C-contiguous buffer")
         mv = mv.cast("B")
-    elif not mv.c_contiguous:
-        raise ValueError("data must be a C-contiguous buffer")
     return mv
 
 
@@ -553,7 +555,7 @@ def write_npz_into(arrays: dict, out) -> int:
     is too small.
     """
     members, total = _plan(arrays)
-    mv = _out_view(out)
+    mv = _byte_view(out, "out", writable=True)
     if len(mv) < total:
         raise ValueError(f"out has {len(mv)} bytes, the archive needs {total}")
     u8 = np.frombuffer(mv, np.uint8, total)
@@ -601,21 +603,6 @@ def write_npz(arrays: dict) -> bytes:
                    name_b, extra, header, flat)
     pieces.append(_central_directory(members, crcs, total))
     return b"".join(pieces)
-
-
-def _out_view(out) -> memoryview:
-    try:
-        mv = memoryview(out)
-    except TypeError:
-        raise TypeError("out must be a writable buffer (bytearray, memoryview, mmap, uint8 "
-                        f"numpy array), got {type(out).__name__}") from None
-    if mv.readonly:
-        raise TypeError(f"out must be a writable buffer, got a read-only {type(out).__name__}")
-    if not mv.c_contiguous:
-        raise ValueError("out must be a C-contiguous buffer")
-    if mv.format != "B" or mv.ndim != 1:
-        mv = mv.cast("B")
-    return mv
 
 
 def _plan(arrays) -> tuple[list[tuple], int]:
