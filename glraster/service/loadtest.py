@@ -14,9 +14,10 @@ What it measures (docs/service.md, "Measured"):
 4. the resident memory of the server and its workers over 10,000 requests.
 
 Traffic goes to loopback only: a ``--url`` whose host is not a loopback address is refused.
-Every loop is bounded in count and in time. The client is a minimal HTTP/1.1 client on
-asyncio streams (keep-alive, one connection per concurrent stream), so that its own cost,
-which shares the machine's cores with the server, stays small.
+Every loop is bounded in count and in time. The client is a minimal HTTP/1.1 client
+(keep-alive, one connection per concurrent stream, responses read by a buffered protocol
+into a reused buffer, on uvloop), so that its own cost, which shares the machine's cores
+with the server, stays small.
 """
 
 from __future__ import annotations
@@ -181,6 +182,18 @@ async def run_load(host, port, request: bytes, count: int, concurrency: int,
             "p50_ms": float(np.percentile(lat, 50)) if lat.size else None,
             "p99_ms": float(np.percentile(lat, 99)) if lat.size else None,
             "statuses": {str(k): v for k, v in sorted(statuses.items())}}
+
+
+def _run(coro):
+    """Run the client on uvloop (the [service] extra has it): the load generator shares the
+    cores with the server, and uvloop's transports cost it a fraction of asyncio's."""
+    import uvloop
+
+    loop = uvloop.new_event_loop()
+    try:
+        return loop.run_until_complete(coro)
+    finally:
+        loop.close()
 
 
 def http_request(host, port, path, body, content_type, accept, token=None) -> bytes:
@@ -359,10 +372,10 @@ def main(args) -> int:
             req = http_request(host, port, "/v1/rasterize", body, "application/x-npz",
                                "application/x-npz", token)
             count = {"256": 12 if quick else 600, "1024": 4 if quick else 80}[name]
-            asyncio.run(run_load(host, port, req, min(count, 20), 2, limit))   # warm-up
+            _run(run_load(host, port, req, min(count, 20), 2, limit))   # warm-up
             rows = []
             for c in (1, 4, 16):
-                rows.append(asyncio.run(run_load(host, port, req, count, c, limit)))
+                rows.append(_run(run_load(host, port, req, count, c, limit)))
                 r = rows[-1]
                 print(f"{name}^2 npz  concurrency {c:>2}: {r['throughput']:8.1f} req/s  "
                       f"p50 {r['p50_ms']:8.2f} ms  p99 {r['p99_ms']:8.2f} ms  {r['statuses']}",
@@ -378,12 +391,12 @@ def main(args) -> int:
         body = npz_body(pos, tri, res)
         req = http_request(host, port, "/v1/rasterize", body, "application/x-npz",
                            "application/json", token)
-        asyncio.run(run_load(host, port, req, 10 if quick else 50, 1, limit))
+        _run(run_load(host, port, req, 10 if quick else 50, 1, limit))
         local = InProcess(args.backend, "256")
         svc, plain, reuse = [], [], []
         try:
             for _ in range(rounds):
-                svc.append(asyncio.run(run_load(host, port, req, per, 1, limit))["p50_ms"])
+                svc.append(_run(run_load(host, port, req, per, 1, limit))["p50_ms"])
                 plain.append(statistics.median(local.times(per)) * 1e3)
                 reuse.append(statistics.median(local.times(per, reuse=True)) * 1e3)
         finally:
@@ -416,7 +429,7 @@ def main(args) -> int:
                         for label, accept in (("json", "application/json"),
                                               ("npz", "application/x-npz"))}
                 for req in reqs.values():
-                    asyncio.run(run_load(host, port, req, 16, 8, limit))     # warm-up
+                    _run(run_load(host, port, req, 16, 8, limit))     # warm-up
                 loops = {"plain": TwoLoops(args.backend, name),
                          "reuse": TwoLoops(args.backend, name, reuse=True)}
                 per_round = []
@@ -425,7 +438,7 @@ def main(args) -> int:
                         row = {f"loops_{k}": v.run(count, limit)["throughput"]
                                for k, v in loops.items()}
                         for label, req in reqs.items():
-                            r = asyncio.run(run_load(host, port, req, count, 8, limit))
+                            r = _run(run_load(host, port, req, count, 8, limit))
                             row[f"service_{label}"] = r["throughput"]
                         per_round.append(row)
                 finally:
@@ -459,7 +472,7 @@ def main(args) -> int:
             marks = sorted({min(total, m) for m in (total // 20, total // 4, total // 2,
                                                     3 * total // 4, total)} - {0})
             for mark in marks:
-                r = asyncio.run(run_load(host, port, req, mark - done, 4, 600.0))
+                r = _run(run_load(host, port, req, mark - done, 4, 600.0))
                 done += r["requests"]
                 samples.append({"requests": done, **memory(client)})
             first, last = samples[0], samples[-1]

@@ -282,10 +282,12 @@ class Slot:
         backoff = 0.5
         try:
             while not pool.stopping or self.sent:
-                if self.proc is None or not self.proc.is_alive():
+                # (the pipe tells a death: no process poll per job)
+                if self.proc is None or self.channel.closed:
                     if self.proc is not None:    # died while idle, or after answering a 500
                         self.restarts += 1
-                        pool.metrics.restart("error" if self.proc.exitcode == 0 else "crash")
+                        clean = not self.proc.is_alive() and self.proc.exitcode == 0
+                        pool.metrics.restart("error" if clean else "crash")
                         self._kill()
                     if not await self._spawn():
                         pool.metrics.restart("startup")

@@ -25,6 +25,7 @@ import numpy as np
 
 PREFIX = struct.Struct("!IQ")     # header bytes, body bytes
 _STAGING = 1 << 18                # bytes read per call while no large body is being read
+_KEEP = 1 << 24                   # the worker keeps a body buffer up to this size
 
 
 def pack(header) -> bytes:
@@ -45,32 +46,46 @@ def send(sock: socket.socket, header, body=b"") -> None:
 
 
 class Receiver:
-    """Reads frames from a blocking socket (the worker's side). A body is a memoryview
-    into a buffer this object reuses: it is valid until the next :meth:`recv`."""
+    """Reads frames from a blocking socket (the worker's side), one ``recv_into`` per frame
+    where it fits the buffer. A body is a memoryview into that buffer, which this object
+    reuses: it is valid until the next :meth:`recv`. A read may bring the start of the next
+    frame (the pool sends a worker its next job while it renders one); that is kept for
+    the next call."""
 
     def __init__(self, sock: socket.socket):
         self.sock = sock
         self._buf = bytearray(_STAGING)
+        self._have = 0            # bytes at the start of _buf not yet handed out
+        self._next = 0            # where the next frame starts in _buf
 
-    def _fill(self, view: memoryview) -> None:
-        while len(view):
-            n = self.sock.recv_into(view)
+    def _read(self, need: int) -> None:
+        """Until ``_buf[_next:]`` holds ``need`` bytes."""
+        if self._next + need > len(self._buf):       # move the rest to the front (or grow)
+            rest = self._have - self._next
+            buf = bytearray(max(need, _STAGING)) if need > len(self._buf) else self._buf
+            buf[:rest] = self._buf[self._next:self._have]
+            self._buf, self._have, self._next = buf, rest, 0
+        view = memoryview(self._buf)
+        while self._have - self._next < need:
+            n = self.sock.recv_into(view[self._have:])
             if n == 0:
                 raise EOFError("the server closed the pipe")
-            view = view[n:]
+            self._have += n
 
     def recv(self):
         """``(header, body)``; EOFError when the other side has closed."""
-        prefix = bytearray(PREFIX.size)
-        self._fill(memoryview(prefix))
-        head_len, body_len = PREFIX.unpack(prefix)
-        head = bytearray(head_len)
-        self._fill(memoryview(head))
-        if body_len > len(self._buf) or len(self._buf) > max(_STAGING, 4 * body_len):
-            self._buf = bytearray(max(body_len, _STAGING))   # grow, or let a big one go
-        body = memoryview(self._buf)[:body_len]
-        self._fill(body)
-        return pickle.loads(head), body
+        if self._next == self._have:
+            self._have = self._next = 0
+        if len(self._buf) > _KEEP and self._have == 0:
+            self._buf = bytearray(_STAGING)              # let a big one go
+        self._read(PREFIX.size)
+        head_len, body_len = PREFIX.unpack_from(self._buf, self._next)
+        self._read(PREFIX.size + head_len + body_len)
+        start = self._next + PREFIX.size
+        header = pickle.loads(memoryview(self._buf)[start:start + head_len])
+        body = memoryview(self._buf)[start + head_len:start + head_len + body_len]
+        self._next = start + head_len + body_len
+        return header, body
 
 
 class Died(Exception):
@@ -173,6 +188,11 @@ class FrameProtocol(asyncio.BufferedProtocol):
         else:
             self._waiter = fut
         return fut
+
+    @property
+    def closed(self) -> bool:
+        """The pipe has closed (the worker exited or died)."""
+        return self._closed
 
     def close(self) -> None:
         if self.transport is not None:

@@ -242,18 +242,22 @@ def worker_main(sock, backend, limits) -> None:
     threading.Thread(target=_warm_reference, args=(gr,), daemon=True).start()
     receiver = wire.Receiver(sock)
     try:
-        while True:
-            try:
-                header, body = receiver.recv()
-            except (EOFError, OSError):
-                break   # the server is gone
-            if header[0] == "stop":
-                break
-            kind, meta = header
-            result = handler.handle(kind, meta, body)
-            wire.send(sock, (result.status, result.content_type, result.headers), result.body)
-            if handler.fatal:
-                break
+        # The context stays current on this thread, its only one: glraster's calls then
+        # skip making it current and restoring the previous one (~0.1 ms per request).
+        with ctx:
+            while True:
+                try:
+                    header, body = receiver.recv()
+                except (EOFError, OSError):
+                    break   # the server is gone
+                if header[0] == "stop":
+                    break
+                kind, meta = header
+                result = handler.handle(kind, meta, body)
+                wire.send(sock, (result.status, result.content_type, result.headers),
+                          result.body)
+                if handler.fatal:
+                    break
     except (BrokenPipeError, EOFError, OSError):
         pass
     finally:
