@@ -35,9 +35,11 @@ import asyncio
 import collections
 import math
 import multiprocessing
+import os
 import socket
 import time
 
+from glraster.service.cells import Arena
 from glraster.service.wire import Died, FrameProtocol
 from glraster.service.worker import worker_main
 
@@ -130,6 +132,7 @@ class Slot:
         self.restarts = 0
         self.started = 0.0
         self.sent = collections.deque()   # jobs written to the worker, not yet answered
+        self.arena = None            # cells.Arena: shared memory for its .npz results
         self.task = None
         self._waiter = None          # a future while idle: submit hands a job through it
         self._reaping = []           # tasks joining killed processes
@@ -146,7 +149,10 @@ class Slot:
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, _SOCKET_BUFFER)
             except OSError:
                 pass
-        proc = mp.Process(target=worker_main, args=(child_sock, cfg.backend, cfg.limits),
+        if self.arena is None and hasattr(os, "memfd_create"):
+            self.arena = Arena()
+        shared = self.arena.shared() if self.arena is not None else None
+        proc = mp.Process(target=worker_main, args=(child_sock, cfg.backend, cfg.limits, shared),
                           name=f"glraster-worker-{self.index}", daemon=True)
         try:
             await loop.run_in_executor(None, proc.start)
@@ -261,7 +267,12 @@ class Slot:
                 and 0 < len(self.sent) < PIPELINE)
 
     def send(self, job: Job) -> None:
-        """Write a claimed job to the worker (it answers jobs in the order they were sent)."""
+        """Write a claimed job to the worker (it answers jobs in the order they were sent);
+        a job asking for .npz gets a shared-memory cell for its result when one is free."""
+        if self.arena is not None and job.meta.get("accept") == "npz" and "cell" not in job.meta:
+            cell = self.arena.take()
+            if cell is not None:
+                job.meta["cell"] = cell
         self.channel.send((job.kind, job.meta), job.body)
         self.sent.append(job)
         self.state = "busy"
@@ -273,9 +284,16 @@ class Slot:
                 return
             self.send(job)
 
+    def _settle(self, job: Job, outcome: Outcome) -> None:
+        """Answer a job; a cell it still holds is free again."""
+        cell = job.meta.pop("cell", None)
+        if cell is not None:
+            self.arena.give_back(cell)
+        job.answer(outcome)
+
     def _answer_all(self, status: int, message: str) -> None:
         while self.sent:
-            self.sent.popleft().answer(_error(status, "server", message, self.index))
+            self._settle(self.sent.popleft(), _error(status, "server", message, self.index))
 
     async def run(self) -> None:
         pool = self.pool
@@ -332,13 +350,13 @@ class Slot:
         timer = asyncio.get_running_loop().call_later(
             max(job.deadline - t0, PIPELINE_GRACE), _expire, answer)
         try:
-            (status, ctype, headers), body = await answer
+            (status, ctype, headers, cell_bytes), body = await answer
         except asyncio.TimeoutError:
             self.sent.popleft()
             self._kill()            # replaced at the top of the loop; the others are resent
             self.restarts += 1
             self.pool.metrics.restart("deadline")
-            job.answer(_error(504, "deadline", f"the request was not done by its deadline "
+            self._settle(job, _error(504, "deadline", f"the request was not done by its deadline "
                                                f"({job.meta.get('deadline', 0):g} s); it was "
                                                "cancelled and its worker replaced", self.index))
             return
@@ -347,7 +365,7 @@ class Slot:
             job.attempts += 1
             if job.attempts > RETRIES:
                 self.sent.popleft()
-                job.answer(_error(503, "server", "the worker rendering this request died "
+                self._settle(job, _error(503, "server", "the worker rendering this request died "
                                                  "twice; it was not answered", self.index))
             await self._replace("crash", respawn=False)
             return
@@ -360,6 +378,11 @@ class Slot:
         headers = dict(headers)
         if job.attempts:
             headers["x-glraster-retried"] = str(job.attempts)
+        cell = job.meta.pop("cell", None)
+        if cell is not None and cell_bytes:
+            body = self.arena.result(cell, cell_bytes)   # the cell now belongs to the response
+        elif cell is not None:
+            self.arena.give_back(cell)
         job.answer(Outcome(status, ctype, headers, body, self.index))
 
 
@@ -438,6 +461,7 @@ class WorkerPool:
 
     def snapshot(self) -> dict:
         workers = [{"index": s.index, "pid": s.pid, "state": s.state, "jobs": len(s.sent),
+                    "free_cells": s.arena.free if s.arena is not None else 0,
                     "requests": s.requests, "restarts": s.restarts, "error": s.error}
                    for s in self.slots]
         return {"queue_depth": len(self.pending), "queue_capacity": self.capacity,

@@ -468,3 +468,4 @@ class Result:
     content_type: str
     body: bytes
     headers: dict = field(default_factory=dict)
+    cell_bytes: int = 0     # > 0: the body is in the job's shared-memory cell, not here

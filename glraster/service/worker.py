@@ -20,6 +20,8 @@ import sys
 import time
 import traceback
 
+from glraster.service.cells import MIN_BYTES, WorkerCells
+
 PROBE = ("probe",)
 
 # A worker keeps the arrays of its last GPU raster and the buffer of its last .npz result
@@ -51,6 +53,11 @@ def _warm_reference(gr) -> None:
         pass
 
 
+def _server_timing(timings: dict, encode_started: float) -> str:
+    timings["encode"] = time.perf_counter() - encode_started
+    return ", ".join(f"{k};dur={v * 1e3:.3f}" for k, v in timings.items())
+
+
 def _nbytes(raster) -> int:
     return sum(getattr(raster, n).nbytes for n in ("mask", *raster.outputs))
 
@@ -58,7 +65,7 @@ def _nbytes(raster) -> int:
 class Handler:
     """Executes jobs on one context. ``handle(kind, meta, body) -> protocol.Result``."""
 
-    def __init__(self, ctx, limits):
+    def __init__(self, ctx, limits, cells=None):
         import glraster as gr
         from glraster.service import protocol
 
@@ -69,6 +76,7 @@ class Handler:
         self.fatal = False   # set after an unexpected exception: exit after answering
         self._frame = None   # (key, Raster): the last GPU raster, reused by the next request
         self._result = None  # uint8 array the .npz results are written into (sent, then reused)
+        self.cells = cells   # cells.WorkerCells: shared memory the server may assign a result
 
     # -- rasterize ----------------------------------------------------------------------
     def rasterize(self, meta: dict, body: bytes):
@@ -119,8 +127,13 @@ class Handler:
         t = time.perf_counter()
         if accept == "npz":
             extra = {"comparison": evaluation} if evaluation is not None else None
-            data, ctype = p.encode_npz(raster, outputs, extra, self._result), p.NPZ
-            if data.obj is not self._result and len(data) <= REUSE_MAX_BYTES:
+            cell = meta.get("cell") if self.cells is not None else None
+            into = self.cells.cell(cell) if cell is not None else self._result
+            data, ctype = p.encode_npz(raster, outputs, extra, into), p.NPZ
+            if cell is not None and data.obj is into and len(data) >= MIN_BYTES:
+                headers["server-timing"] = _server_timing(timings, t)
+                return p.Result(200, ctype, b"", headers, cell_bytes=len(data))
+            if cell is None and data.obj is not into and len(data) <= REUSE_MAX_BYTES:
                 self._result = data.obj        # grown: the next results reuse it
         elif accept == "exr":
             md = {"producer": producer, "source": source, "method": req.method}
@@ -139,8 +152,7 @@ class Handler:
             if evaluation is not None:
                 doc["comparison"] = evaluation
             data, ctype = json.dumps(doc).encode(), p.JSON
-        timings["encode"] = time.perf_counter() - t
-        headers["server-timing"] = ", ".join(f"{k};dur={v * 1e3:.3f}" for k, v in timings.items())
+        headers["server-timing"] = _server_timing(timings, t)
         return p.Result(200, ctype, data, headers)
 
     # -- check --------------------------------------------------------------------------
@@ -210,9 +222,10 @@ class Handler:
                 500, "server", f"internal error ({type(exc).__name__}: {exc})"[:500]))
 
 
-def worker_main(sock, backend, limits) -> None:
+def worker_main(sock, backend, limits, shared_cells=None) -> None:
     """Entry point of a worker process (multiprocessing, spawn start method); ``sock`` is
-    its end of the socket pair."""
+    its end of the socket pair, ``shared_cells`` the server's result cells
+    (:class:`glraster.service.cells.SharedFile`) or None."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     from glraster.service import wire
@@ -234,7 +247,7 @@ def worker_main(sock, backend, limits) -> None:
         except OSError:
             pass
         return
-    handler = Handler(ctx, limits)
+    handler = Handler(ctx, limits, WorkerCells(shared_cells) if shared_cells else None)
     # Load the reference's compiled kernels (numba's cache) while the first requests come:
     # otherwise the first request with reference or compare pays ~1 s for it.
     import threading
@@ -254,8 +267,8 @@ def worker_main(sock, backend, limits) -> None:
                     break
                 kind, meta = header
                 result = handler.handle(kind, meta, body)
-                wire.send(sock, (result.status, result.content_type, result.headers),
-                          result.body)
+                wire.send(sock, (result.status, result.content_type, result.headers,
+                                 result.cell_bytes), result.body)
                 if handler.fatal:
                     break
     except (BrokenPipeError, EOFError, OSError):

@@ -655,6 +655,65 @@ def test_client_that_does_not_read_its_result_holds_up_nobody(impatient_server):
     lazy.close()
 
 
+def _read_response(sock) -> tuple[bytes, bytes]:
+    """(head, body) of one HTTP response with a Content-Length."""
+    data = b""
+    while b"\r\n\r\n" not in data:
+        data += sock.recv(1 << 20)
+    head, _, body = data.partition(b"\r\n\r\n")
+    length = int(head.lower().split(b"content-length:")[1].split(b"\r\n")[0])
+    chunks, have = [body], len(body)
+    while have < length:
+        chunk = sock.recv(1 << 20)
+        assert chunk, "the server closed the connection mid-body"
+        chunks.append(chunk)
+        have += len(chunk)
+    return head, b"".join(chunks)
+
+
+def test_results_held_by_slow_clients_keep_their_cells_and_the_rest_use_the_pipe(
+        impatient_server, ctx):
+    """A large .npz result is answered from one of the worker's shared-memory cells, which
+    stays the response's until it has been sent: with every cell held by clients that do
+    not read, the next results go through the pipe; every result comes back bit for bit,
+    and the cells are free again once the slow clients have read theirs."""
+    from glraster.service.cells import CELLS
+
+    s = impatient_server
+    pos = np.array([[-1, -1, 0.5, 1], [3, -1, 0.5, 2], [-1, 3, 0.5, 1]])
+    tri, res = np.array([[0, 1, 2]]), (1024, 1024)
+    local = gr.rasterize(pos, tri, res, ctx=ctx)
+    body = encode_scene(pos, tri, res)
+    request = (b"POST /v1/rasterize HTTP/1.1\r\nHost: x\r\nContent-Type: application/x-npz\r\n"
+               b"Accept: application/x-npz\r\nContent-Length: " + str(len(body)).encode()
+               + b"\r\n\r\n" + body)
+    before = s.info()["workers"][0]["requests"]
+    lazies = []
+    for _ in range(CELLS + 1):      # one more than the cells: that one takes the pipe
+        # (the kernel's socket buffers take a few MB of the 28 MB result; the rest waits)
+        lazy = socket.create_connection(("127.0.0.1", s.port), timeout=60)
+        lazy.sendall(request)
+        lazies.append(lazy)
+    end = time.monotonic() + 60
+    while s.info()["workers"][0]["requests"] < before + len(lazies) and time.monotonic() < end:
+        time.sleep(0.05)
+    assert s.info()["workers"][0]["free_cells"] == 0
+    with s.client() as c:           # served through the pipe meanwhile
+        r = c.rasterize(pos, tri, res)
+        assert r.persp.tobytes() == local.persp.tobytes()
+    for lazy in lazies:
+        head, data = _read_response(lazy)
+        lazy.close()
+        assert head.startswith(b"HTTP/1.1 200"), head[:200]
+        r = decode_raster(data)
+        for name in ("persp", "screen", "depth", "tri_id", "mask"):
+            assert getattr(r, name).tobytes() == getattr(local, name).tobytes(), name
+    end = time.monotonic() + 30
+    while s.info()["workers"][0]["free_cells"] < CELLS and time.monotonic() < end:
+        time.sleep(0.05)
+    assert s.info()["workers"][0]["free_cells"] == CELLS
+
+
 # -- shutdown ---------------------------------------------------------------------------------
 
 def test_shutdown_under_load_drains_in_flight_requests(gl_backend, tmp_path, ctx):
