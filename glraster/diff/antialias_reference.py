@@ -39,7 +39,7 @@ import numpy as np
 from glraster.diff import layout
 
 __all__ = [
-    "DECISION_BAND", "MAX_WALK", "AntialiasSaved", "Pairs", "TopologyHash",
+    "DECISION_BAND", "MAX_WALK", "Pairs", "ReferenceAntialiasSaved", "TopologyHash",
     "antialias_backward", "antialias_construct_topology_hash", "antialias_forward", "pairs",
 ]
 
@@ -478,7 +478,7 @@ def pairs(rast, pos, tri, topology_hash: TopologyHash, *, band: float = DECISION
 
 
 @dataclass
-class AntialiasSaved:
+class ReferenceAntialiasSaved:
     """What :func:`antialias_backward` needs: the checked float64 inputs and the pairs."""
 
     color: np.ndarray
@@ -547,7 +547,7 @@ def antialias_forward(color, rast, pos, tri, topology_hash=None, pos_gradient_bo
     for c in range(channels):
         out[:, c] += np.bincount(mod, weights=w * (flat[par, c] - flat[mod, c]),
                                  minlength=pixels)
-    saved = AntialiasSaved(color, rast, pos, tri, th, p, boost, convex)
+    saved = ReferenceAntialiasSaved(color, rast, pos, tri, th, p, boost, convex)
     return out.reshape(color.shape), saved
 
 
@@ -582,7 +582,7 @@ def crossing_gradients(pos, rows, a_yx, axis, resolution, dl_dtau, stride_pos=No
     return out
 
 
-def antialias_backward(saved: AntialiasSaved, grad_out):
+def antialias_backward(saved: ReferenceAntialiasSaved, grad_out):
     """(grad_color (B, H, W, C), grad_pos of pos' shape) in float64; the ids and which pairs
     blend stay those of the forward (visibility gradients come through alpha)."""
     color, p = saved.color, saved.pairs

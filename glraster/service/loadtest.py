@@ -23,7 +23,6 @@ with the server, stays small.
 from __future__ import annotations
 
 import asyncio
-import io
 import json
 import multiprocessing
 import os
@@ -35,6 +34,8 @@ import time
 import urllib.parse
 
 import numpy as np
+
+from glraster.client import encode_scene
 
 SCENES = {"256": (256, 256, 4096), "1024": (1024, 1024, 20_000)}
 
@@ -59,12 +60,6 @@ def make_scene(name: str):
     i = np.arange(n)[:, None] * (n + 1) + np.arange(n)[None, :]
     quads = np.stack([i, i + 1, i + n + 2, i, i + n + 2, i + n + 1], -1).reshape(-1, 3)
     return pos, quads.astype(np.int32), (h, w)
-
-
-def npz_body(pos, tri, resolution) -> bytes:
-    buf = io.BytesIO()
-    np.savez(buf, pos=pos, tri=tri, resolution=np.asarray(resolution, np.int64))
-    return buf.getvalue()
 
 
 # -- the client -----------------------------------------------------------------------------
@@ -368,7 +363,7 @@ def main(args) -> int:
         # 1. throughput and latency by concurrency, .npz results
         for name in ("256", "1024"):
             pos, tri, res = make_scene(name)
-            body = npz_body(pos, tri, res)
+            body = encode_scene(pos, tri, res)
             req = http_request(host, port, "/v1/rasterize", body, "application/x-npz",
                                "application/x-npz", token)
             count = {"256": 12 if quick else 600, "1024": 4 if quick else 80}[name]
@@ -388,7 +383,7 @@ def main(args) -> int:
         #    previous call's arrays (what the workers do: the overhead of HTTP and the pipes)
         rounds, per = (3, 10) if quick else (10, 100)
         pos, tri, res = make_scene("256")
-        body = npz_body(pos, tri, res)
+        body = encode_scene(pos, tri, res)
         req = http_request(host, port, "/v1/rasterize", body, "application/x-npz",
                            "application/json", token)
         _run(run_load(host, port, req, 10 if quick else 50, 1, limit))
@@ -423,7 +418,7 @@ def main(args) -> int:
             rounds = 1 if quick else 5
             for name, count in (("256", 40 if quick else 1500), ("1024", 6 if quick else 120)):
                 pos, tri, res = make_scene(name)
-                body = npz_body(pos, tri, res)
+                body = encode_scene(pos, tri, res)
                 reqs = {label: http_request(host, port, "/v1/rasterize", body,
                                             "application/x-npz", accept, token)
                         for label, accept in (("json", "application/json"),
@@ -464,7 +459,7 @@ def main(args) -> int:
         # 4. memory over many requests
         total = args.memory_requests if not quick else min(args.memory_requests, 1000)
         if total:
-            req = http_request(host, port, "/v1/rasterize", body_256 := npz_body(*make_scene("256")),
+            req = http_request(host, port, "/v1/rasterize", body_256 := encode_scene(*make_scene("256")),
                                "application/x-npz", "application/json", token)
             del body_256
             samples = []
