@@ -23,9 +23,11 @@ import json
 import os
 import select
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -41,6 +43,22 @@ PYTHON_BLOCK_TIMEOUT_S = 180
 CONSOLE_COMMAND_TIMEOUT_S = 300
 # How much of a failing command's output the failure shows.
 OUTPUT_TAIL_CHARS = 4000
+
+
+def end_process_group(pgid: int, grace_s: float = 5.0) -> None:
+    """Stop whatever a block left running in its process group (a server it started)."""
+    for sig in (signal.SIGTERM, signal.SIGKILL):
+        try:
+            os.killpg(pgid, sig)
+        except ProcessLookupError:
+            return
+        deadline = time.monotonic() + grace_s
+        while time.monotonic() < deadline:
+            try:
+                os.killpg(pgid, 0)
+            except ProcessLookupError:
+                return
+            time.sleep(0.05)
 
 
 def documented_files() -> list[Path]:
@@ -167,7 +185,7 @@ class FileRun:
             [sys.executable, str(WORKER), str(request_read), str(reply_write)],
             cwd=self.folder, env=self.environment(), stdin=subprocess.DEVNULL,
             stdout=self.log, stderr=subprocess.STDOUT,
-            pass_fds=(request_read, reply_write))
+            pass_fds=(request_read, reply_write), start_new_session=True)
         os.close(request_read)
         os.close(reply_write)
         self._replies = os.fdopen(self._reply_read, "r", encoding="utf-8")
@@ -205,18 +223,23 @@ class FileRun:
         if not commands:
             raise BlockFailed(f"{block.where}: a console block without a `$ ` command")
         for line, command in commands:
+            process = subprocess.Popen(
+                ["bash", "-o", "pipefail", "-c", command], cwd=self.folder,
+                env=self.environment(), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                stderr=subprocess.STDOUT, text=True, start_new_session=True)
             try:
-                done = subprocess.run(
-                    ["bash", "-o", "pipefail", "-c", command], cwd=self.folder,
-                    env=self.environment(), stdin=subprocess.DEVNULL, capture_output=True,
-                    text=True, timeout=CONSOLE_COMMAND_TIMEOUT_S)
+                output, _ = process.communicate(timeout=CONSOLE_COMMAND_TIMEOUT_S)
             except subprocess.TimeoutExpired:
+                end_process_group(process.pid)
+                process.communicate()
                 raise BlockFailed(f"{relative(block.path)}:{line}: `{command}` ran past "
                                   f"{CONSOLE_COMMAND_TIMEOUT_S} s") from None
-            if done.returncode != 0:
-                output = (done.stdout + done.stderr)[-OUTPUT_TAIL_CHARS:]
+            finally:
+                end_process_group(process.pid)
+            if process.returncode != 0:
                 raise BlockFailed(f"{relative(block.path)}:{line}: `{command}` exited "
-                                  f"{done.returncode}\n--- output ---\n{output}")
+                                  f"{process.returncode}\n--- output ---\n"
+                                  f"{output[-OUTPUT_TAIL_CHARS:]}")
 
     # -- in order ----------------------------------------------------------------------
     def outcome(self, index: int) -> BaseException | None:
@@ -239,6 +262,7 @@ class FileRun:
             except subprocess.TimeoutExpired:
                 self.worker.kill()
                 self.worker.wait()
+            end_process_group(self.worker.pid)
             self._replies.close()
             self.log.close()
             (self.folder.parent / f"{self.folder.name}.log").unlink(missing_ok=True)
