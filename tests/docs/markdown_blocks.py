@@ -252,9 +252,12 @@ class FileRun:
             except BaseException as error:  # noqa: BLE001 - SkipTest and failures alike
                 self.outcomes[self.next_index] = error
             self.next_index += 1
+        if self.next_index == len(self.examples):
+            self.close()    # the file is done: its interpreter and what it left running go
         return self.outcomes[index]
 
     def close(self) -> None:
+        """End the interpreter and what the blocks left running; remove the folder (idempotent)."""
         if self.worker is not None:
             os.close(self._request_write)
             try:
@@ -266,6 +269,7 @@ class FileRun:
             self._replies.close()
             self.log.close()
             (self.folder.parent / f"{self.folder.name}.log").unlink(missing_ok=True)
+            self.worker = None
         shutil.rmtree(self.folder, ignore_errors=True)
 
 

@@ -3,6 +3,8 @@ claims for the compensated methods on a few points of each sweep (timing-free)."
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -70,3 +72,11 @@ def test_well_shaped_triangles_stay_within_1e_6_far_from_the_origin(ctx, sweep):
 def test_sweep_names_are_checked():
     with pytest.raises(ValueError, match="sweep must be one of"):
         stress.sweep_points("diagonal")
+
+
+def test_json_goes_into_a_folder_that_does_not_exist_yet(tmp_path):
+    # README's `glraster stress --json out/stress.json` runs in a fresh folder.
+    path = tmp_path / "out" / "stress.json"
+    stress.write_json({"origin": {"hw": [1.5e-5]}}, str(path))
+    assert json.loads(path.read_text()) == {"origin": {"hw": [1.5e-5]}}
+    assert [p.name for p in path.parent.iterdir()] == ["stress.json"]  # no temporary left
