@@ -8,7 +8,7 @@ The convention every page follows:
 * every line of a ```console block that starts with ``$ `` is a command, run with bash in
   that same folder with this interpreter's ``bin/`` (so ``glraster``) first on PATH; it must
   exit 0. Other lines are shown output, not checked; a command whose line ends in ``\\``
-  goes on on the next line;
+  goes on on the next line (bash reads the two lines as one command);
 * ``<!-- skip: next "reason" -->`` right before a block skips it, and pytest reports the
   reason.
 
@@ -67,7 +67,9 @@ def documented_files() -> list[Path]:
 
 
 def relative(path: Path | str) -> str:
-    return str(Path(path).resolve().relative_to(REPO))
+    """The path as the docs and failures name it: relative to the repository if inside."""
+    path = Path(path).resolve()
+    return str(path.relative_to(REPO)) if path.is_relative_to(REPO) else str(path)
 
 
 @dataclass
@@ -133,7 +135,7 @@ def console_commands(source: str, first_line: int) -> list[tuple[int, str]]:
             start, command = first_line + i, text[2:]
             while command.endswith("\\") and i + 1 < len(lines):
                 i += 1
-                command = command[:-1] + "\n" + lines[i]
+                command += "\n" + lines[i]   # bash reads backslash-newline as a continuation
             commands.append((start, command))
         i += 1
     return commands

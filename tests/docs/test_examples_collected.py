@@ -23,7 +23,7 @@ PYTHON_LIKE = {"py", "python3", "pycon", "ipython"}
 COMMAND_WORDS = {"$", "glraster", "make", "pip", "python", "python3", "curl", "docker",
                  "podman", "apt-get", "sudo", "bash", "pytest"}
 
-SKIP_COMMENT = re.compile(r"<!--+\s*skip:(.*?)--+>", re.DOTALL)
+SKIP_COMMENT = re.compile(r"^[ \t]*<!--+\s*skip:(.*?)--+>", re.DOTALL | re.MULTILINE)
 SKIP_WITH_REASON = re.compile(r'\s*next\s+"([^"]*)"\s*$')
 
 

@@ -172,3 +172,16 @@ def test_files_the_docs_name_exist():
                for name in sorted(set(named.findall(path.read_text())))
                if not (mb.REPO / name).exists()]
     assert not missing, "the docs name files that do not exist:\n" + "\n".join(missing)
+
+
+def test_golden_size_and_exit_codes_match_the_readme():
+    from glraster.cli import exit_codes
+
+    size = sum(p.stat().st_size for p in (mb.REPO / "golden").rglob("*.exr")) / 2**20
+    assert_quoted("README.md", "the goldens take 12.6 MiB")
+    assert_same_figure("12.6", size, "README.md (golden size, MiB)")
+    assert_quoted("docs/conformance.md", "in 12.6 MiB (budget: 20 MiB)")
+    assert size <= 20
+    codes = (exit_codes.OK, exit_codes.FAIL, exit_codes.USAGE, exit_codes.NO_BACKEND)
+    assert_quoted("README.md", "Exit codes: {} pass, {} fail, {} bad input, {} no GL "
+                               "backend".format(*codes))
