@@ -44,8 +44,9 @@ def file_runs():
 
 @pytest.mark.parametrize(("path", "index"), _blocks())
 def test_documented_block_runs_as_written(file_runs, path, index):
-    outcome = file_runs(path).outcome(index)
+    run = file_runs(path)
+    outcome = run.outcome(index)
     if isinstance(outcome, unittest.SkipTest):
-        pytest.skip(str(outcome))
+        pytest.skip(f"{mb.block_of(run.examples[index]).where}: {outcome}")
     if outcome is not None:
         raise outcome
