@@ -76,7 +76,9 @@ BAD_REQUESTS = [
     ("json array", b"[1, 2]", "application/json", None, "", None, 400, "body"),
     ("NaN literal", b'{"pos": [[NaN, 0, 0, 1]]}', "application/json", None, "", None, 400, "body"),
     ("deep nesting", b'{"pos": ' + b"[" * 100000 + b"]" * 100000 + b"}", "application/json",
-     None, "", None, 400, "body"),
+     None, "", None, 422, "pos"),
+    ("deep nesting at the top", b"[" * 100000 + b"]" * 100000, "application/json", None, "",
+     None, 400, "body"),
     ("missing pos", _scene(pos=...), "application/json", None, "", None, 422, "pos"),
     ("missing resolution", _scene(resolution=...), "application/json", None, "", None, 422,
      "resolution"),
@@ -211,14 +213,15 @@ def _body_schema(doc, path):
 
 def from_schema(schema, max_items=24):
     """A hypothesis strategy of the instances of a JSON schema, for the subset the service's
-    schema uses (object, array, number, integer, string, boolean, enum, oneOf, min/max
+    schema uses (object, array, number, integer, string, boolean, enum, oneOf, anyOf, min/max
     items and values, exclusiveMinimum, uniqueItems, pattern)."""
     from hypothesis import strategies as st
 
     if "enum" in schema:
         return st.sampled_from(schema["enum"])
-    if "oneOf" in schema:
-        return st.one_of([from_schema(s, max_items) for s in schema["oneOf"]])
+    for key in ("oneOf", "anyOf"):
+        if key in schema:
+            return st.one_of([from_schema(s, max_items) for s in schema[key]])
     kind = schema.get("type")
     if kind == "object":
         props = schema.get("properties", {})

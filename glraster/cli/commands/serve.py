@@ -100,10 +100,10 @@ def _config(args):
 
 
 def run(args) -> int:
-    if args.print_openapi:
+    if args.print_openapi:   # the schema of a server with these flags (limits, tokens)
         from glraster.service.openapi import schema
 
-        print(json.dumps(schema(), indent=2, sort_keys=True))
+        print(json.dumps(schema(_config(args)), indent=2, sort_keys=True))
         return exit_codes.OK
     try:
         import starlette  # noqa: F401
