@@ -44,6 +44,9 @@ FLOAT32_MAX = 3.4028234663852886e38
 # deadline below this would cost the service more than the request; it is a guard against
 # a hung driver, not a latency target.
 MIN_DEADLINE = 1.0
+# A conformance check runs at least one scene, its reference and its golden comparison:
+# seconds, not milliseconds.
+MIN_CHECK_DEADLINE = 10.0
 
 # Rules between fields that JSON Schema cannot state; the parser enforces each (422 naming
 # the field) and the schema's descriptions say them.
@@ -128,8 +131,8 @@ class Models:
             ge=MIN_DEADLINE, le=max_deadline)]
         check_deadline = Annotated[float, _doc(
             "Seconds from arrival after which the check is cancelled (504) and its worker "
-            f"replaced; at least {MIN_DEADLINE:g}.", ge=MIN_DEADLINE,
-            le=max(max_check_deadline, MIN_DEADLINE))]
+            f"replaced; at least {MIN_CHECK_DEADLINE:g}.", ge=MIN_CHECK_DEADLINE,
+            le=max(max_check_deadline, MIN_CHECK_DEADLINE))]
         query_options = {
             "outputs": Annotated[str, _doc("Comma-separated outputs (for .npz bodies; JSON "
                                            "bodies may carry the options themselves).",
@@ -173,10 +176,10 @@ class Models:
 
     def decode_rasterize(self, body):
         """The JSON body as a ``RasterizeBody``; :class:`ModelError` when it is not one."""
-        return _decode(self._rasterize_decoder, body)
+        return _decode(self._rasterize_decoder, self.RasterizeBody, body)
 
     def decode_check(self, body):
-        return _decode(self._check_decoder, body)
+        return _decode(self._check_decoder, self.CheckBody, body)
 
     def query(self, kind: str, items) -> object:
         """The query parameters ``items`` ((name, value) pairs) as a ``RasterizeQuery``
@@ -230,9 +233,27 @@ def _model_error(text: str, root: str, noun: str = "field") -> ModelError:
     return ModelError(field, f"{where}: {message}"[:300])
 
 
-def _decode(decoder, body):
+def _integral_as_int(value):
+    """``value`` (decoded JSON) with every integral float as an int: JSON Schema's
+    ``integer`` is a mathematical integer however it is spelled (``1.0`` is one)."""
+    if isinstance(value, float):
+        return int(value) if value.is_integer() else value
+    if isinstance(value, list):
+        return [_integral_as_int(v) for v in value]
+    if isinstance(value, dict):
+        return {k: _integral_as_int(v) for k, v in value.items()}
+    return value
+
+
+def _decode(decoder, model, body):
     try:
-        return decoder.decode(body)
+        try:
+            return decoder.decode(body)
+        except msgspec.ValidationError as exc:
+            if "expected `int`, got `float`" not in str(exc).lower():
+                raise
+        # the slow path, only for bodies spelling an integer as 1.0
+        return msgspec.convert(_integral_as_int(msgspec.json.decode(body)), model)
     except msgspec.ValidationError as exc:
         err = _model_error(str(exc), "body")
         # the body as a whole has the wrong type (an array, a number): unreadable, 400
