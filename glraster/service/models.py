@@ -88,8 +88,6 @@ _OPTION_DOCS = {
     "cull_backfaces": "Drop clockwise triangles (GPU only).",
     "crop": "EXR: store only the covered pixels' bounding box (lossless).",
 }
-_OPTION_DEFAULTS = {"outputs": list(OUTPUT_NAMES), "method": "hw", "reference": False,
-                    "compare": False, "cull_backfaces": False, "crop": False}
 
 
 class Models:

@@ -12,6 +12,10 @@ Request bodies of ``POST /v1/rasterize`` (docs/service.md, docs/openapi.json):
 - ``application/x-npz``: arrays ``pos`` (V, 4), ``tri`` (T, 3), ``resolution`` (2,); the
   options come as query parameters (``?outputs=persp,depth&compare=true``).
 
+The JSON body and the query parameters are decoded into the types of
+:mod:`glraster.service.models`, which the OpenAPI schema is generated from; an option is
+given in the body or in the query, not both.
+
 Options: ``outputs`` (subset of persp, screen, depth, tri_id; default all), ``method``
 (hw, divw, homogeneous, homogeneous64, solve4), ``reference`` (return the float64
 reference instead of the GPU raster), ``compare`` (compare the GPU raster with the reference
@@ -38,7 +42,7 @@ from msgspec import UNSET
 
 from glraster.io.npz import NpzError, npz_nbytes, read_npz, write_npz_into
 
-from glraster.service.models import (
+from glraster.service.models import (  # the names of fields and options, re-exported
     ARRAY_FIELDS,
     CHECK_FIELDS,
     METHOD_NAMES,
