@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import http.client
 import json
+import socket
 import time
 import urllib.parse
 
@@ -40,12 +41,35 @@ class ServiceError(Exception):
     """The service refused a request: HTTP ``status``, the ``field`` it names, ``message``."""
 
     def __init__(self, status: int, field: str, message: str):
-        super().__init__(f"{status} {field}: {message}" if field else f"{status}: {message}")
+        if not status:     # no HTTP answer at all: the message says why
+            text = message
+        else:
+            text = f"{status} {field}: {message}" if field else f"{status}: {message}"
+        super().__init__(text)
         self.status, self.field, self.message = status, field, message
 
 
 class ServiceUnavailable(ServiceError):
-    """The service could not be reached or failed (5xx, connection error, 429 after retries)."""
+    """The service could not be reached or failed (5xx, connection error, 429 after retries).
+    ``status`` is 0 when no HTTP answer came (the message names the URL and the cause)."""
+
+
+def _unreachable(url: str, host: str, port, timeout: float, exc: BaseException) -> str:
+    """Why ``url`` gave no HTTP answer, for people."""
+    if isinstance(exc, ConnectionRefusedError):
+        why = (f"connection refused: nothing listens on {host}:{port} (is glraster serve "
+               "running there?)")
+    elif isinstance(exc, socket.gaierror):
+        why = f"the host name {host!r} does not resolve ({exc.strerror or exc})"
+    elif isinstance(exc, (TimeoutError, socket.timeout)):
+        why = f"no answer within {timeout:g} s (the client's timeout)"
+    elif isinstance(exc, http.client.RemoteDisconnected):
+        why = "the server closed the connection without answering"
+    elif isinstance(exc, OSError) and exc.strerror:
+        why = exc.strerror[:1].lower() + exc.strerror[1:]
+    else:
+        why = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+    return f"cannot reach the service at {url}: {why}"
 
 
 class Client:
@@ -117,7 +141,9 @@ class Client:
                                                     ConnectionResetError, BrokenPipeError)):
                     attempt += 1      # a kept-alive connection the server had closed
                     continue
-                raise ServiceUnavailable(0, "", f"cannot reach {self.url}: {exc}") from None
+                raise ServiceUnavailable(0, "", _unreachable(
+                    self.url, self._host, self._port or (443 if self._scheme == "https" else 80),
+                    self.timeout, exc)) from None
             if 200 <= resp.status < 300:
                 return resp.status, rheaders, data
             if resp.status in (429, 503) and attempt < self.retries:

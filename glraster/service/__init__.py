@@ -1,6 +1,6 @@
 """glraster as an HTTP rendering service (``glraster serve``; docs/service.md).
 
-Optional: needs the ``[service]`` extra (starlette, uvicorn). Built on glraster's public
+Optional: needs the ``[service]`` extra (starlette, uvicorn, msgspec). Built on glraster's public
 API only (``glraster.Context``, ``glraster.rasterize``, ``glraster.reference.rasterize``,
 ``glraster.conformance.check``, ``glraster.io.exr``, ``glraster.io.npz``).
 
@@ -10,9 +10,12 @@ API only (``glraster.Context``, ``glraster.rasterize``, ``glraster.reference.ras
 - :mod:`~glraster.service.worker`   one GL context per process: parse, render, encode
 - :mod:`~glraster.service.wire`     the frames on a worker's socket pair
 - :mod:`~glraster.service.cells`    shared-memory cells for large results
+- :mod:`~glraster.service.models`   the request models: the schema and the parser both
+                                    come from them
 - :mod:`~glraster.service.protocol` request parsing and result encoding (no file system)
 - :mod:`~glraster.service.metrics`  Prometheus text metrics
-- :mod:`~glraster.service.openapi`  the OpenAPI schema (docs/openapi.json)
+- :mod:`~glraster.service.openapi`  the OpenAPI schema, generated from the models
+                                    (docs/openapi.json)
 - :mod:`~glraster.service.loadtest` the loopback load test (``glraster serve-bench``)
 """
 

@@ -24,7 +24,7 @@ from starlette.responses import Response
 from starlette.routing import Route
 
 from glraster._version import __version__
-from glraster.service import openapi, protocol
+from glraster.service import models, openapi, protocol
 from glraster.service.config import ServiceConfig
 from glraster.service.metrics import Metrics
 from glraster.service.pool import Job, Outcome, QueueFull, Unavailable, WorkerPool
@@ -87,7 +87,8 @@ class Service:
         self.draining = False
         self.started = time.time()
         self._digests = tuple(_token_digest(t) for t in config.tokens)
-        self._schema = json.dumps(openapi.schema(), indent=2, sort_keys=True).encode()
+        self._models = models.for_config(config)
+        self._schema = json.dumps(openapi.schema(config), indent=2, sort_keys=True).encode()
         routes = [
             Route("/v1/rasterize", self.rasterize, methods=["POST"]),
             Route("/v1/check", self.check, methods=["POST"]),
@@ -183,32 +184,13 @@ class Service:
             timer.cancel()
         return chunks[0] if len(chunks) == 1 else b"".join(chunks)
 
-    def _deadline(self, request: Request, default: float) -> float:
-        value = request.query_params.get("deadline")
-        if value is None:
-            return default
+    def _query(self, request: Request, kind: str):
+        """The query parameters as the endpoint's query model (``models.RasterizeQuery`` or
+        ``CheckQuery``): unknown, repeated or invalid ones are 422 naming the parameter."""
         try:
-            seconds = float(value)
-        except ValueError:
-            seconds = float("nan")
-        cap = max(default, self.config.limits.max_deadline)
-        if not (0 < seconds <= cap):
-            raise protocol.RequestError(422, "deadline", f"deadline must be a number of seconds "
-                                                         f"in (0, {cap:g}], got {value[:40]!r}")
-        return seconds
-
-    def _query(self, request: Request, allowed) -> dict:
-        out = {}
-        for key, value in request.query_params.multi_items():
-            if key == "deadline":
-                continue
-            if key not in allowed:
-                raise protocol.RequestError(422, key[:40] or "query",
-                                            f"unknown query parameter {key[:40]!r}")
-            if key in out:
-                raise protocol.RequestError(422, key, f"query parameter {key!r} is given twice")
-            out[key] = value
-        return out
+            return self._models.query(kind, request.query_params.multi_items())
+        except models.ModelError as exc:
+            raise protocol.RequestError(422, exc.field, exc.message) from None
 
     async def _run(self, kind: str, meta: dict, body: bytes, arrived: float,
                    deadline: float) -> Response:
@@ -260,11 +242,13 @@ class Service:
                 raise protocol.RequestError(415, "content-type", "the body must be "
                                             "application/json or application/x-npz, got "
                                             f"{ctype[:80] or 'none'!r}")
-            deadline = self._deadline(request, self.config.deadline)
-            query = self._query(request, protocol.OPTION_FIELDS)
+            query = self._query(request, "rasterize")
+            deadline = self.config.deadline if query.deadline is models.UNSET \
+                else query.deadline
+            options = {k: v for k, v in request.query_params.items() if k != "deadline"}
             body = await self._body(request)
             return await self._run("rasterize", {"content_type": _CONTENT[ctype],
-                                                 "accept": accept, "query": query},
+                                                 "accept": accept, "query": options},
                                    body, arrived, deadline)
         return await self._handle("rasterize", request, work)
 
@@ -277,8 +261,9 @@ class Service:
             if ctype not in ("", "application/json"):
                 raise protocol.RequestError(415, "content-type", "the body must be "
                                             f"application/json, got {ctype[:80]!r}")
-            deadline = self._deadline(request, self.config.check_deadline)
-            self._query(request, ())
+            query = self._query(request, "check")
+            deadline = self.config.check_deadline if query.deadline is models.UNSET \
+                else query.deadline
             body = await self._body(request)
             return await self._run("check", {"accept": accept}, body, arrived, deadline)
         return await self._handle("check", request, work)

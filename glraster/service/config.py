@@ -16,6 +16,9 @@ from pathlib import Path
 
 MiB = 1 << 20
 
+# The shortest bearer token a token file may hold (a guessable token is no protection).
+MIN_TOKEN_LENGTH = 16
+
 
 @dataclass(frozen=True)
 class Limits:
@@ -110,8 +113,8 @@ def is_loopback(host: str) -> bool:
 def read_token_file(path) -> tuple[str, ...]:
     """The bearer tokens in ``path``: one per line, blank lines and ``#`` comments ignored
     (several lines let a token be rotated without downtime). ValueError naming the file
-    when it is missing, empty, holds a token shorter than 16 characters or with
-    whitespace, or is readable by others than its owner and group."""
+    when it is missing, empty, holds a token shorter than ``MIN_TOKEN_LENGTH`` (16)
+    characters or with whitespace, or is readable by others than its owner and group."""
     p = Path(path)
     try:
         mode = p.stat().st_mode
@@ -126,9 +129,15 @@ def read_token_file(path) -> tuple[str, ...]:
         line = line.strip()
         if not line or line.startswith("#"):
             continue
-        if len(line) < 16 or any(c.isspace() for c in line) or not line.isprintable():
-            raise ValueError(f"token file {str(p)!r} line {n}: a token must be at least 16 "
-                             "printable characters without spaces")
+        problem = (f"it has {len(line)} characters" if len(line) < MIN_TOKEN_LENGTH
+                   else "it holds a space" if any(c.isspace() for c in line)
+                   else "it holds a character that is not printable"
+                   if not line.isprintable() else None)
+        if problem:
+            raise ValueError(f"token file {str(p)!r} line {n}: {problem}; a token must be at "
+                             f"least {MIN_TOKEN_LENGTH} printable characters without spaces "
+                             "(make one with: python -c \"import secrets; "
+                             "print(secrets.token_urlsafe(32))\")")
         tokens.append(line)
     if not tokens:
         raise ValueError(f"token file {str(p)!r} holds no token")

@@ -1,88 +1,45 @@
 """The service's OpenAPI 3.1 schema, served at ``/openapi.json`` and checked in as
-docs/openapi.json (``glraster serve --print-openapi > docs/openapi.json``; a test asserts the
-two are equal). Written by hand so that it says exactly what the handlers accept."""
+docs/openapi.json (``glraster serve --print-openapi > docs/openapi.json``, the schema of a
+server with the default flags; a test asserts the two are equal).
+
+The request bodies and query parameters are generated from the request models of
+:mod:`glraster.service.models`, the same types the parser decodes into, with this server's
+limits in them (maximum vertices, triangles, resolution and deadline). Bearer
+authentication is declared only when the server has tokens.
+"""
 
 from __future__ import annotations
 
 from glraster._version import __version__
-from glraster.service.protocol import CHECK_FIELDS, METHOD_NAMES, OUTPUT_NAMES
+from glraster.service.models import for_config, json_schema_components
 
 _ERROR = {"$ref": "#/components/responses/Error"}
 
-_OPTIONS = {
-    "outputs": {"type": "array", "items": {"type": "string", "enum": list(OUTPUT_NAMES)},
-                "minItems": 1, "uniqueItems": True,
-                "description": "Outputs to render and return (default: all four)."},
-    "method": {"type": "string", "enum": list(METHOD_NAMES), "default": "hw",
-               "description": "How the GPU computes barycentrics (README, Methods)."},
-    "reference": {"type": "boolean", "default": False,
-                  "description": "Return the float64 reference raster instead of the GPU's "
-                                 "(rounded to float32 in EXR)."},
-    "compare": {"type": "boolean", "default": False,
-                "description": "Compare the GPU raster with the float64 reference under the "
-                               "method's per-pixel error model; the report is in the JSON "
-                               "result, the .npz entry 'comparison' and the "
-                               "X-Glraster-Comparison header."},
-    "cull_backfaces": {"type": "boolean", "default": False,
-                       "description": "Drop clockwise triangles (GPU only)."},
-    "crop": {"type": "boolean", "default": False,
-             "description": "EXR: store only the covered pixels' bounding box (lossless)."},
-}
 
-_QUERY_OPTIONS = [
-    {"name": "outputs", "in": "query", "required": False,
-     "description": "Comma-separated outputs (bodies in .npz carry their options here).",
-     "schema": {"type": "string"}},
-    {"name": "method", "in": "query", "required": False,
-     "schema": {"type": "string", "enum": list(METHOD_NAMES)}},
-    *({"name": n, "in": "query", "required": False,
-       "schema": {"type": "string", "enum": ["true", "false"]}}
-      for n in ("reference", "compare", "cull_backfaces", "crop")),
-]
-
-_DEADLINE = {"name": "deadline", "in": "query", "required": False,
-             "description": "Seconds from arrival after which the request is cancelled (504) "
-                            "and its worker replaced; at most the server's maximum.",
-             "schema": {"type": "number", "exclusiveMinimum": 0}}
+def _parameters(query_schema: dict) -> list:
+    """OpenAPI query parameters, one per property of a query model's JSON schema."""
+    out = []
+    for name, prop in query_schema["properties"].items():
+        prop = dict(prop)
+        description = prop.pop("description", None)
+        param = {"name": name, "in": "query", "required": False, "schema": prop}
+        if description:
+            param["description"] = description
+        out.append(param)
+    return out
 
 
-def schema() -> dict:
-    """The OpenAPI document (a fresh dict)."""
-    scene = {
-        "type": "object",
-        "required": ["pos", "tri", "resolution"],
-        "additionalProperties": False,
-        "properties": {
-            "pos": {"type": "array", "description": "(V, 4) clip-space positions.",
-                    "items": {"type": "array", "items": {"type": "number"},
-                              "minItems": 4, "maxItems": 4}},
-            "tri": {"type": "array", "description": "(T, 3) vertex indices.",
-                    "items": {"type": "array", "items": {"type": "integer", "minimum": 0},
-                              "minItems": 3, "maxItems": 3}},
-            "resolution": {"type": "array", "description": "(height, width) in pixels.",
-                           "items": {"type": "integer", "minimum": 1},
-                           "minItems": 2, "maxItems": 2},
-            **_OPTIONS,
-        },
-    }
-    check = {
-        "type": "object", "additionalProperties": False,
-        "properties": {
-            "scenes": {"description": "Catalog scene names or fnmatch patterns (default: all).",
-                       "oneOf": [{"type": "string"},
-                                 {"type": "array", "items": {"type": "string"}, "minItems": 1}]},
-            "method": {"type": "string", "enum": list(METHOD_NAMES), "default": "hw"},
-            "golden": {"type": "boolean", "default": True,
-                       "description": "Also compare with the golden EXRs (where the server has "
-                                      "them)."},
-            "mutants": {"description": "Also run the fault-injection mutants (true, or a name "
-                                       "pattern); method hw only.",
-                        "oneOf": [{"type": "boolean"}, {"type": "string", "minLength": 1}]},
-            "shard": {"type": "string", "pattern": "^[0-9]+/[0-9]+$",
-                      "description": "Check only shard I/N of the chosen scenes."},
-        },
-    }
-    assert set(check["properties"]) == set(CHECK_FIELDS)
+def schema(config=None) -> dict:
+    """The OpenAPI document of a server with this
+    :class:`~glraster.service.config.ServiceConfig` (default: the default flags; a fresh
+    dict)."""
+    from glraster.service.config import ServiceConfig
+
+    config = config or ServiceConfig()
+    bodies, queries = json_schema_components(for_config(config))
+    auth = bool(config.tokens)
+    refusals = ("400", *(("401", "403") if auth else ()), "406", "408", "413", "415", "422",
+                "429", "503", "504")
     error = {
         "type": "object", "required": ["error", "field", "status"],
         "properties": {"error": {"type": "string", "description": "What is wrong."},
@@ -120,16 +77,18 @@ def schema() -> dict:
                                 "OpenGL driver, checked against float64 math "
                                 "(docs/service.md). Every error is JSON naming the field."},
         "components": {
-            "securitySchemes": {"bearer": {"type": "http", "scheme": "bearer",
-                                           "description": "Required when the server has a "
-                                                          "token file (401 missing, 403 wrong)."}},
-            "schemas": {"Scene": scene, "CheckRequest": check, "Error": error,
-                        "RasterStats": stats},
+            **({"securitySchemes": {"bearer": {
+                "type": "http", "scheme": "bearer",
+                "description": "This server has a token file: every endpoint but /healthz, "
+                               "/readyz and /openapi.json needs Authorization: Bearer TOKEN "
+                               "(401 missing or malformed, 403 not accepted)."}}}
+               if auth else {}),
+            "schemas": {**bodies, "Error": error, "RasterStats": stats},
             "responses": {"Error": {"description": "Refused; the body names the field.",
                                     "content": {"application/json": {
                                         "schema": {"$ref": "#/components/schemas/Error"}}}}},
         },
-        "security": [{"bearer": []}],
+        **({"security": [{"bearer": []}]} if auth else {}),
         "paths": {
             "/v1/rasterize": {"post": {
                 "operationId": "rasterize",
@@ -139,7 +98,7 @@ def schema() -> dict:
                                "JSON statistics, the arrays as .npz (bit for bit as "
                                "glraster.rasterize returns them, plus mask) or a glraster "
                                "EXR. " + limits_doc,
-                "parameters": [*_QUERY_OPTIONS, _DEADLINE],
+                "parameters": _parameters(queries["RasterizeQuery"]),
                 "requestBody": {"required": True, "content": {
                     "application/json": {"schema": {"$ref": "#/components/schemas/Scene"}},
                     "application/x-npz": {"schema": binary}}},
@@ -153,14 +112,13 @@ def schema() -> dict:
                                     "$ref": "#/components/schemas/RasterStats"}},
                                 "application/x-npz": {"schema": binary},
                                 "image/x-exr": {"schema": binary}}},
-                    **{code: _ERROR for code in ("400", "401", "403", "406", "408", "413",
-                                                 "415", "422", "429", "503", "504")},
+                    **{code: _ERROR for code in refusals},
                 }}},
             "/v1/check": {"post": {
                 "operationId": "check",
                 "summary": "Run the conformance catalog (or chosen scenes) on the server's "
                            "driver.",
-                "parameters": [_DEADLINE],
+                "parameters": _parameters(queries["CheckQuery"]),
                 "requestBody": {"required": False, "content": {"application/json": {
                     "schema": {"$ref": "#/components/schemas/CheckRequest"}}}},
                 "responses": {
@@ -169,15 +127,14 @@ def schema() -> dict:
                                            "application/xml.",
                             "content": {"application/json": {"schema": {"type": "object"}},
                                         "application/xml": {"schema": {"type": "string"}}}},
-                    **{code: _ERROR for code in ("400", "401", "403", "406", "408", "413",
-                                                 "415", "422", "429", "503", "504")},
+                    **{code: _ERROR for code in refusals},
                 }}},
             "/v1/info": {"get": {
                 "operationId": "info", "summary": "Driver, limits, workers and queue.",
                 "responses": {"200": {"description": "Facts about this replica.",
                                       "content": {"application/json": {
                                           "schema": {"type": "object"}}}},
-                              "401": _ERROR, "403": _ERROR}}},
+                              **({"401": _ERROR, "403": _ERROR} if auth else {})}}},
             "/healthz": {"get": {
                 "operationId": "healthz", "summary": "Liveness: the server answers.",
                 "security": [],
@@ -196,7 +153,7 @@ def schema() -> dict:
                 "operationId": "metrics", "summary": "Prometheus text metrics.",
                 "responses": {"200": {"description": "Exposition format 0.0.4.",
                                       "content": {"text/plain": {"schema": {"type": "string"}}}},
-                              "401": _ERROR, "403": _ERROR}}},
+                              **({"401": _ERROR, "403": _ERROR} if auth else {})}}},
             "/openapi.json": {"get": {
                 "operationId": "openapi", "summary": "This schema.", "security": [],
                 "responses": {"200": {"description": "OpenAPI 3.1.", "content": {

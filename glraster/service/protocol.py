@@ -12,6 +12,10 @@ Request bodies of ``POST /v1/rasterize`` (docs/service.md, docs/openapi.json):
 - ``application/x-npz``: arrays ``pos`` (V, 4), ``tri`` (T, 3), ``resolution`` (2,); the
   options come as query parameters (``?outputs=persp,depth&compare=true``).
 
+The JSON body and the query parameters are decoded into the types of
+:mod:`glraster.service.models`, which the OpenAPI schema is generated from; an option is
+given in the body or in the query, not both.
+
 Options: ``outputs`` (subset of persp, screen, depth, tri_id; default all), ``method``
 (hw, divw, homogeneous, homogeneous64, solve4), ``reference`` (return the float64
 reference instead of the GPU raster), ``compare`` (compare the GPU raster with the reference
@@ -34,14 +38,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from msgspec import UNSET
 
 from glraster.io.npz import NpzError, npz_nbytes, read_npz, write_npz_into
 
-OUTPUT_NAMES = ("persp", "screen", "depth", "tri_id")
-METHOD_NAMES = ("hw", "divw", "homogeneous", "homogeneous64", "solve4")
-ARRAY_FIELDS = ("pos", "tri", "resolution")
-OPTION_FIELDS = ("outputs", "method", "reference", "compare", "cull_backfaces", "crop")
-CHECK_FIELDS = ("scenes", "method", "golden", "mutants", "shard")
+from glraster.service.models import (  # the names of fields and options, re-exported
+    ARRAY_FIELDS,
+    CHECK_FIELDS,
+    METHOD_NAMES,
+    OPTION_FIELDS,
+    OUTPUT_NAMES,
+    ModelError,
+    models,
+)
 
 JSON = "application/json"
 NPZ = "application/x-npz"
@@ -83,36 +92,27 @@ def field_of(message: str, default: str = "body") -> str:
 
 # -- options --------------------------------------------------------------------------------
 
-def _bool(name, value):
-    if isinstance(value, bool):
-        return value
-    if isinstance(value, str) and value.lower() in ("true", "1", "yes"):
-        return True
-    if isinstance(value, str) and value.lower() in ("false", "0", "no"):
-        return False
-    raise RequestError(422, name, f"{name} must be a boolean (true or false), got {value!r}")
+_BOOL_OPTIONS = ("reference", "compare", "cull_backfaces", "crop")
 
 
-def _outputs(value):
-    if isinstance(value, str):
-        value = [v.strip() for v in value.split(",") if v.strip()]
-    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
-        raise RequestError(422, "outputs", f"outputs must be a list of names from "
-                                           f"{list(OUTPUT_NAMES)}, got {value!r}"[:300])
-    unknown = [v for v in value if v not in OUTPUT_NAMES]
-    if unknown:
-        raise RequestError(422, "outputs", f"outputs has unknown names {unknown[:8]}; "
-                                           f"choose from {list(OUTPUT_NAMES)}"[:300])
-    if not value:
-        raise RequestError(422, "outputs", f"outputs must name at least one of {list(OUTPUT_NAMES)}")
-    return tuple(n for n in OUTPUT_NAMES if n in value)
+def _refused(exc: ModelError) -> "RequestError":
+    return RequestError(400 if exc.malformed else 422, exc.field, exc.message)
 
 
-def _method(value):
-    if not isinstance(value, str) or value not in METHOD_NAMES:
-        raise RequestError(422, "method", f"method must be one of {list(METHOD_NAMES)}, "
-                                          f"got {value!r}"[:300])
-    return value
+def query_options(query) -> dict:
+    """The options given in a ``RasterizeQuery`` (strings, already checked against the
+    model) as values: outputs a list, booleans bool."""
+    out = {}
+    for name in OPTION_FIELDS:
+        value = getattr(query, name)
+        if value is UNSET:
+            continue
+        if name == "outputs":
+            value = value.split(",")
+        elif name in _BOOL_OPTIONS:
+            value = value == "true"
+        out[name] = value
+    return out
 
 
 @dataclass
@@ -131,46 +131,20 @@ class RasterizeRequest:
     crop: bool = False
 
 
-def _options(given: dict) -> dict:
-    out = {}
-    for key, value in given.items():
-        if key == "outputs":
-            out[key] = _outputs(value)
-        elif key == "method":
-            out[key] = _method(value)
-        else:
-            out[key] = _bool(key, value)
+def _options(body_options: dict, query_options: dict) -> dict:
+    """Options from the body and the query (an option in both is refused: which one would
+    the client mean?), outputs in canonical order without repeats."""
+    for key in query_options:
+        if key in body_options:
+            raise RequestError(422, key, f"{key} is given both in the body and as a query "
+                                         "parameter; give it once")
+    out = {**body_options, **query_options}
+    if "outputs" in out:
+        out["outputs"] = tuple(n for n in OUTPUT_NAMES if n in out["outputs"])
     return out
 
 
-def _merge(body: dict, query: dict) -> dict:
-    for key in query:
-        if key not in OPTION_FIELDS:
-            raise RequestError(422, key, f"unknown query parameter {key!r}; the options are "
-                                         f"{', '.join(OPTION_FIELDS)}"[:300])
-        if key in body:
-            raise RequestError(422, key, f"{key} is given both in the body and as a query "
-                                         "parameter")
-    return {**body, **query}
-
-
 # -- the body -------------------------------------------------------------------------------
-
-def _reject_constant(name):
-    raise ValueError(f"{name} is not valid JSON")
-
-
-def parse_json(body, what: str = "body") -> object:
-    """JSON strictly (no NaN / Infinity literals) from bytes or any buffer; a RequestError
-    400 naming ``body``."""
-    try:
-        return json.loads(body if isinstance(body, (bytes, str)) else bytes(body),
-                          parse_constant=_reject_constant)
-    except RecursionError:
-        raise RequestError(400, "body", f"{what} is nested too deeply") from None
-    except (ValueError, UnicodeDecodeError) as exc:
-        raise RequestError(400, "body", f"{what} is not valid JSON: {exc}"[:300]) from None
-
 
 def _rows_limit(name: str, rows: int, limits) -> None:
     limit = {"pos": limits.max_vertices, "tri": limits.max_triangles}.get(name)
@@ -178,21 +152,6 @@ def _rows_limit(name: str, rows: int, limits) -> None:
         what = "vertices" if name == "pos" else "triangles"
         raise RequestError(413, name, f"{name} has {rows} rows, above this server's limit of "
                                       f"{limit} {what}")
-
-
-def _json_array(name: str, value, limits) -> np.ndarray:
-    if not isinstance(value, list):
-        raise RequestError(422, name, f"{name} must be a JSON array, got {type(value).__name__}")
-    _rows_limit(name, len(value), limits)
-    try:
-        arr = np.array(value)
-    except (ValueError, TypeError, OverflowError, RecursionError) as exc:
-        raise RequestError(422, name, f"{name} must be a rectangular array of numbers "
-                                      f"({exc})"[:300]) from None
-    if arr.dtype.kind not in "fiub" and arr.size:
-        raise RequestError(422, name, f"{name} must hold numbers, got "
-                                      f"{'a mix of types' if arr.dtype == object else arr.dtype}")
-    return arr
 
 
 def _npz_arrays(body, limits) -> dict:
@@ -246,37 +205,50 @@ def _resolution(value, limits, driver_max: int | None) -> tuple:
     return (int(value[0]), int(value[1]))
 
 
+def _rows_error(exc: ModelError, limits) -> None:
+    """msgspec's "pos: expected `array` of length <= N" is the vertex (triangle) limit: 413,
+    as for .npz bodies."""
+    if exc.field in ("pos", "tri") and exc.message.startswith(f"{exc.field}: expected "
+                                                              "`array` of length <="):
+        limit, what = ((limits.max_vertices, "vertices") if exc.field == "pos"
+                       else (limits.max_triangles, "triangles"))
+        raise RequestError(413, exc.field, f"{exc.field} has more than {limit} rows, this "
+                                           f"server's limit of {what}")
+
+
 def parse_rasterize(content_type: str, body: bytes, query: dict, limits,
                     driver_max: int | None = None) -> RasterizeRequest:
     """A :class:`RasterizeRequest` from a body (``application/json`` or
-    ``application/x-npz``) and its query options; RequestError naming the field."""
+    ``application/x-npz``) and its query options (name -> string); RequestError naming the
+    field. The JSON body is decoded straight into the request model
+    (:mod:`glraster.service.models`), the one the OpenAPI schema is generated from."""
+    m = models(limits)
+    try:
+        given_query = query_options(m.query("rasterize", query.items()))
+    except ModelError as exc:
+        raise _refused(exc) from None
     if content_type == JSON:
-        data = parse_json(body)
-        if not isinstance(data, dict):
-            raise RequestError(400, "body", "body must be a JSON object with pos, tri and "
-                                            f"resolution, got {type(data).__name__}")
-        unknown = [k for k in data if k not in ARRAY_FIELDS + OPTION_FIELDS]
-        if unknown:
-            raise RequestError(422, str(unknown[0])[:40],
-                               f"unknown field {str(unknown[0])[:40]!r}; the fields are "
-                               f"{', '.join(ARRAY_FIELDS + OPTION_FIELDS)}")
-        data = _merge(data, query)
-        for key in ARRAY_FIELDS:
-            if key not in data:
-                raise RequestError(422, key, f"missing field {key!r}")
-        arrays = {k: _json_array(k, data[k], limits) for k in ("pos", "tri")}
-        arrays["resolution"] = data["resolution"]
-        options = {k: v for k, v in data.items() if k in OPTION_FIELDS}
+        try:
+            scene = m.decode_rasterize(body)
+        except ModelError as exc:
+            _rows_error(exc, limits)
+            raise _refused(exc) from None
+        body_options = {k: getattr(scene, k) for k in OPTION_FIELDS
+                        if getattr(scene, k) is not UNSET}
+        pos = np.array(scene.pos, np.float64).reshape(-1, 4)
+        tri = np.array(scene.tri, np.int64).reshape(-1, 3)
+        resolution = scene.resolution
     elif content_type == NPZ:
         arrays = _npz_arrays(body, limits)
         for key in ARRAY_FIELDS:
             if key not in arrays:
                 raise RequestError(422, key, f"missing array {key!r} in the .npz")
-        options = _merge({}, query)
+        pos, tri, resolution = arrays["pos"], arrays["tri"], arrays["resolution"]
+        body_options = {}
     else:  # the app negotiates the content type first
         raise RequestError(415, "content-type", f"unsupported content type {content_type!r}")
-    resolution = _resolution(arrays["resolution"], limits, driver_max)
-    req = RasterizeRequest(arrays["pos"], arrays["tri"], resolution, **_options(options))
+    resolution = _resolution(resolution, limits, driver_max)
+    req = RasterizeRequest(pos, tri, resolution, **_options(body_options, given_query))
     if req.reference and req.cull_backfaces:
         raise RequestError(422, "cull_backfaces", "cull_backfaces applies to the GPU raster; "
                                                   "the reference draws every triangle")
@@ -308,44 +280,33 @@ def parse_shard(value) -> tuple[int, int]:
     return i, n
 
 
-def parse_check(body: bytes, catalog: list) -> CheckRequest:
-    """A :class:`CheckRequest` from a JSON body (empty: the whole catalog)."""
-    body = bytes(body)
-    data = parse_json(body) if body.strip() else {}
-    if not isinstance(data, dict):
-        raise RequestError(400, "body", f"body must be a JSON object, got {type(data).__name__}")
-    unknown = [k for k in data if k not in CHECK_FIELDS]
-    if unknown:
-        raise RequestError(422, str(unknown[0])[:40], f"unknown field {str(unknown[0])[:40]!r}; "
-                                                      f"the fields are {', '.join(CHECK_FIELDS)}")
+def parse_check(body: bytes, catalog: list, limits=None) -> CheckRequest:
+    """A :class:`CheckRequest` from a JSON body (empty: the whole catalog), decoded into
+    the model the OpenAPI schema is generated from."""
     import fnmatch
 
-    scenes = data.get("scenes")
-    if scenes is None:
+    from glraster.service.config import Limits
+
+    body = bytes(body)
+    try:
+        doc = models(limits or Limits()).decode_check(body if body.strip() else b"{}")
+    except ModelError as exc:
+        raise _refused(exc) from None
+    scenes = doc.scenes
+    if scenes is UNSET:
         names = list(catalog)
     else:
         if isinstance(scenes, str):
             scenes = [s.strip() for s in scenes.split(",") if s.strip()]
-        if not isinstance(scenes, list) or not all(isinstance(s, str) for s in scenes) \
-                or not scenes:
-            raise RequestError(422, "scenes", "scenes must be a non-empty list of scene names "
-                                              "or fnmatch patterns")
         names = [n for n in catalog if any(fnmatch.fnmatchcase(n, p) for p in scenes)]
         if not names:
             raise RequestError(422, "scenes", f"no catalog scene matches {scenes[:8]}"[:300])
-    method = _method(data.get("method", "hw"))
-    golden = _bool("golden", data.get("golden", True))
-    mutants = data.get("mutants", False)
-    if mutants is True:
-        mutants = "all"
-    elif mutants is False or mutants is None:
-        mutants = None
-    elif not isinstance(mutants, str) or not mutants:
-        raise RequestError(422, "mutants", "mutants must be a boolean or a pattern of mutant names")
-    if mutants and method != "hw":
+    mutants = doc.mutants
+    mutants = "all" if mutants is True else (mutants or None)
+    if mutants and doc.method != "hw":
         raise RequestError(422, "mutants", "mutants are faults in the hw shaders: use method hw")
-    shard = parse_shard(data["shard"]) if data.get("shard") is not None else None
-    return CheckRequest(names, method, golden, mutants, shard)
+    shard = parse_shard(doc.shard) if doc.shard is not None else None
+    return CheckRequest(names, doc.method, doc.golden, mutants, shard)
 
 
 # -- results --------------------------------------------------------------------------------

@@ -161,7 +161,7 @@ class Handler:
         from glraster.conformance import check, junit
         from glraster.conformance.scenes import list_scenes
 
-        req = p.parse_check(body, list_scenes())
+        req = p.parse_check(body, list_scenes(), self.limits)
         names = req.scenes
         mutant_scenes = None
         if req.shard is not None:

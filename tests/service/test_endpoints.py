@@ -51,11 +51,32 @@ def test_healthz_readyz_info_metrics_openapi(server):
         assert json.loads(body)["openapi"].startswith("3.")
 
 
-def test_openapi_schema_is_checked_in(server):
-    """docs/openapi.json is the served schema (regenerate: glraster serve --print-openapi)."""
+def test_openapi_schema_is_checked_in():
+    """docs/openapi.json is the schema of a server with the default flags (regenerate:
+    glraster serve --print-openapi > docs/openapi.json)."""
+    from glraster.service.config import ServiceConfig
+    from glraster.service.openapi import schema
+
+    assert schema(ServiceConfig()) == json.loads((ROOT / "docs" / "openapi.json").read_text())
+
+
+def test_served_schema_is_the_one_of_its_flags(server):
+    """The served schema states this server's limits: it equals --print-openapi with the
+    same flags (SHARED_ARGS), and has no bearer auth (the shared server has no token)."""
+    import subprocess
+    import sys
+
+    from tests.service.conftest import SHARED_ARGS
+
     with server.client() as c:
         served = json.loads(c.request("GET", "/openapi.json")[2])
-    assert served == json.loads((ROOT / "docs" / "openapi.json").read_text())
+    printed = subprocess.run([sys.executable, "-m", "glraster.cli", "serve", *SHARED_ARGS,
+                              "--print-openapi"], capture_output=True, text=True, check=True)
+    assert served == json.loads(printed.stdout)
+    scene = served["components"]["schemas"]["Scene"]["properties"]
+    assert scene["resolution"]["items"]["maximum"] == 1024
+    assert scene["pos"]["maxItems"] == 200000
+    assert "security" not in served and "securitySchemes" not in served["components"]
 
 
 def _tiny():

@@ -76,7 +76,9 @@ BAD_REQUESTS = [
     ("json array", b"[1, 2]", "application/json", None, "", None, 400, "body"),
     ("NaN literal", b'{"pos": [[NaN, 0, 0, 1]]}', "application/json", None, "", None, 400, "body"),
     ("deep nesting", b'{"pos": ' + b"[" * 100000 + b"]" * 100000 + b"}", "application/json",
-     None, "", None, 400, "body"),
+     None, "", None, 422, "pos"),
+    ("deep nesting at the top", b"[" * 100000 + b"]" * 100000, "application/json", None, "",
+     None, 400, "body"),
     ("missing pos", _scene(pos=...), "application/json", None, "", None, 422, "pos"),
     ("missing resolution", _scene(resolution=...), "application/json", None, "", None, 422,
      "resolution"),
@@ -120,6 +122,10 @@ BAD_REQUESTS = [
     ("bad deadline", _scene(), "application/json", None, "?deadline=-1", None, 422, "deadline"),
     ("deadline over the max", _scene(), "application/json", None, "?deadline=1e9", None, 422,
      "deadline"),
+    ("deadline below the minimum", _scene(), "application/json", None, "?deadline=5e-324", None,
+     422, "deadline"),
+    ("compare yes in the query", _scene(), "application/json", None, "?compare=yes", None, 422,
+     "compare"),
     ("content type", _scene(), "text/plain", None, "", None, 415, "content-type"),
     ("no content type", _scene(), None, None, "", None, 415, "content-type"),
     ("accept", _scene(), "application/json", "image/png", "", None, 406, "accept"),
@@ -149,6 +155,10 @@ BAD_REQUESTS = [
     ("check method", b'{"method": "x"}', "application/json", None, "", "/v1/check", 422, "method"),
     ("check mutants with method", b'{"method": "divw", "mutants": true}', "application/json",
      None, "", "/v1/check", 422, "mutants"),
+    ("check scenes empty", b'{"scenes": ""}', "application/json", None, "", "/v1/check", 422,
+     "scenes"),
+    ("check deadline below the minimum", b"{}", "application/json", None, "?deadline=2",
+     "/v1/check", 422, "deadline"),
     ("check shard", b'{"shard": "3/2"}', "application/json", None, "", "/v1/check", 422, "shard"),
     ("check unknown field", b'{"everything": 1}', "application/json", None, "", "/v1/check", 422,
      "everything"),
@@ -211,14 +221,15 @@ def _body_schema(doc, path):
 
 def from_schema(schema, max_items=24):
     """A hypothesis strategy of the instances of a JSON schema, for the subset the service's
-    schema uses (object, array, number, integer, string, boolean, enum, oneOf, min/max
+    schema uses (object, array, number, integer, string, boolean, enum, oneOf, anyOf, min/max
     items and values, exclusiveMinimum, uniqueItems, pattern)."""
     from hypothesis import strategies as st
 
     if "enum" in schema:
         return st.sampled_from(schema["enum"])
-    if "oneOf" in schema:
-        return st.one_of([from_schema(s, max_items) for s in schema["oneOf"]])
+    for key in ("oneOf", "anyOf"):
+        if key in schema:
+            return st.one_of([from_schema(s, max_items) for s in schema[key]])
     kind = schema.get("type")
     if kind == "object":
         props = schema.get("properties", {})

@@ -52,11 +52,14 @@ def run(args) -> int:
             outputs = check_outputs([o.strip() for o in args.outputs.split(",") if o.strip()])
         if not str(args.output).lower().endswith(".exr"):
             raise ValueError(f"output must end in .exr, got {args.output!r}")
+        if args.server is not None and not args.server.strip():
+            raise ValueError("--server needs the service's URL (http://HOST:PORT), got an "
+                             "empty string")
     except ValueError as exc:
         print(f"glraster render: {exc}", file=sys.stderr)
         return exit_codes.USAGE
     t = time.perf_counter()
-    if args.server:
+    if args.server is not None:
         try:
             raster, producer = _remote(args, scene, outputs)
         except ValueError as exc:
@@ -135,6 +138,8 @@ def _remote(args, scene, outputs):
             renderer = raster.info["headers"].get("x-glraster-source", "gpu")
             info = client.info().get("driver", {}) if not args.reference else {}
     except ServiceUnavailable as exc:
+        if not exc.status:   # no answer: the message names the URL and the cause
+            raise ConnectionError(str(exc)) from None
         raise ConnectionError(f"the service at {args.server} could not render: {exc}") from None
     except ServiceError as exc:
         raise ValueError(f"the service at {args.server} refused the request: {exc}") from None

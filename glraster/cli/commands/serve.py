@@ -100,12 +100,14 @@ def _config(args):
 
 
 def run(args) -> int:
-    if args.print_openapi:
-        from glraster.service.openapi import schema
-
-        print(json.dumps(schema(), indent=2, sort_keys=True))
-        return exit_codes.OK
     try:
+        import msgspec  # noqa: F401  (the request models, also for --print-openapi)
+
+        if args.print_openapi:   # the schema of a server with these flags (limits, tokens)
+            from glraster.service.openapi import schema
+
+            print(json.dumps(schema(_config(args)), indent=2, sort_keys=True))
+            return exit_codes.OK
         import starlette  # noqa: F401
         import uvicorn  # noqa: F401
     except ImportError as exc:
