@@ -122,6 +122,8 @@ def node_resources(drivers=None, backend: str | None = None) -> dict:
     driver of ``drivers`` (default: the node's own driver and :data:`SIMULATED_DRIVERS`)
     whose GL comes up here. Probes run in parallel subprocesses."""
     names = list(drivers) if drivers is not None else [None, *SIMULATED_DRIVERS]
+    if not names:
+        return {}
     with ThreadPoolExecutor(max_workers=len(names)) as pool:
         probes = list(pool.map(lambda d: probe_driver(d, backend), names))
     cpus = os.cpu_count() or 1
