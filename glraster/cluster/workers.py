@@ -103,8 +103,21 @@ class GLWorker:
         return rasterize(pos, tri, resolution, ctx=self._context(), outputs=outputs,
                          method=method)
 
-    def pid_of(self) -> int:
-        return os.getpid()
+    def timed_rasterize(self, key, pos, tri, resolution, outputs, arrays=False):
+        """:meth:`rasterize` for the benchmark: the scene ``key`` is kept after its first
+        call (``pos``/``tri`` None then), so a call is the draw alone. Returns (seconds
+        inside, covered pixels, the output arrays when ``arrays`` else None)."""
+        import time
+
+        cache = self.__dict__.setdefault("_bench_scenes", {})
+        if pos is not None:
+            cache[key] = (pos, tri)
+        pos, tri = cache[key]
+        t = time.perf_counter()
+        r = self.rasterize(pos, tri, resolution, outputs)
+        seconds = time.perf_counter() - t
+        return seconds, int(r.mask.sum()), ({n: getattr(r, n) for n in outputs} if arrays
+                                           else None)
 
 
 def remote_worker(ray, driver: str, *, backend=None, node_id=None, gpus: float = 0,
