@@ -126,7 +126,7 @@ def _overhead(ray, actor, key, resolution, calls, arrays) -> dict:
     trips, inside = [], []
     for _ in range(calls):
         t = time.perf_counter()
-        seconds, _covered, out = ray.get(actor.timed_rasterize.remote(
+        seconds, out = ray.get(actor.timed_rasterize.remote(
             key, None, None, resolution, OUTPUTS, arrays))
         trips.append(time.perf_counter() - t)
         inside.append(seconds)

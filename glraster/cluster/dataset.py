@@ -170,33 +170,37 @@ def render_dataset(source, out_dir, *, address=None, driver=None, shard_size=DEF
     done_items = sum(len(s.items) for s in plan if lines_of[s.index] is not None)
     if progress:
         progress(done_items, len(items), f"{summary.skipped} shards already done")
+    sizes = {s.index: len(s.items) for s in plan}
     if todo:
         ray = runtime.connect(address, [driver] if driver else [])
         summary.workers = workers or _worker_count(ray, driver)
         for row in _pipeline(ray, todo, out_dir, driver, outputs, method, backend, render,
                              summary.workers).iter_rows():
             index = int(row["shard"])
-            lines_of[index] = json.loads(str(row["lines"]))
+            lines_of[index] = str(row["lines"])  # JSON text: ~200 bytes a scene on the head
             summary.rendered_shards += 1
             summary.rendered_items += int(row["rendered"])
             if int(row["pid"]) not in summary.pids:
                 summary.pids.append(int(row["pid"]))
-            done_items += len(lines_of[index])
+            done_items += sizes[index]
             if progress:
                 progress(done_items, len(items), f"shard {index} on {row['node']}")
-    manifest = []
-    for s in plan:
-        lines = lines_of[s.index]
-        if lines is None:  # every retry died, or the pipeline dropped it
-            lines = _shards.finished(out_dir, s)  # written, but its answer was lost
-        if lines is None:
-            summary.lost.append(s.index)
-            why = (f"shard {s.index} lost: its worker died {1 + SHARD_RETRIES} times")
-            lines = [{"scene": item, "shard": None, "keys": {}, "error": why}
-                     for item in s.items]
-        manifest += lines
-    summary.errors = [ln for ln in manifest if "error" in ln]
-    summary.manifest = str(_shards.write_manifest(out_dir, manifest))
+    def manifest():
+        for s in plan:
+            lines = lines_of[s.index]
+            if isinstance(lines, str):
+                lines = json.loads(lines)
+            if lines is None:  # every retry died, or the pipeline dropped it
+                lines = _shards.finished(out_dir, s)  # written, but its answer was lost
+            if lines is None:
+                summary.lost.append(s.index)
+                why = f"shard {s.index} lost: its worker died {1 + SHARD_RETRIES} times"
+                lines = [{"scene": item, "shard": None, "keys": {}, "error": why}
+                         for item in s.items]
+            summary.errors += [ln for ln in lines if "error" in ln]
+            yield from lines
+
+    summary.manifest = str(_shards.write_manifest(out_dir, manifest()))
     summary.seconds = time.perf_counter() - t0
     return summary
 

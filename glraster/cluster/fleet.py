@@ -199,6 +199,7 @@ def _schedule(ray, names, methods, setups, live, golden_dir, check_golden, image
     from ray.exceptions import GetTimeoutError, RayActorError, RayTaskError
 
     pending = {d: list(_tasks(names, methods)) for d in setups}
+    setup_refs = {d: ray.put(setups[d]) for d in setups}  # stored once, not once per task
     moves: dict = {}
     idle = {d: list(live[d]) for d in setups}
     inflight = {}
@@ -211,7 +212,8 @@ def _schedule(ray, names, methods, setups, live, golden_dir, check_golden, image
             while idle[d] and pending[d]:
                 actor = idle[d].pop()
                 m, n = pending[d].pop(0)
-                ref = actor.check_scene.remote(n, m, setups[d], golden_dir, check_golden, images)
+                ref = actor.check_scene.remote(n, m, setup_refs[d], golden_dir, check_golden,
+                                               images)
                 inflight[ref] = (d, m, n, actor)
             if pending[d] and not idle[d] and not any(v[0] == d for v in inflight.values()):
                 for m, n in pending[d]:  # every actor of this driver is lost

@@ -106,7 +106,7 @@ class GLWorker:
     def timed_rasterize(self, key, pos, tri, resolution, outputs, arrays=False):
         """:meth:`rasterize` for the benchmark: the scene ``key`` is kept after its first
         call (``pos``/``tri`` None then), so a call is the draw alone. Returns (seconds
-        inside, covered pixels, the output arrays when ``arrays`` else None)."""
+        inside, the output arrays when ``arrays`` else None)."""
         import time
 
         cache = self.__dict__.setdefault("_bench_scenes", {})
@@ -116,8 +116,7 @@ class GLWorker:
         t = time.perf_counter()
         r = self.rasterize(pos, tri, resolution, outputs)
         seconds = time.perf_counter() - t
-        return seconds, int(r.mask.sum()), ({n: getattr(r, n) for n in outputs} if arrays
-                                           else None)
+        return seconds, ({n: getattr(r, n) for n in outputs} if arrays else None)
 
 
 def remote_worker(ray, driver: str, *, backend=None, node_id=None, gpus: float = 0,
