@@ -219,8 +219,11 @@ def _worker_count(ray, driver) -> int:
 def _pipeline(ray, todo, out_dir, driver, outputs, method, backend, render, workers):
     """The Ray Data dataset of the shards ``todo``: rows {shard, lines, rendered, pid, node,
     seconds}, streamed."""
+    import logging
+
     import ray.data
 
+    logging.getLogger("ray.data").setLevel(logging.WARNING)  # the head prints its own lines
     context = ray.data.DataContext.get_current()
     context.max_errored_blocks = -1          # a lost shard is reported; the others go on
     context.enable_progress_bars = False     # the head prints its own, per shard

@@ -152,14 +152,16 @@ def connect(address: str | None = None, drivers=None, *, num_cpus: int | None = 
         return ray
     address = address or os.environ.get("RAY_ADDRESS") or None
     # Workers need glraster importable exactly as here (a checkout run with PYTHONPATH).
+    import logging
+
+    quiet = {"log_to_driver": False, "logging_level": logging.WARNING}
     if address:
-        ray.init(address=address, log_to_driver=False)
+        ray.init(address=address, **quiet)
         return ray
     names = list(drivers) if drivers is not None else list(SIMULATED_DRIVERS)
     resources = node_resources(names)
     ray.init(num_cpus=num_cpus or os.cpu_count() or 1, resources=resources,
-             object_store_memory=OBJECT_STORE_BYTES, include_dashboard=False,
-             log_to_driver=False, configure_logging=False)
+             object_store_memory=OBJECT_STORE_BYTES, include_dashboard=False, **quiet)
     return ray
 
 
