@@ -133,8 +133,9 @@ def node_resources(drivers=None, backend: str | None = None) -> dict:
 def _ray():
     try:
         import ray
-    except ImportError:
-        raise ImportError("glraster.cluster needs Ray: pip install 'glraster[ray]'") from None
+    except ModuleNotFoundError:
+        raise ModuleNotFoundError("glraster.cluster needs Ray: pip install 'glraster[ray]'",
+                                  name="ray") from None
     return ray
 
 

@@ -127,3 +127,14 @@ def test_batch_and_check_usage_errors_exit_2_before_starting_ray(tmp_path, capsy
     assert main(["check", "--ray", "--drivers", "LLVM pipe"]) == exit_codes.USAGE
     assert main(["check", "--ray", "--methods", "nope"]) == exit_codes.USAGE
     assert main(["check", "--ray", "--mutants"]) == exit_codes.USAGE
+
+
+def test_without_ray_the_commands_name_the_extra_to_install(tmp_path, capsys, monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "ray", None)  # `import ray` fails as if not installed
+    (tmp_path / "s.json").write_text(json.dumps({"pos": [[0, 0, 0, 1]] * 3, "tri": [[0, 1, 2]],
+                                                 "resolution": [4, 4]}))
+    assert main(["batch", str(tmp_path), str(tmp_path / "out")]) == exit_codes.USAGE
+    assert "pip install 'glraster[ray]'" in capsys.readouterr().err
+    assert not list((tmp_path / "out").glob("*.npz"))

@@ -64,9 +64,6 @@ def run(args) -> int:
             raise ValueError(f"--shard-size must be a positive integer, got {shard_size}")
         if args.workers is not None and args.workers < 1:
             raise ValueError(f"--workers must be a positive integer, got {args.workers}")
-    except ImportError as exc:
-        print(f"glraster batch: {exc}", file=sys.stderr)
-        return exit_codes.USAGE
     except ValueError as exc:
         print(f"glraster batch: {exc}", file=sys.stderr)
         return exit_codes.USAGE
@@ -90,11 +87,8 @@ def run(args) -> int:
 def _bench(args) -> int:
     import json
 
-    try:
-        from glraster.cluster import bench
-    except ImportError as exc:
-        print(f"glraster batch: {exc}", file=sys.stderr)
-        return exit_codes.USAGE
+    from glraster.cluster import bench
+
     figures = bench.run(address=args.ray, backend=args.backend, progress=print)
     print(bench.format_figures(figures))
     if args.json:

@@ -170,11 +170,7 @@ def _run_fleet(args, names) -> int:
             print(f"glraster check: {flag} cannot be combined with --ray (the fleet runs the "
                   "whole catalog; mutants run in a sequential check)", file=sys.stderr)
             return exit_codes.USAGE
-    try:
-        from glraster.cluster import fleet, runtime
-    except ImportError as exc:
-        print(f"glraster check: {exc}", file=sys.stderr)
-        return exit_codes.USAGE
+    from glraster.cluster import fleet, runtime
     drivers = None
     if args.drivers:
         try:
