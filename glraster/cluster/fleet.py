@@ -79,8 +79,9 @@ def _scene_error(name: str, message: str):
 
 
 def _actor_slots(nodes_by_driver, drivers):
-    """[(driver, node, num_cpus)]: per node, its CPUs shared by the requested drivers it has;
-    at least one actor per (node, driver), never more CPUs asked than the node has."""
+    """[(driver, node, num_cpus, num_gpus)]: per node, its CPUs shared by the requested
+    drivers it has; at least one actor per (node, driver), never more CPUs asked than the
+    node has; an actor of a hardware driver on a node with GPUs takes one GPU."""
     per_node: dict = {}
     for d in drivers:
         for node in nodes_by_driver.get(d, []):
@@ -91,7 +92,12 @@ def _actor_slots(nodes_by_driver, drivers):
         count = max(1, cpus // len(ds))
         share = min(1.0, cpus / (len(ds) * count))
         for d in ds:
-            slots += [(d, node, share)] * min(count, max(1, node["slots"]))
+            n = min(count, max(1, node["slots"]))
+            gpus = 0.0
+            if d not in runtime.SIMULATED_DRIVERS and node["gpus"]:  # a GPU's driver
+                n = min(n, node["gpus"])
+                gpus = 1.0
+            slots += [(d, node, share, gpus)] * n
     return slots
 
 
@@ -129,8 +135,9 @@ def run_check(names=None, *, drivers=None, methods=("hw",), address=None, golden
                               f"the node was started without it)")
     slots = _actor_slots(nodes_by_driver, drivers)
     actors = []
-    for d, node, share in slots:
-        actors.append((d, node, remote_worker(ray, d, node_id=node["id"], num_cpus=share)))
+    for d, node, share, gpus in slots:
+        actors.append((d, node, remote_worker(ray, d, node_id=node["id"], num_cpus=share,
+                                              gpus=gpus)))
     live: dict = {d: [] for d in drivers}
     facts: dict = {}
     describe = [a.describe.remote() for _, _, a in actors]

@@ -44,7 +44,8 @@ PROBE_TIMEOUT_S = 120
 def driver_name(renderer: str, vendor: str = "") -> str:
     """The driver's short name from GL_RENDERER / GL_VENDOR: "llvmpipe (LLVM 15.0.6, 256
     bits)" -> "llvmpipe", "softpipe" -> "softpipe", "zink (...)" -> "zink", "AMD Radeon RX
-    6800 (radeonsi, navi21, ...)" -> "radeonsi", an NVIDIA renderer -> "nvidia"; otherwise
+    6800 (radeonsi, navi21, ...)" -> "radeonsi", an NVIDIA renderer -> "nvidia", "Mesa Intel(R)
+    ..." -> "iris"; otherwise
     the renderer's first word, lower case."""
     text = renderer.strip()
     low = text.lower()
@@ -53,6 +54,8 @@ def driver_name(renderer: str, vendor: str = "") -> str:
             return name
     if "nvidia" in (vendor or "").lower() or low.startswith("nvidia"):
         return "nvidia"
+    if low.startswith("mesa intel"):  # Mesa's Intel renderers name no driver (iris, Gen8+)
+        return "iris"
     inner = re.search(r"\(([A-Za-z0-9_]+)[,)]", text)
     if inner and inner.group(1).lower() not in ("llvm", "tm", "r"):
         return inner.group(1).lower()

@@ -138,3 +138,38 @@ def test_without_ray_the_commands_name_the_extra_to_install(tmp_path, capsys, mo
     assert main(["batch", str(tmp_path), str(tmp_path / "out")]) == exit_codes.USAGE
     assert "pip install 'glraster[ray]'" in capsys.readouterr().err
     assert not list((tmp_path / "out").glob("*.npz"))
+
+
+def test_actor_slots_share_a_nodes_cpus_among_its_drivers_and_give_gpu_drivers_a_gpu():
+    from glraster.cluster.fleet import _actor_slots
+
+    small = {"id": "a", "name": "a", "cpus": 2, "gpus": 0, "slots": 2}
+    big = {"id": "b", "name": "b", "cpus": 8, "gpus": 2, "slots": 8}
+    slots = _actor_slots({"llvmpipe": [small, big], "softpipe": [small], "nvidia": [big]},
+                         ["llvmpipe", "softpipe", "nvidia"])
+    count = {}
+    for driver, node, cpus, gpus in slots:
+        count[(driver, node["id"])] = count.get((driver, node["id"]), 0) + 1
+        assert gpus == (1.0 if driver == "nvidia" else 0.0)
+    assert count == {("llvmpipe", "a"): 1, ("softpipe", "a"): 1, ("llvmpipe", "b"): 4,
+                     ("nvidia", "b"): 2}
+    tiny = {"id": "c", "name": "c", "cpus": 1, "gpus": 0, "slots": 1}
+    shares = [cpus for _, _, cpus, _ in _actor_slots({"llvmpipe": [tiny], "softpipe": [tiny]},
+                                                     ["llvmpipe", "softpipe"])]
+    assert shares == [0.5, 0.5]  # never more CPUs asked than the node has
+
+
+def test_driver_names_from_renderer_strings():
+    from glraster.cluster.runtime import check_driver_names, driver_name
+
+    assert driver_name("llvmpipe (LLVM 15.0.6, 256 bits)") == "llvmpipe"
+    assert driver_name("softpipe") == "softpipe"
+    assert driver_name("zink (llvmpipe (LLVM 15.0.6, 256 bits))") == "zink"
+    assert driver_name("AMD Radeon RX 6800 (radeonsi, navi21, LLVM 15.0.6, DRM 3.49)") == \
+        "radeonsi"
+    assert driver_name("NVIDIA H200/PCIe/SSE2", "NVIDIA Corporation") == "nvidia"
+    assert driver_name("Mesa Intel(R) UHD Graphics 620 (KBL GT2)") == "iris"
+    assert check_driver_names("llvmpipe, softpipe") == ["llvmpipe", "softpipe"]
+    for bad in ("", "llvmpipe,,softpipe", "llvmpipe,llvmpipe", "Mesa Intel"):
+        with pytest.raises(ValueError, match="drivers"):
+            check_driver_names(bad)
