@@ -3,15 +3,17 @@
 Four figures, each from interleaved rounds (A, B, A, B, ...) and reported as medians, since
 the machine's cores are shared:
 
-1. **throughput ratio**: 2 GLWorker actors, 2 calls in flight each, against 2 plain
+1. **throughput ratio**: 2 GLWorker actors, 2 tasks in flight each, against 2 plain
    processes (``multiprocessing``, spawn) each looping over ``rasterize`` on its own context;
    the same scene (catalog ``torus``, 256x256, 4096 triangles, all four outputs) and the same
-   number of calls per worker; ratio = median actors' calls/s / median loops' calls/s;
+   number of calls per worker; ratio = median actors' calls/s / median loops' calls/s; with
+   a task per call, and with a task per :data:`SHARD_CALLS` calls (as ``glraster batch``
+   renders a shard per task);
 2. **per-task overhead** at 64x64 (one triangle) and 1024x1024 (two triangles covering the
    image): one call in flight, round-trip time minus the time the actor spent inside
    ``rasterize``; with the outputs returned through the object store and without;
 3. **head cost per task**: CPU seconds of the calling process (the driver) and of the head's
-   Ray daemons (``gcs_server``, ``raylet``) per task, during (1);
+   Ray daemons (``gcs_server``, ``raylet``) per task, during (1) with a task per call;
 4. **shard formats**: one shard of 64 rasters (256x256, all outputs) written as a stored
    .npz (:func:`glraster.io.npz.write_npz`) and as Parquet with fixed-shape tensor columns
    (pyarrow, uncompressed), write and read seconds and bytes.
@@ -30,6 +32,9 @@ import numpy as np
 from glraster.cluster import runtime
 
 OUTPUTS = ("persp", "screen", "depth", "tri_id")
+# Calls per task in the shard-like variant of the throughput figure (glraster batch renders
+# a shard of scenes per task).
+SHARD_CALLS = 15
 
 
 def _loop(pos, tri, resolution, calls, start, queue):
@@ -98,27 +103,33 @@ def _daemon_cpu() -> float:
     return total
 
 
-def _actors_throughput(ray, actors, key, calls, resolution) -> tuple:
-    """Calls per second of ``actors`` with 2 calls in flight each; and the head's CPU
-    seconds per call: (calls/s, driver CPU s per call, daemons' CPU s per call)."""
+def _actors_throughput(ray, actors, key, calls, resolution, per_task=1) -> tuple:
+    """Calls per second of ``actors`` with 2 tasks of ``per_task`` calls in flight each; and
+    the head's CPU seconds per task: (calls/s, driver CPU s per task, daemons' CPU s per
+    task)."""
     c0, d0 = time.process_time(), _daemon_cpu()
     t = time.perf_counter()
-    left = {a: calls for a in actors}
+    tasks = calls // per_task
+    left = {a: tasks for a in actors}
     inflight = {}
+
+    def submit(a):
+        inflight[a.timed_rasterize.remote(key, None, None, resolution, OUTPUTS,
+                                          repeat=per_task)] = a
+        left[a] -= 1
+
     for a in actors:
         for _ in range(2):
-            inflight[a.timed_rasterize.remote(key, None, None, resolution, OUTPUTS)] = a
-            left[a] -= 1
+            submit(a)
     while inflight:
         ready, _ = ray.wait(list(inflight), num_returns=1)
         a = inflight.pop(ready[0])
         ray.get(ready[0])
         if left[a] > 0:
-            inflight[a.timed_rasterize.remote(key, None, None, resolution, OUTPUTS)] = a
-            left[a] -= 1
+            submit(a)
     wall = time.perf_counter() - t
-    n = calls * len(actors)
-    return n / wall, (time.process_time() - c0) / n, (_daemon_cpu() - d0) / n
+    n = tasks * len(actors)
+    return n * per_task / wall, (time.process_time() - c0) / n, (_daemon_cpu() - d0) / n
 
 
 def _overhead(ray, actor, key, resolution, calls, arrays) -> dict:
@@ -200,21 +211,29 @@ def run(address=None, backend=None, rounds=5, calls=150, progress=None) -> dict:
                                                   max_task_retries=2).remote("", backend)
               for _ in range(2)]
     ray.get([a.timed_rasterize.remote("torus", pos, tri, res, OUTPUTS) for a in actors])
-    loops, actor_rates, drv, dmn = [], [], [], []
+    loops, actor_rates, shard_rates, drv, dmn = [], [], [], [], []
     for r in range(rounds):
-        say(f"round {r + 1}/{rounds}: 2 in-process loops, then 2 actors ({calls} calls each)")
+        say(f"round {r + 1}/{rounds}: 2 in-process loops, 2 actors with a task per call, "
+            f"2 actors with a task per {SHARD_CALLS} calls ({calls} calls each)")
         loops.append(_loops_throughput(pos, tri, res, calls))
         rate, d, g = _actors_throughput(ray, actors, "torus", calls, res)
         actor_rates.append(rate)
         drv.append(d)
         dmn.append(g)
+        shard_rates.append(_actors_throughput(ray, actors, "torus", calls, res,
+                                              per_task=SHARD_CALLS)[0])
     ratios = [a / b for a, b in zip(actor_rates, loops)]
+    shard_ratios = [a / b for a, b in zip(shard_rates, loops)]
     figures = {"scene": "torus 256x256, 4096 triangles, all four outputs",
                "loops_calls_per_s": statistics.median(loops),
                "actors_calls_per_s": statistics.median(actor_rates),
                # the ratio of the medians: each side's rounds are noisy on shared cores
                "throughput_ratio": statistics.median(actor_rates) / statistics.median(loops),
                "throughput_ratios": ratios,
+               "shard_tasks_calls_per_s": statistics.median(shard_rates),
+               "shard_throughput_ratio": statistics.median(shard_rates) / statistics.median(loops),
+               "shard_throughput_ratios": shard_ratios,
+               "calls_per_shard_task": SHARD_CALLS,
                "head_driver_cpu_ms_per_task": 1e3 * statistics.median(drv),
                "head_daemons_cpu_ms_per_task": 1e3 * statistics.median(dmn),
                "overhead": {}}
@@ -256,6 +275,10 @@ def format_figures(f: dict) -> str:
              f"{f['actors_calls_per_s']:.1f} calls/s; throughput ratio "
              f"{f['throughput_ratio']:.3f} (ratio of the medians; per round: "
              + ", ".join(f"{r:.3f}" for r in f["throughput_ratios"]) + ")",
+             f"2 actors, a task per {f['calls_per_shard_task']} calls (as a shard): "
+             f"{f['shard_tasks_calls_per_s']:.1f} calls/s; throughput ratio "
+             f"{f['shard_throughput_ratio']:.3f} (per round: "
+             + ", ".join(f"{r:.3f}" for r in f["shard_throughput_ratios"]) + ")",
              f"head cost per task: driver {f['head_driver_cpu_ms_per_task']:.3f} ms CPU, "
              f"gcs_server + raylet {f['head_daemons_cpu_ms_per_task']:.3f} ms CPU"]
     for name, o in f["overhead"].items():

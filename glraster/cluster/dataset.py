@@ -232,6 +232,8 @@ def _pipeline(ray, todo, out_dir, driver, outputs, method, backend, render, work
     named = {"runtime_env": {"env_vars": runtime.driver_env(driver) if driver else {}}}
     if driver:
         named["resources"] = {runtime.RESOURCE_PREFIX + driver: 1}
+        if driver not in runtime.SIMULATED_DRIVERS and ray.cluster_resources().get("GPU"):
+            named["num_gpus"] = 1  # a GPU's driver: one GPU per worker
     with warnings.catch_warnings():
         # Ray Data names no parameter for the retries; they go as plain remote arguments.
         warnings.filterwarnings("ignore", message=".*ray_remote_args.*is deprecated")

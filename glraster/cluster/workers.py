@@ -103,10 +103,10 @@ class GLWorker:
         return rasterize(pos, tri, resolution, ctx=self._context(), outputs=outputs,
                          method=method)
 
-    def timed_rasterize(self, key, pos, tri, resolution, outputs, arrays=False):
-        """:meth:`rasterize` for the benchmark: the scene ``key`` is kept after its first
-        call (``pos``/``tri`` None then), so a call is the draw alone. Returns (seconds
-        inside, the output arrays when ``arrays`` else None)."""
+    def timed_rasterize(self, key, pos, tri, resolution, outputs, arrays=False, repeat=1):
+        """:meth:`rasterize` ``repeat`` times, for the benchmark: the scene ``key`` is kept
+        after its first call (``pos``/``tri`` None then), so a call is the draw alone.
+        Returns (seconds inside, the last call's output arrays when ``arrays`` else None)."""
         import time
 
         cache = self.__dict__.setdefault("_bench_scenes", {})
@@ -114,7 +114,8 @@ class GLWorker:
             cache[key] = (pos, tri)
         pos, tri = cache[key]
         t = time.perf_counter()
-        r = self.rasterize(pos, tri, resolution, outputs)
+        for _ in range(repeat):
+            r = self.rasterize(pos, tri, resolution, outputs)
         seconds = time.perf_counter() - t
         return seconds, ({n: getattr(r, n) for n in outputs} if arrays else None)
 
