@@ -185,6 +185,11 @@ def render_dataset(source, out_dir, *, address=None, driver=None, shard_size=DEF
             done_items += sizes[index]
             if progress:
                 progress(done_items, len(items), f"shard {index} on {row['node']}")
+    # A worker killed while writing leaves its temporary file (its retry wrote the shard):
+    # with every worker done, remove them, so that OUT holds whole files only.
+    for tmp in out_dir.glob(".shard-*.npz.*"):
+        tmp.unlink(missing_ok=True)
+
     def manifest():
         for s in plan:
             lines = lines_of[s.index]

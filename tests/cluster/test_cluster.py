@@ -195,6 +195,7 @@ def test_batch_matches_render_resumes_and_survives_a_killed_worker(cluster, tmp_
     for z in opened.values():
         z.close()
     mtimes = {p.name: p.stat().st_mtime_ns for p in out.glob("shard-*.npz")}
+    (out / ".shard-00003.npz.k1lled.npz").write_bytes(b"PK")  # a killed writer's leftover
     again = dataset.render_dataset(src, out, shard_size=8, workers=2)
     assert again.rendered_shards == 0 and again.skipped == 25 and again.ok
     assert {p.name: p.stat().st_mtime_ns for p in out.glob("shard-*.npz")} == mtimes
