@@ -73,7 +73,8 @@ class GLWorker:
         """One catalog scene checked with ``method`` and the driver's ``setup``, exactly as
         :func:`glraster.conformance.check.run` checks it. Returns ``(SceneResult, images)``:
         images = ``(info, {file name: PNG bytes})`` of the HTML report when ``images``, else
-        None (the report's folder is on the head, not here)."""
+        None (the report's folder is on the head, not here). The report's per-pixel maps
+        are dropped: what travels is the figures (a few KB a scene), not (H, W) arrays."""
         from glraster.conformance.check import run_scene
         from glraster.conformance.scenes import load_scene
 
@@ -92,6 +93,8 @@ class GLWorker:
                 info = report.images[res.name]
                 pictures = (info, {f: (Path(tmp) / "img" / f).read_bytes()
                                    for f in info["files"].values()})
+        if res.report is not None:  # the per-pixel maps stay here (images carry them)
+            res.report.maps = None
         return res, pictures
 
     # -- datasets ------------------------------------------------------------------------
