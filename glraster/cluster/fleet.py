@@ -101,13 +101,14 @@ def _actor_slots(nodes_by_driver, drivers):
     return slots
 
 
-def run_check(names=None, *, drivers=None, methods=("hw",), address=None, golden_dir=None,
-              check_golden=True, probes=True, images=False, progress=None,
+def run_check(names=None, *, drivers=None, methods=("hw",), address=None, backend=None,
+              golden_dir=None, check_golden=True, probes=True, images=False, progress=None,
               on_nodes=None) -> FleetResult:
     """Check the catalog scenes ``names`` (default: all) with every method of ``methods`` on
     every driver of ``drivers`` (default: every driver the cluster advertises).
 
     address: Ray address (None: ``RAY_ADDRESS`` or a local cluster).
+    backend: the GL backend of every worker (None: each node's ``GLRASTER_BACKEND`` or auto).
     images: bring back each scene's report images (for :func:`write_html`).
     progress(i, total, label): after each finished task.
     on_nodes(list of NodeReport): once the actors are up (e.g. to print them).
@@ -136,8 +137,8 @@ def run_check(names=None, *, drivers=None, methods=("hw",), address=None, golden
     slots = _actor_slots(nodes_by_driver, drivers)
     actors = []
     for d, node, share, gpus in slots:
-        actors.append((d, node, remote_worker(ray, d, node_id=node["id"], num_cpus=share,
-                                              gpus=gpus)))
+        actors.append((d, node, remote_worker(ray, d, backend=backend, node_id=node["id"],
+                                              num_cpus=share, gpus=gpus)))
     live: dict = {d: [] for d in drivers}
     facts: dict = {}
     describe = [a.describe.remote() for _, _, a in actors]

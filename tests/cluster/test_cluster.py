@@ -67,11 +67,12 @@ def _verdicts(path, prefix, driver=None):
     return out
 
 
-def test_fleet_check_gives_each_driver_its_sequential_verdicts(tmp_path):
+def test_fleet_check_gives_each_driver_its_sequential_verdicts(tmp_path, gl_backend):
     """`glraster check --ray --drivers llvmpipe,softpipe` on no running cluster: its own local
     cluster, and per driver exactly the cases and verdicts (scenes and probes) of the
-    sequential `glraster check` under that driver's GALLIUM_DRIVER."""
-    cmd = [sys.executable, "-m", "glraster.cli", "check", "--scenes", SCENES, "--no-golden"]
+    sequential `glraster check` under that driver's GALLIUM_DRIVER, on each backend."""
+    cmd = [sys.executable, "-m", "glraster.cli", "check", "--scenes", SCENES, "--no-golden",
+           "--backend", gl_backend]
     fleet_run = subprocess.run(cmd + ["--ray", "--drivers", "llvmpipe,softpipe", "--junit",
                                       str(tmp_path / "out.xml"), "--html",
                                       str(tmp_path / "html")],

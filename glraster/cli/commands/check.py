@@ -185,6 +185,7 @@ def _run_fleet(args, names) -> int:
             print(f"node {n.node} driver {n.driver}: {state}", file=sys.stderr)
 
     result = fleet.run_check(names, drivers=drivers, methods=methods, address=args.ray or None,
+                             backend=args.backend,
                              golden_dir=args.golden_dir, check_golden=not args.no_golden,
                              images=bool(args.html), progress=Progress(), on_nodes=show_nodes)
     for d, m, r in result.runs:
