@@ -208,9 +208,7 @@ def run(address=None, backend=None, rounds=7, calls=150, progress=None) -> dict:
     ray = runtime.connect(address, [])
     scene = load_scene("torus")
     pos, tri, res = scene.pos, scene.tri, tuple(scene.resolution)
-    actors = [ray.remote(_worker_class()).options(num_cpus=1, max_restarts=-1,
-                                                  max_task_retries=2).remote("", backend)
-              for _ in range(2)]
+    actors = [remote_worker(ray, None, backend=backend) for _ in range(2)]  # the node's GL
     ray.get([a.timed_rasterize.remote("torus", pos, tri, res, OUTPUTS) for a in actors])
     loops, actor_rates, shard_rates, drv, dmn = [], [], [], [], []
     for r in range(rounds):
@@ -261,19 +259,6 @@ def run(address=None, backend=None, rounds=7, calls=150, progress=None) -> dict:
     say("shard formats: .npz and Parquet, 64 rasters of 256x256")
     figures["shard_formats"] = shard_formats()
     return figures
-
-
-def _worker_class():
-    from glraster.cluster.workers import GLWorker
-
-    class BenchWorker(GLWorker):
-        """A GLWorker on the node's own driver (no driver check: the baseline's too)."""
-
-        def __init__(self, driver, backend=None):
-            super().__init__(driver or "any", backend)
-            self.error = "" if self.ctx is not None else self.error
-
-    return BenchWorker
 
 
 def format_figures(f: dict) -> str:

@@ -28,9 +28,10 @@ MAX_TASK_RETRIES = 2
 
 
 class GLWorker:
-    """One GL context on ``driver``; the remote methods of the fleet's tasks."""
+    """One GL context on ``driver`` (None: the node's own, whichever it is); the remote
+    methods of the fleet's tasks."""
 
-    def __init__(self, driver: str, backend: str | None = None):
+    def __init__(self, driver: str | None, backend: str | None = None):
         self.driver = driver
         self.node = socket.gethostname()
         self.pid = os.getpid()
@@ -41,7 +42,9 @@ class GLWorker:
 
             self.ctx = Context(backend=backend)
             found = driver_name(self.ctx.renderer, self.ctx.vendor)
-            if found != driver:
+            if driver is None:
+                self.driver = found
+            elif found != driver:
                 self.error = f"asked for driver {driver}, GL came up as {self.ctx.renderer!r}"
         except Exception as exc:  # a node whose GL does not come up is reported, not fatal
             self.error = f"{type(exc).__name__}: {exc}"
@@ -52,8 +55,7 @@ class GLWorker:
         return {"driver": self.driver, "node": self.node, "pid": self.pid,
                 "ok": not self.error, "error": self.error,
                 "backend": ctx.backend if ctx else None, "renderer": ctx.renderer if ctx else None,
-                "gl_version": ctx.gl_version if ctx else None,
-                "env": driver_env(self.driver)}
+                "gl_version": ctx.gl_version if ctx else None}
 
     def _context(self):
         if self.error:
@@ -123,16 +125,18 @@ class GLWorker:
         return seconds, ({n: getattr(r, n) for n in outputs} if arrays else None)
 
 
-def remote_worker(ray, driver: str, *, backend=None, node_id=None, gpus: float = 0,
+def remote_worker(ray, driver: str | None, *, backend=None, node_id=None, gpus: float = 0,
                   num_cpus: float = 1):
     """A :class:`GLWorker` actor for ``driver``: ``num_cpus`` CPUs, one unit of ``driver:<name>`` (and
     ``gpus`` GPUs), its environment from :func:`driver_env`, on node ``node_id`` when given
     (hard affinity: the fleet asks each node for its own driver)."""
     from glraster.cluster.runtime import RESOURCE_PREFIX
 
-    options = {"num_cpus": num_cpus, "resources": {RESOURCE_PREFIX + driver: 1},
-               "max_restarts": MAX_RESTARTS, "max_task_retries": MAX_TASK_RETRIES,
-               "runtime_env": {"env_vars": driver_env(driver)}}
+    options = {"num_cpus": num_cpus, "max_restarts": MAX_RESTARTS,
+               "max_task_retries": MAX_TASK_RETRIES}
+    if driver is not None:  # None: any node, its own GL
+        options["resources"] = {RESOURCE_PREFIX + driver: 1}
+        options["runtime_env"] = {"env_vars": driver_env(driver)}
     if gpus:
         options["num_gpus"] = gpus
     if node_id is not None:

@@ -26,7 +26,7 @@ import pytest
 
 ray = pytest.importorskip("ray", reason="glraster.cluster needs the ray extra (make test installs it)")
 
-from glraster.cluster import dataset, fleet, runtime, shards  # noqa: E402
+from glraster.cluster import dataset, fleet  # noqa: E402
 
 pytestmark = pytest.mark.gl
 
