@@ -3,8 +3,8 @@ rendering against `glraster render`, resuming, and faults (a worker killed by it
 scene that crashes its worker every time, a node whose GL does not come up).
 
 One local cluster for the module (2 CPUs, a 96 MB object store), shut down at its end. It
-advertises llvmpipe and softpipe, as `glraster.cluster.connect` finds them, and one
-`driver:zink` unit whose GL does not come up as zink (Mesa has no Vulkan device here): a
+advertises llvmpipe and softpipe (Mesa's two software drivers, on every machine with Mesa)
+and one `driver:zink` unit whose GL does not come up as zink (no Vulkan device here): a
 misconfigured node. The `glraster check --ray` test starts its own cluster in a subprocess,
 as on a clean machine.
 """
