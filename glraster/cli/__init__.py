@@ -31,7 +31,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 # optional dependency -> the pyproject extra that installs it
 OPTIONAL_EXTRAS = {"torch": "torch", "starlette": "service", "uvicorn": "service",
-                   "trimesh": "mesh", "pyrender": "mesh"}
+                   "trimesh": "mesh", "pyrender": "mesh", "ray": "ray"}
 
 
 def main(argv=None) -> int:

@@ -154,6 +154,7 @@ class CheckResult:
     shard: tuple | None = None  # (I, N) when this run is shard I of N (shard_scenes)
     rules: object = None   # the RuleDetection of glraster.conformance.rules (None: not run)
     probes: list = field(default_factory=list)  # ProbeResults of glraster.conformance.probes
+    driver: str | None = None  # the fleet driver name (glraster.cluster); None: this machine's
 
     @property
     def ok(self) -> bool:
@@ -340,6 +341,49 @@ def run_mutants(ctx, candidates, references, mutant_list=None, progress=None, pr
     return results, control_failures
 
 
+@dataclass
+class DriverSetup:
+    """What a check run measures on a driver before its scenes (:func:`setup_driver`).
+
+    rules       : the RuleDetection of :mod:`glraster.conformance.rules` (None: not run)
+    probes      : the ProbeResults of :mod:`glraster.conformance.probes` (empty: not run)
+    rule        : the fill rule the references are made with (see :func:`run_scene`)
+    clip_defect : whether Mesa's noperspective clipper defect is waived (None: llvmpipe only)
+    """
+
+    rules: object = None
+    probes: list = field(default_factory=list)
+    rule: object = _golden.FILL_RULE
+    clip_defect: object = None
+
+
+def setup_driver(ctx, probes=True) -> DriverSetup:
+    """Detect the driver's rules and run the probes on ``ctx`` (``probes=False``: neither;
+    coverage is then judged by llvmpipe's rule). Every scene of a run on this driver is
+    judged with the returned setup, whichever process renders it."""
+    setup = DriverSetup()
+    if probes:
+        setup.rules = _rules.detect_on(ctx)
+        setup.probes = _probes.run(ctx)
+    setup.rule = _reference_rule(setup.rules)
+    # Mesa's noperspective clipper defect, where the probe measured it, is waived (counted)
+    # on every driver that has it, as on llvmpipe (None without probes: llvmpipe only)
+    clip_probe = next((p for p in setup.probes if p.name == "noperspective_clip"), None)
+    setup.clip_defect = None if clip_probe is None or clip_probe.status not in ("pass", "known") \
+        else clip_probe.status == "known"
+    return setup
+
+
+def explain(probes, scene, res) -> None:
+    """Name the failed probes whose defect can explain ``res`` (a SceneResult of ``scene``):
+    in ``res.explained_by`` and in each such probe's ``explains``."""
+    failed = [p for p in probes if p.failed]
+    res.explained_by = [(p.name, p.diagnosis) for p in failed if p.explains_scene(scene, res)]
+    for p in failed:
+        if p.explains_scene(scene, res):
+            p.explains.append(scene.name)
+
+
 def run(ctx, names=None, *, method="hw", golden_dir=None, check_golden=True, mutants=False,
         mutant_pattern=None, on_scene=None, progress=None, references=None,
         mutant_scenes=None, probes=True) -> CheckResult:
@@ -376,19 +420,12 @@ def run(ctx, names=None, *, method="hw", golden_dir=None, check_golden=True, mut
         check_golden = False
         out.notes.append(f"no golden folder at {_golden.golden_dir()}: golden comparison "
                          "skipped (set GLRASTER_GOLDEN_DIR or --golden-dir)")
-    if probes:
-        if progress:
-            progress(0, len(names), "rules and probes")
-        out.rules = _rules.detect_on(ctx)
-        out.probes = _probes.run(ctx)
-    rule = _reference_rule(out.rules)
+    if probes and progress:
+        progress(0, len(names), "rules and probes")
+    setup = setup_driver(ctx, probes=probes)
+    out.rules, out.probes = setup.rules, setup.probes
+    rule, clip_defect = setup.rule, setup.clip_defect
     key = (lambda n: n) if rule == _golden.FILL_RULE else (lambda n: (n, str(rule)))
-    failed_probes = [p for p in out.probes if p.failed]
-    # Mesa's noperspective clipper defect, where the probe measured it, is waived (counted)
-    # on every driver that has it, as on llvmpipe (None without probes: llvmpipe only)
-    clip_probe = next((p for p in out.probes if p.name == "noperspective_clip"), None)
-    clip_defect = None if clip_probe is None or clip_probe.status not in ("pass", "known") \
-        else clip_probe.status == "known"
     mutant_refs = {}
     passed = []
     mutant_list = _mutants.select(mutant_pattern) if mutants else []
@@ -402,11 +439,7 @@ def run(ctx, names=None, *, method="hw", golden_dir=None, check_golden=True, mut
                              check_golden=check_golden,
                              keep=bool(on_scene) or mutants or references is not None,
                              ref=cached, fill_rule=rule, clip_defect=clip_defect)
-        res.explained_by = [(p.name, p.diagnosis) for p in failed_probes
-                            if p.explains_scene(scene, res)]
-        for p in failed_probes:
-            if p.explains_scene(scene, res):
-                p.explains.append(name)
+        explain(setup.probes, scene, res)
         h, w = scene.resolution
         if references is not None and art is not None and h * w <= REFERENCE_CACHE_PIXELS:
             references[key(name)] = art.ref
@@ -481,7 +514,8 @@ def to_dict(result: CheckResult) -> dict:
             "golden": None if s.golden is None else ("exact" if s.golden.ok else "diff"),
             "golden_max_error": s.golden_max_error,
         })
-    out = {"ok": result.ok, "backend": result.backend, "renderer": result.renderer,
+    out = {"ok": result.ok, "driver": result.driver, "backend": result.backend,
+           "renderer": result.renderer,
            "gl_version": result.gl_version, "method": result.method,
            "shard": f"{result.shard[0]}/{result.shard[1]}" if result.shard else None,
            "seconds": result.seconds, "passed": sum(s.ok for s in result.scenes),

@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from glraster.io import figures
+from glraster.io.atomic import atomic_write
 from glraster.io.png import EMPTY_RGB, bary_rgb, write_png
 
 MAX_IMAGE_PX = 384
@@ -137,6 +138,17 @@ class HtmlReport:
         codes = coverage_codes(gpu.mask[sl], ref.mask[sl], amb, idm)
         save("coverage", COVERAGE_COLORS[_pool_max(codes, f)])
         self.images[res.name] = {"files": names, "crop": (y0, y1, x0, x1), "factor": f}
+
+    def add_images(self, name: str, info: dict, files: dict) -> None:
+        """Add the images of scene ``name`` made elsewhere (another process or machine ran
+        :meth:`add_scene`): ``info`` is its entry of ``images``, ``files`` {file name: PNG
+        bytes}."""
+        for fname, data in files.items():
+            if Path(fname).name != fname:
+                raise ValueError(f"files: image name {fname!r} must be a bare file name")
+            with atomic_write(self.img / fname) as tmp:
+                Path(tmp).write_bytes(data)
+        self.images[name] = info
 
     def _summary_figure(self, result) -> str | None:
         scenes = [s for s in result.scenes if s.report is not None]
@@ -334,3 +346,71 @@ def _pool_heat(ratio, compared, f):
     """Heatmap reduced by f with the worst ratio of each block."""
     r = _pool_max(np.where(compared, ratio, -1.0), f)
     return heat_rgb(np.maximum(r, 0), r >= 0)
+
+
+def write_driver_matrix(directory, columns, nodes=(), missing=None, seconds=0.0) -> Path:
+    """``directory/index.html``: the verdict of every scene on every driver (and method).
+
+    columns : [(label, href of that run's report, CheckResult)], one column each; a cell
+        links to ``href#scene``
+    nodes   : [(driver, node name, GL up, renderer or error)], the fleet's actors
+    missing : {driver: why no node ran it}
+    Returns the path (written atomically).
+    """
+    e = html.escape
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    missing = missing or {}
+    ok = bool(columns) and not missing and all(r.ok for _, _, r in columns)
+    verdict = "PASS" if ok else "FAIL"
+    names = []
+    for _, _, r in columns:
+        names += [s.name for s in r.scenes if s.name not in names]
+    parts = [f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>glraster fleet check: {verdict}</title>
+<style>
+body {{ font-family: system-ui, sans-serif; margin: 24px; background: #fafafa; color: #222; }}
+table {{ border-collapse: collapse; font-size: 13px; margin: 8px 0 16px; }}
+th, td {{ border: 1px solid #ccc; padding: 3px 8px; white-space: nowrap; }}
+th {{ background: #eee; }} td.l {{ text-align: left; }}
+td.pass {{ background: #dff0df; }} td.fail, td.error {{ background: #fde0e0; }}
+td a {{ color: inherit; }}
+.verdict {{ display: inline-block; padding: 2px 10px; border-radius: 4px; color: #fff; }}
+.PASS {{ background: #2a7d2a; }} .FAIL {{ background: #c62828; }}
+</style></head><body>
+<h1>glraster fleet check <span class="verdict {verdict}">{verdict}</span></h1>
+<p>{len(columns)} driver run(s), {len(names)} scenes, {seconds:.1f} s.</p>
+<h2>Driver matrix</h2><table><tr><th>scene</th>"""]
+    for label, href, r in columns:
+        n_ok = sum(s.ok for s in r.scenes)
+        parts.append(f'<th><a href="{e(href)}">{e(label)}</a><br><small>{e(r.renderer)}<br>'
+                     f"{n_ok}/{len(r.scenes)} pass</small></th>")
+    parts.append("</tr>")
+    for name in names:
+        parts.append(f"<tr><td class=l>{e(name)}</td>")
+        for label, href, r in columns:
+            s = next((s for s in r.scenes if s.name == name), None)
+            if s is None:
+                parts.append("<td>-</td>")
+                continue
+            tip = e("; ".join(s.failures)[:300])
+            parts.append(f'<td class="{s.status}" title="{tip}"><a id="{e(label)}-{e(name)}" '
+                         f'href="{e(href)}#{e(name)}">{s.status.upper()}</a></td>')
+        parts.append("</tr>")
+    parts.append("</table>")
+    if missing:
+        parts.append("<h2>Drivers not run</h2><ul>" + "".join(
+            f"<li><b>{e(d)}</b>: {e(why)}</li>" for d, why in missing.items()) + "</ul>")
+    if nodes:
+        parts.append("<h2>Nodes</h2><table><tr><th>driver</th><th>node</th><th>GL</th>"
+                     "<th>renderer / error</th></tr>")
+        for driver, node, up, text in nodes:
+            parts.append(f'<tr><td class=l>{e(driver)}</td><td class=l>{e(node)}</td>'
+                         f'<td class="{"pass" if up else "fail"}">{"up" if up else "DOWN"}</td>'
+                         f"<td class=l>{e(text)}</td></tr>")
+        parts.append("</table>")
+    parts.append("</body></html>\n")
+    path = directory / "index.html"
+    with atomic_write(path) as tmp:
+        Path(tmp).write_text("\n".join(parts), encoding="utf-8")
+    return path

@@ -1,7 +1,9 @@
 """JUnit XML for CI systems (GitLab, Jenkins, GitHub test reporters) from a check run.
 
 One ``<testsuite name="glraster.conformance.check">`` with a ``<testcase>`` per scene (classname
-``glraster.conformance.check.<backend>``, plus ``.<method>`` for a method other than hw) and, after a mutant pass, a ``<testsuite
+``glraster.conformance.check.<backend>``, plus ``.<method>`` for a method other than hw; a
+fleet run of :mod:`glraster.cluster` puts the driver first, ``...check.<driver>.<backend>``,
+and a ``driver`` property on the suite) and, after a mutant pass, a ``<testsuite
 name="glraster.conformance.mutants">`` with a testcase per mutant (failing when it escaped) plus one
 for the control run of the real shaders. Failures carry a one-line message and the full
 comparison summary as text. The file is written atomically.
@@ -48,6 +50,11 @@ def _probe_suite(root, result, stamp, total):
     """The ``glraster.conformance.probes`` suite: a test case per probe (a failure names
     the defect; a documented deviation passes and says so); returns the updated totals."""
     ps = ET.SubElement(root, "testsuite", name="glraster.conformance.probes", timestamp=stamp)
+    cls = "glraster.conformance.probes"
+    driver = getattr(result, "driver", None)
+    if driver:  # a fleet run: one probe suite per driver
+        ET.SubElement(ET.SubElement(ps, "properties"), "property", name="driver", value=driver)
+        cls += f".{driver}"
     pf = pe = 0
     for p in result.probes:
         out = f"{p.expectation}\n{p.spec}\n{p.detail}".strip()
@@ -55,15 +62,15 @@ def _probe_suite(root, result, stamp, total):
             out += f"\nexplains the failures of: {', '.join(p.explains)}"
         if p.status == "error":
             pe += 1
-            _case(ps, "glraster.conformance.probes", p.name, p.seconds, error=p.diagnosis, out=out)
+            _case(ps, cls, p.name, p.seconds, error=p.diagnosis, out=out)
         elif p.status == "fail":
             pf += 1
-            _case(ps, "glraster.conformance.probes", p.name, p.seconds,
+            _case(ps, cls, p.name, p.seconds,
                   failure=(p.diagnosis, out), out=out)
         else:
             note = {"known": f"known driver deviation: {p.diagnosis}",
                     "skipped": "not run on this context"}.get(p.status, "")
-            _case(ps, "glraster.conformance.probes", p.name, p.seconds,
+            _case(ps, cls, p.name, p.seconds,
                   out=f"{note}\n{out}".strip())
     _set_counts(ps, len(result.probes), pf, pe, sum(p.seconds for p in result.probes))
     return (total[0] + len(result.probes), total[1] + pf, total[2] + pe)
@@ -76,8 +83,10 @@ def to_xml(result) -> ET.ElementTree:
     suite = ET.SubElement(root, "testsuite", name="glraster.conformance.check", timestamp=stamp,
                           hostname=socket.gethostname())
     props = ET.SubElement(suite, "properties")
-    for k, v in (("backend", result.backend), ("renderer", result.renderer),
-                 ("gl_version", result.gl_version), ("method", result.method)):
+    driver = getattr(result, "driver", None)
+    for k, v in ((("driver", driver),) if driver else ()) + (
+            ("backend", result.backend), ("renderer", result.renderer),
+            ("gl_version", result.gl_version), ("method", result.method)):
         ET.SubElement(props, "property", name=k, value=str(v))
     shard = getattr(result, "shard", None)
     if shard:
@@ -85,7 +94,7 @@ def to_xml(result) -> ET.ElementTree:
     if getattr(result, "rules", None) is not None:
         ET.SubElement(props, "property", name="rules", value=result.rules.summary())
     fails = errors = 0
-    cls = f"glraster.conformance.check.{result.backend}" + (
+    cls = "glraster.conformance.check." + (f"{driver}." if driver else "") + result.backend + (
         f".{result.method}" if result.method != "hw" else "")
     for s in result.scenes:
         summary = s.report.summary() if s.report is not None else ""
@@ -159,7 +168,7 @@ def _props(suite) -> dict:
 def merge(sources) -> ET.ElementTree:
     """One JUnit tree from the files (paths or ElementTrees) of ``glraster check`` runs.
 
-    Suites are grouped by name, backend and method: the shards of one driver's run become
+    Suites are grouped by name, backend, method and driver (a fleet run's): the shards of one driver's run become
     one suite again (test cases in the shards' order, counts and times summed), runs of
     different drivers or methods stay separate suites. For every group with ``shard``
     properties, shards 1..N must each appear exactly once (MergeError otherwise), and no
@@ -173,7 +182,8 @@ def merge(sources) -> ET.ElementTree:
         suites = [root] if root.tag == "testsuite" else list(root.iterfind("testsuite"))
         for suite in suites:
             props = _props(suite)
-            key = (suite.get("name"), props.get("backend"), props.get("method"))
+            key = (suite.get("name"), props.get("backend"), props.get("method"),
+                   props.get("driver"))
             if key not in groups:
                 groups[key] = []
                 order.append(key)
@@ -218,7 +228,7 @@ def merge(sources) -> ET.ElementTree:
         if shards:
             ET.SubElement(pe, "property", name="shards", value=str(len(set(shards))))
         names = set()
-        tests = fails = errs = 0
+        tests = fails = errs = skips = 0
         seconds = 0.0
         for member, _, src in members:
             for case in member.iterfind("testcase"):
@@ -231,8 +241,9 @@ def merge(sources) -> ET.ElementTree:
                 tests += 1
                 fails += case.find("failure") is not None
                 errs += case.find("error") is not None
+                skips += case.find("skipped") is not None
                 seconds += float(case.get("time") or 0)
-        _set_counts(suite, tests, fails, errs, seconds)
+        _set_counts(suite, tests, fails, errs, seconds, skips)
         totals = [totals[0] + tests, totals[1] + fails, totals[2] + errs, totals[3] + seconds]
     _set_counts(out, *totals, skipped=None)
     ET.indent(out)

@@ -36,6 +36,18 @@ def register(subparsers) -> None:
                    help="check only shard I of N of the matching scenes (balanced by cost, the "
                         "same split on every runner); with --mutants, shard 1 runs the mutant "
                         "pass. Join the shards' --junit files with 'glraster junit-merge'")
+    p.add_argument("--ray", nargs="?", const="", default=None, metavar="ADDRESS",
+                   help="run on Ray (glraster.cluster; pip install 'glraster[ray]'): every "
+                        "scene x method x driver as a task on the actors of its driver, one "
+                        "merged JUnit and HTML report with a driver matrix. ADDRESS: a "
+                        "cluster's; without it $RAY_ADDRESS, else a local cluster on this "
+                        "machine (docs/cluster.md)")
+    p.add_argument("--drivers", default=None, metavar="A,B",
+                   help="with --ray: the drivers to check (default: every driver the cluster "
+                        "advertises); on one machine llvmpipe, softpipe, zink are selected by "
+                        "GALLIUM_DRIVER")
+    p.add_argument("--methods", default=None, metavar="M1,M2",
+                   help="with --ray: comma-separated methods (default: --method)")
     p.set_defaults(func=run)
 
 
@@ -89,6 +101,9 @@ def run(args) -> int:
                 print(f"glraster check: shard {args.shard}: the mutant pass runs in shard 1",
                       file=sys.stderr)
                 args.mutants = None
+    if args.ray is None and (args.drivers or args.methods):
+        print("glraster check: --drivers and --methods need --ray", file=sys.stderr)
+        return exit_codes.USAGE
     if args.list:
         for n in names:
             print(f"{n:<28} {describe(n)}")
@@ -112,6 +127,8 @@ def run(args) -> int:
         except ValueError as exc:
             print(f"glraster check: {exc}", file=sys.stderr)
             return exit_codes.USAGE
+    if args.ray is not None:
+        return _run_fleet(args, names)
     try:
         ctx = Context(backend=args.backend)
     except (BackendUnavailable, ValueError) as exc:
@@ -136,3 +153,65 @@ def run(args) -> int:
     if report:
         print(f"HTML report: {report.finish(result)}")
     return exit_codes.OK if result.ok else exit_codes.FAIL
+
+
+def _run_fleet(args, names) -> int:
+    """``check --ray``: the catalog x methods x drivers on Ray (glraster.cluster.fleet)."""
+    from glraster.gpu.rasterize import METHODS
+
+    methods = [m.strip() for m in (args.methods or args.method).split(",") if m.strip()]
+    bad = [m for m in methods if m not in METHODS]
+    if not methods or bad:
+        print(f"glraster check: --methods must be a comma-separated list of "
+              f"{', '.join(sorted(METHODS))}, got {args.methods!r}", file=sys.stderr)
+        return exit_codes.USAGE
+    for flag, value in (("--mutants", args.mutants), ("--shard", args.shard)):
+        if value:
+            print(f"glraster check: {flag} cannot be combined with --ray (the fleet runs the "
+                  "whole catalog; mutants run in a sequential check)", file=sys.stderr)
+            return exit_codes.USAGE
+    from glraster.cluster import fleet, runtime
+    drivers = None
+    if args.drivers:
+        try:
+            drivers = runtime.check_driver_names(args.drivers)
+        except ValueError as exc:
+            print(f"glraster check: {exc}", file=sys.stderr)
+            return exit_codes.USAGE
+
+    def show_nodes(nodes):
+        for n in nodes:
+            state = f"GL up: {n.renderer}" if n.ok else f"GL DID NOT COME UP: {n.error}"
+            print(f"node {n.node} driver {n.driver}: {state}", file=sys.stderr)
+
+    result = fleet.run_check(names, drivers=drivers, methods=methods, address=args.ray or None,
+                             backend=args.backend,
+                             golden_dir=args.golden_dir, check_golden=not args.no_golden,
+                             images=bool(args.html), progress=Progress(), on_nodes=show_nodes)
+    for d, m, r in result.runs:
+        print(f"== driver {d}, method {m} ==")
+        print(check_format(r))
+        print()
+    for d, why in result.missing.items():
+        print(f"driver {d}: NOT RUN: {why}")
+    down = [n for n in result.nodes if not n.ok]
+    for n in down:
+        print(f"node {n.node} (driver {n.driver}) left out: {n.error}")
+    print(f"fleet: {len(result.runs)} driver run(s), {result.tasks} tasks, "
+          f"{len(result.nodes) - len(down)}/{len(result.nodes)} workers up, "
+          f"{result.seconds:.1f} s: " + ("PASS" if result.ok else "FAIL"))
+    if args.junit:
+        from glraster.conformance import junit
+
+        print(f"JUnit XML: {junit.write_tree(fleet.to_junit(result), args.junit)}")
+    if args.html:
+        print(f"HTML report: {fleet.write_html(result, args.html)}")
+    if not result.runs:
+        return exit_codes.NO_BACKEND
+    return exit_codes.OK if result.ok else exit_codes.FAIL
+
+
+def check_format(result) -> str:
+    from glraster.conformance.check import format_table
+
+    return format_table(result)

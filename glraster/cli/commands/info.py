@@ -20,6 +20,9 @@ def register(subparsers) -> None:
     p = add_command(subparsers, "info", __doc__)
     add_backend_argument(p)
     p.add_argument("--json", action="store_true", help="print JSON instead of text")
+    p.add_argument("--ray-resources", action="store_true",
+                   help="print the Ray resources this node advertises, one driver:<name> per "
+                        "driver whose GL comes up here (for `ray start --resources`)")
     p.set_defaults(func=run)
 
 
@@ -85,6 +88,13 @@ def unavailable_lines(facts: dict) -> list[str]:
 
 def run(args) -> int:
     from glraster.errors import BackendUnavailable, DriverTooOld, LibraryMissing
+
+    if args.ray_resources:
+        from glraster.cluster.runtime import node_resources
+
+        resources = node_resources(backend=args.backend)
+        print(json.dumps(resources))
+        return exit_codes.OK if resources else exit_codes.NO_BACKEND
 
     try:
         facts = gather(args.backend)
