@@ -446,7 +446,7 @@ def run(ctx, names=None, *, method="hw", golden_dir=None, check_golden=True, mut
     mutant_refs = {}
     passed = []
     mutant_list = _mutants.select(mutant_pattern) if mutants else []
-    scenes = _with_sample_counts([load_scene(n) for n in names], ctx, out.notes)
+    scenes = _with_sample_counts([load_scene(n) for n in names], ctx, out.notes, method)
     total = len(scenes) + (len(mutant_list) if mutants else 0)
     for i, scene in enumerate(scenes):
         name = scene.name
@@ -510,23 +510,30 @@ def _driver_positions(ctx, samples: int) -> np.ndarray:
                      samples=samples).sample_positions
 
 
-def _with_sample_counts(scenes, ctx, notes) -> list:
+def _with_sample_counts(scenes, ctx, notes, method="hw") -> list:
     """The scenes to run: single-sample ones as they are, each multisample one at every
     sample count the driver offers (``Context.sample_counts``; the catalog's count keeps
-    the scene's name, others are ``<name>@<S>x``), none where it offers no multisampling
-    (said in ``notes``)."""
+    the scene's name, others are ``<name>@<S>x``); none where the driver offers no
+    multisampling, nor those whose interpolation ``method`` does not offer (said in
+    ``notes``)."""
     counts = [s for s in ctx.sample_counts if s > 1]
-    out, dropped = [], []
+    offered = METHODS[method].interpolations
+    out, dropped, unoffered = [], [], []
     for scene in scenes:
         if scene.samples == 1:
             out.append(scene)
         elif not counts:
             dropped.append(scene.name)
+        elif scene.interpolation not in offered:
+            unoffered.append(scene.name)
         else:
             out += [with_samples(scene, s) for s in counts]
     if dropped:
         notes.append(f"{len(dropped)} multisample scenes not run: {ctx.renderer} offers no "
                      f"multisampling (GL_MAX_SAMPLES {ctx.max_samples})")
+    if unoffered:
+        notes.append(f"{len(unoffered)} multisample scenes not run: method {method!r} offers "
+                     f"interpolation {offered} only ({', '.join(unoffered)})")
     return out
 
 

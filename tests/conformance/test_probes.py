@@ -25,6 +25,12 @@ def test_probes_pass_on_llvmpipe_except_the_documented_clip_defect(ctx):
         assert clip.status == "known"
         assert "x plane and another plane" in clip.diagnosis
         assert "mesa_noperspective_clip_bug" in clip.diagnosis
+        # llvmpipe 22.3 divides by the pixel center's 1/w at samples and centroids
+        # (docs/drivers.md): a documented deviation, named, not a failure
+        for name in ("sample_perspective", "centroid"):
+            known = results.pop(name)
+            assert known.status == "known", (name, known.detail)
+            assert "1/w of the pixel center" in known.diagnosis
     bad = {n: r.diagnosis for n, r in results.items() if r.status != "pass"}
     assert not bad, bad
     assert all(r.ok for r in results.values()) and clip.ok
