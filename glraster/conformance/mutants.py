@@ -78,8 +78,9 @@ class Mutant:
     rotate_180  : the vertex shader renders the image rotated by 180 degrees; the host
                   rotates the read-back arrays back
     viewport_uniform : set ``uniform vec2 u_viewport = (width, height)``
-    multisample : False disables GL_MULTISAMPLE: each fragment covers every sample of a
-                  pixel whose center it covers (the per-sample coverage mask ignored)
+    coverage_per_pixel : the fragments are rasterized at the pixel center and written to
+                  every sample of the pixel (the per-sample coverage mask ignored): the
+                  host draws single-sample and copies each pixel to its samples
     depth_clear, depth_func : the depth buffer's clear value and test ("<", 1.0: real)
     """
 
@@ -90,7 +91,7 @@ class Mutant:
     depth_test: bool = True
     rotate_180: bool = False
     viewport_uniform: bool = False
-    multisample: bool = True
+    coverage_per_pixel: bool = False
     depth_clear: float = 1.0
     depth_func: str = "<"
     expected: tuple = field(default_factory=tuple)  # scenes that should catch it (documentation)
@@ -109,7 +110,7 @@ class Mutant:
     @property
     def needs_host_changes(self) -> bool:
         return (self.target_dtype != "f4" or not self.depth_test or self.rotate_180
-                or self.viewport_uniform or not self.multisample or self.depth_clear != 1.0
+                or self.viewport_uniform or self.coverage_per_pixel or self.depth_clear != 1.0
                 or self.depth_func != "<")
 
     @property
@@ -268,7 +269,7 @@ MUTANTS: tuple[Mutant, ...] = (
     )),
     Mutant("sample_mask_ignored", "the per-sample coverage mask ignored: a fragment covers "
                                   "every sample of a pixel whose center it covers",
-           multisample=False),
+           coverage_per_pixel=True),
     Mutant("reversed_occlusion", "depth buffer cleared to 0 and the test reversed "
                                  "(GREATER): the farthest triangle wins",
            depth_clear=0.0, depth_func=">"),
@@ -321,9 +322,12 @@ def render(mutant: Mutant | None, pos, tri, resolution, *, ctx, outputs=OUTPUTS,
               for n, (c, dtype) in _raster.color_targets(names, hw).items()}
     vert, frag = m.shader_files(ctx)
     defines = _pipeline.output_defines(colors)
+    drawn = samples
     if samples > 1:
         _raster._check_multisampling(ctx, hw, samples, interpolation)
-        if interpolation != "center" and ("persp" in names or "screen" in names):
+        if m.coverage_per_pixel:
+            drawn = 1
+        elif interpolation != "center" and ("persp" in names or "screen" in names):
             defines["INTERPOLATION"] = interpolation
             if hw.vertex_input:
                 defines["AUX_QUALIFIERS"] = 1
@@ -331,12 +335,16 @@ def render(mutant: Mutant | None, pos, tri, resolution, *, ctx, outputs=OUTPUTS,
         program, vao = ctx.program(vert, frag, defines)
     spec = _pipeline.Draw(
         program, vao, colors, read_depth="depth" in names, depth_test=m.depth_test,
-        vertex_input=hw.vertex_input, samples=samples, multisample=m.multisample,
+        vertex_input=hw.vertex_input, samples=drawn,
         depth_clear=m.depth_clear, depth_func=m.depth_func,
         uniforms={"u_viewport": (float(width), float(height))} if m.viewport_uniform else {})
     values = _pipeline.draw(ctx, spec, pos, tri, (height, width),
                             during=f"rendering mutant {m.name}")
     positions = values.pop("sample_positions", None)
+    if drawn != samples:                         # each pixel's fragment on all its samples
+        with ctx:
+            positions = ctx.targets((1, 1), colors, True, samples).sample_positions.copy()
+        values = {n: np.repeat(v[:, :, None], samples, axis=2) for n, v in values.items()}
     values = {n: v.astype(np.float32) if v.dtype == np.float16 else v for n, v in values.items()}
     if "tri_id" in values:
         _pipeline.decode_ids(values["tri_id"])

@@ -21,7 +21,6 @@ draw through it.
 
 from __future__ import annotations
 
-import ctypes
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -34,7 +33,6 @@ NUMPY_DTYPES = {"f4": np.float32, "f2": np.float16, "i4": np.int32, "u4": np.uin
 # moderngl dtype -> (multisample sampler, vector type) of the resolve pass
 RESOLVE_TYPES = {"f4": ("sampler2DMS", "vec4"), "f2": ("sampler2DMS", "vec4"),
                  "i4": ("isampler2DMS", "ivec4"), "u4": ("usampler2DMS", "uvec4")}
-GL_MULTISAMPLE = 0x809D
 
 
 @dataclass
@@ -57,8 +55,6 @@ class Draw:
                    ``per_triangle`` must then be empty
     samples      : samples per pixel (1: single-sample targets, today's path); > 1 needs a
                    count the context offers (``Context.sample_counts``)
-    multisample  : False disables GL_MULTISAMPLE: each fragment then covers all samples
-                   of a pixel whose center it covers (GL 4.5 section 14.3.1; a mutant)
     depth_clear, depth_func : the depth buffer's clear value and the test ("<": LESS)
     """
 
@@ -73,7 +69,6 @@ class Draw:
     textures: dict = field(default_factory=dict)
     vertex_input: bool = False
     samples: int = 1
-    multisample: bool = True
     depth_clear: float = 1.0
     depth_func: str = "<"
 
@@ -159,8 +154,6 @@ def _draw_batches(ctx, spec: Draw, pos, tri) -> None:
         mgl.disable(mgl.DEPTH_TEST)
     if spec.depth_func != "<":
         mgl.depth_func = spec.depth_func
-    if not spec.multisample:
-        ctx.gl_function("glDisable", None, ctypes.c_uint)(GL_MULTISAMPLE)
     try:
         for number, base in enumerate(range(0, len(tri), batch)):
             # One buffer per batch: llvmpipe shades fragments when the binned draw is
@@ -187,8 +180,6 @@ def _draw_batches(ctx, spec: Draw, pos, tri) -> None:
             mgl.enable(mgl.DEPTH_TEST)
         if spec.depth_func != "<":
             mgl.depth_func = "<"
-        if not spec.multisample:
-            ctx.gl_function("glEnable", None, ctypes.c_uint)(GL_MULTISAMPLE)
 
 
 def _read_samples(ctx, spec: Draw, targets, resolution) -> dict:

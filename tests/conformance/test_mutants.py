@@ -32,7 +32,7 @@ def references():
 def test_at_least_eight_mutants_with_distinct_faults():
     assert len(mutants.MUTANTS) >= 8
     assert len({m.name for m in mutants.MUTANTS}) == len(mutants.MUTANTS)
-    assert len({(m.patches, m.target_dtype, m.depth_test, m.multisample, m.depth_clear,
+    assert len({(m.patches, m.target_dtype, m.depth_test, m.coverage_per_pixel, m.depth_clear,
                  m.depth_func) for m in mutants.MUTANTS}) == len(mutants.MUTANTS)
 
 
