@@ -446,6 +446,11 @@ def run(ctx, names=None, *, method="hw", golden_dir=None, check_golden=True, mut
     mutant_refs = {}
     passed = []
     mutant_list = _mutants.select(mutant_pattern) if mutants else []
+    if len(ctx.sample_counts) < 2 and any(m.multisample_only for m in mutant_list):
+        skipped = [m.name for m in mutant_list if m.multisample_only]
+        mutant_list = [m for m in mutant_list if not m.multisample_only]
+        out.notes.append(f"mutants {', '.join(skipped)} not run: their faults need "
+                         f"multisampling, which {ctx.renderer} does not offer")
     scenes = _with_sample_counts([load_scene(n) for n in names], ctx, out.notes, method)
     total = len(scenes) + (len(mutant_list) if mutants else 0)
     for i, scene in enumerate(scenes):

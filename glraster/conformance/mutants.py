@@ -82,6 +82,8 @@ class Mutant:
                   every sample of the pixel (the per-sample coverage mask ignored): the
                   host draws single-sample and copies each pixel to its samples
     depth_clear, depth_func : the depth buffer's clear value and test ("<", 1.0: real)
+    multisample_only : the fault shows only when multisampling (not run where the driver
+                  offers no multisampling)
     """
 
     name: str
@@ -92,6 +94,7 @@ class Mutant:
     rotate_180: bool = False
     viewport_uniform: bool = False
     coverage_per_pixel: bool = False
+    multisample_only: bool = False
     depth_clear: float = 1.0
     depth_func: str = "<"
     expected: tuple = field(default_factory=tuple)  # scenes that should catch it (documentation)
@@ -253,23 +256,22 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("depth_test_dropped", "depth test disabled: the last triangle drawn wins",
            depth_test=False),
     # multisampling (caught by the multisample scenes)
-    Mutant("wrong_sample_position", "per-sample values interpolated at the next sample's "
-                                    "position instead of their own", patches=(
-        Patch(FRAG, "out_persp = v_persp;",
-              "out_persp = interpolateAtSample(v_persp, (gl_SampleID + 1) % gl_NumSamples);"),
-        Patch(FRAG, "out_screen = v_screen;",
-              "out_screen = interpolateAtSample(v_screen, (gl_SampleID + 1) % gl_NumSamples);"),
+    Mutant("wrong_sample_position", "per-sample values all interpolated at sample 1's "
+                                    "position instead of their own", multisample_only=True,
+           patches=(
+        Patch(FRAG, "out_persp = v_persp;", "out_persp = interpolateAtSample(v_persp, 1);"),
+        Patch(FRAG, "out_screen = v_screen;", "out_screen = interpolateAtSample(v_screen, 1);"),
     )),
     Mutant("centroid_as_center", "centroid (and per-sample) values taken at the pixel "
                                  "center, also where the center is outside the triangle",
-           patches=(
+           multisample_only=True, patches=(
         Patch(FRAG, "out_persp = v_persp;", "out_persp = interpolateAtOffset(v_persp, vec2(0.0));"),
         Patch(FRAG, "out_screen = v_screen;",
               "out_screen = interpolateAtOffset(v_screen, vec2(0.0));"),
     )),
     Mutant("sample_mask_ignored", "the per-sample coverage mask ignored: a fragment covers "
                                   "every sample of a pixel whose center it covers",
-           coverage_per_pixel=True),
+           coverage_per_pixel=True, multisample_only=True),
     Mutant("reversed_occlusion", "depth buffer cleared to 0 and the test reversed "
                                  "(GREATER): the farthest triangle wins",
            depth_clear=0.0, depth_func=">"),

@@ -131,7 +131,7 @@ def test_no_full_shader_copies_left():
         f for f in (d / "mutants").iterdir() if f.suffix in (".vert", ".frag")]
 
 
-MULTISAMPLE_MUTANTS = {"wrong_sample_position", "centroid_as_center", "sample_mask_ignored"}
+MULTISAMPLE_MUTANTS = {m.name for m in mutants.MUTANTS if m.multisample_only}
 
 
 def test_every_mutant_is_caught_and_the_control_passes(ctx, references):
@@ -139,7 +139,7 @@ def test_every_mutant_is_caught_and_the_control_passes(ctx, references):
     chosen = list(mutants.MUTANTS)
     if 4 not in ctx.sample_counts:              # no multisample scene can run here
         scenes = [s for s in scenes if s.samples == 1]
-        chosen = [m for m in chosen if m.name not in MULTISAMPLE_MUTANTS]
+        chosen = [m for m in chosen if not m.multisample_only]
     results, control_failures = check.run_mutants(ctx, scenes, references, chosen,
                                                   model=gr_error_model(ctx))
     # No false alarm: the real shaders through the mutant renderer pass every scene.
