@@ -181,3 +181,40 @@ def test_gl33_path_multisamples_too(gl_backend):
         full.release()
     finally:
         ctx33.release()
+
+
+SOFTPIPE_SCRIPT = r"""
+import json, sys
+import numpy as np
+import glraster as gr
+ctx = gr.Context(sys.argv[1])
+out = {"renderer": ctx.renderer, "counts": list(ctx.sample_counts)}
+try:
+    gr.rasterize(np.array([[-1, -1, 0, 1], [3, -1, 0, 1], [-1, 3, 0, 1]], np.float32),
+                 [[0, 1, 2]], (4, 4), ctx=ctx, samples=4)
+except ValueError as exc:
+    out["error"] = str(exc)
+print(json.dumps(out))
+"""
+
+
+def test_a_driver_without_multisampling_names_what_it_offers(gl_backend):
+    """softpipe (GL_MAX_SAMPLES 1): samples=4 is a ValueError naming the offered (1,)."""
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    env = dict(os.environ, GALLIUM_DRIVER="softpipe")
+    env.pop("GLRASTER_MAX_GL", None)
+    proc = subprocess.run([sys.executable, "-c", SOFTPIPE_SCRIPT, gl_backend],
+                          capture_output=True, text=True, env=env, timeout=300,
+                          cwd=Path(__file__).resolve().parents[2])
+    assert proc.returncode == 0, proc.stderr
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    if out["renderer"] != "softpipe":
+        pytest.skip(f"GALLIUM_DRIVER=softpipe gave {out['renderer']!r}")
+    assert out["counts"] == [1]
+    assert "samples=4 is not offered by this driver (softpipe): choose one of (1,)" \
+        in out["error"]
