@@ -17,8 +17,8 @@ The run, on the head (the process that calls :func:`run_check`):
    merged JUnit (every case named ``...check.<driver>.<backend>[.<method>]``) and an HTML
    report with a driver matrix.
 
-A sample-count axis (multisampling) is one more loop in :func:`_tasks` and one more key
-field; see docs/cluster.md.
+Multisample scenes run at every sample count the driver offers (:func:`_plan`, as the
+sequential check picks them); see docs/cluster.md.
 """
 
 from __future__ import annotations
@@ -172,7 +172,8 @@ def run_check(names=None, *, drivers=None, methods=("hw",), address=None, backen
             setups[d] = ray.get(ref)
         except Exception as exc:
             out.missing[d] = f"the rules and probes could not run: {type(exc).__name__}: {exc}"
-    results, pictures = _schedule(ray, names, methods, setups, live, golden_dir, check_golden,
+    plans = {(d, m): _plan(names, setups[d], m) for d in setups for m in methods}
+    results, pictures = _schedule(ray, plans, setups, live, golden_dir, check_golden,
                                   images, progress, out)
     for d in drivers:
         if d not in setups:
@@ -182,7 +183,8 @@ def run_check(names=None, *, drivers=None, methods=("hw",), address=None, backen
             setup = copy.deepcopy(setups[d])
             r = CheckResult(info["backend"], info["renderer"], info["gl_version"], m, driver=d)
             r.rules, r.probes = setup.rules, setup.probes
-            for name in names:
+            scene_names, r.notes = plans[(d, m)]
+            for name in scene_names:
                 res = results[(d, m, name)]
                 explain(setup.probes, load_scene(name), res)
                 r.scenes.append(res)
@@ -195,18 +197,26 @@ def run_check(names=None, *, drivers=None, methods=("hw",), address=None, backen
     return out
 
 
-def _tasks(names, methods):
-    """The (method, scene) pairs of one driver (a sample-count axis would go here)."""
-    return [(m, n) for m in methods for n in names]
+def _plan(names, setup, method):
+    """The scene names one (driver, method) run checks, and its notes: the catalog scenes
+    ``names``, each multisample one at every sample count the driver offers
+    (``<name>@<S>x``), exactly as :func:`glraster.conformance.check.run` picks them."""
+    from glraster.conformance.check import with_sample_counts
+    from glraster.conformance.scenes import load_scene
+
+    notes: list = []
+    scenes = with_sample_counts([load_scene(n) for n in names], setup, notes, method)
+    return [s.name for s in scenes], notes
 
 
-def _schedule(ray, names, methods, setups, live, golden_dir, check_golden, images,
-              progress, out):
-    """Run every (driver, method, scene) task on the actors of its driver, one in flight
-    per actor. Returns ({key: SceneResult}, {key: images})."""
+def _schedule(ray, plans, setups, live, golden_dir, check_golden, images, progress, out):
+    """Run every (driver, method, scene) task of ``plans`` ({(driver, method): (scene
+    names, notes)}) on the actors of its driver, one in flight per actor. Returns
+    ({key: SceneResult}, {key: images})."""
     from ray.exceptions import GetTimeoutError, RayActorError, RayTaskError
 
-    pending = {d: list(_tasks(names, methods)) for d in setups}
+    pending = {d: [(m, n) for (dd, m), (scene_names, _) in plans.items() if dd == d
+                   for n in scene_names] for d in setups}
     setup_refs = {d: ray.put(setups[d]) for d in setups}  # stored once, not once per task
     moves: dict = {}
     idle = {d: list(live[d]) for d in setups}

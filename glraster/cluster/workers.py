@@ -84,7 +84,8 @@ class GLWorker:
         scene = load_scene(name)
         res, art = run_scene(scene, ctx, method=method, golden_dir=golden_dir,
                              check_golden=check_golden, keep=images, fill_rule=setup.rule,
-                             clip_defect=setup.clip_defect)
+                             clip_defect=setup.clip_defect,
+                             sample_persp_defect=setup.sample_persp_defect)
         pictures = None
         if images and art is not None:
             from glraster.conformance.html_report import HtmlReport

@@ -21,6 +21,7 @@ from typing import Callable
 
 
 from glraster.errors import GLVersionError
+from glraster.types import INTERPOLATIONS
 from glraster.gpu import homogeneous as _homogeneous
 from glraster.verify.tolerance import ErrorModel
 
@@ -51,6 +52,10 @@ class Method:
                       vertex buffer (:class:`pipeline.Draw`), not from storage buffers
     fallback        : the variant used on contexts below ``min_gl`` (None: the method
                       is unavailable there)
+    interpolations  : the ``interpolation`` modes the method offers when multisampling
+                      (the ones that read the driver's varyings take the GLSL ``centroid``
+                      and ``sample`` qualifiers; those computing from gl_FragCoord evaluate
+                      at the pixel center only)
     """
 
     name: str
@@ -71,8 +76,10 @@ class Method:
     needs: str = "shader storage buffers, GLSL 4.50"
     vertex_input: bool = False
     fallback: Method | None = None
+    interpolations: tuple[str, ...] = ("center",)
 
-    def error_model(self, ctx=None, clip_defect: bool | None = None) -> ErrorModel:
+    def error_model(self, ctx=None, clip_defect: bool | None = None,
+                    sample_persp_defect: bool | None = None) -> ErrorModel:
         """The per-pixel error model for this method on a context (None: llvmpipe).
 
         The driver model (:meth:`ErrorModel.for_context`) bounds every method that
@@ -80,13 +87,19 @@ class Method:
         the compensated methods shrink its position terms; outputs built on the driver's
         noperspective varyings are waived where the driver has Mesa's clipper defect:
         ``clip_defect`` says whether it has (the conformance probe ``noperspective_clip``
-        measures it); None assumes it on llvmpipe only.
+        measures it); None assumes it on llvmpipe only. ``sample_persp_defect``: whether
+        the driver divides by the pixel center's 1 / w at samples and centroids (the probe
+        ``sample_perspective`` measures it; None: assumed on llvmpipe only), for the
+        methods that read the driver's smooth varyings ("hw").
         """
         base = ErrorModel.for_context(ctx)
         has_defect = bool(base.waived_outputs) if clip_defect is None else clip_defect
         waived = self.clip_defect_outputs if has_defect else ()
+        llvmpipe = ctx is None or ctx.is_llvmpipe
+        persp_defect = llvmpipe if sample_persp_defect is None else sample_persp_defect
         return replace(base, waived_outputs=waived, compensated=self.compensated,
-                       persp_from_screen=self.persp_from_screen)
+                       persp_from_screen=self.persp_from_screen,
+                       center_one_over_w=bool(persp_defect) and not self.persp_from_screen)
 
 
 def _homogeneous_setup(fp64: bool):
@@ -105,16 +118,19 @@ def _solve4_uniforms(height, width):
 HW_GL33 = Method("hw", "the driver's smooth / noperspective interpolation (GL 3.3 path: "
                        "vertex attributes)",
                  "raster33/raster.vert", "raster33/raster.frag", remaps_ids=False,
-                 clip_defect_outputs=("screen",), min_gl=33, needs="", vertex_input=True)
+                 clip_defect_outputs=("screen",), min_gl=33, needs="", vertex_input=True,
+                 interpolations=INTERPOLATIONS)
 
 METHODS: dict[str, Method] = {m.name: m for m in (
     Method("hw", "the driver's smooth / noperspective interpolation",
            "raster/raster.vert", "raster/raster.frag",
-           remaps_ids=False, clip_defect_outputs=("screen",), fallback=HW_GL33),
+           remaps_ids=False, clip_defect_outputs=("screen",), fallback=HW_GL33,
+           interpolations=INTERPOLATIONS),
     Method("divw", "noperspective barycentrics divided by per-vertex w in the shader "
                    "(seed 002 eq. 2.4.9)",
            "raster/pull.vert", "methods/divw.frag", varies_screen=True,
-           persp_from_screen=True, clip_defect_outputs=("screen", "persp")),
+           persp_from_screen=True, clip_defect_outputs=("screen", "persp"),
+           interpolations=INTERPOLATIONS),
     Method("homogeneous", "2D homogeneous edge functions per pixel, relative to a vertex, "
                           "compensated float32",
            "raster/pull.vert", "methods/homogeneous.frag", setup=_homogeneous_setup(False),
@@ -165,6 +181,7 @@ def available(ctx) -> dict[str, Method | None]:
     return out
 
 
-def error_model(method: str, ctx=None, clip_defect: bool | None = None) -> ErrorModel:
+def error_model(method: str, ctx=None, clip_defect: bool | None = None,
+                sample_persp_defect: bool | None = None) -> ErrorModel:
     """:meth:`Method.error_model` of the method called ``method``."""
-    return get(method).error_model(ctx, clip_defect)
+    return get(method).error_model(ctx, clip_defect, sample_persp_defect)

@@ -31,7 +31,12 @@ from msgspec import UNSET, Meta, UnsetType
 
 OUTPUT_NAMES = ("persp", "screen", "depth", "tri_id")
 METHOD_NAMES = ("hw", "divw", "homogeneous", "homogeneous64", "solve4")
-OPTION_FIELDS = ("outputs", "method", "reference", "compare", "cull_backfaces", "crop")
+INTERPOLATION_NAMES = ("center", "centroid", "sample")
+OPTION_FIELDS = ("outputs", "method", "reference", "compare", "cull_backfaces", "crop",
+                 "samples", "interpolation")
+# The largest sample count a request may name; whether the driver offers it is
+# glraster.rasterize's to say (422 naming samples).
+MAX_SAMPLES = 64
 ARRAY_FIELDS = ("pos", "tri", "resolution")
 CHECK_FIELDS = ("scenes", "method", "golden", "mutants", "shard")
 
@@ -64,6 +69,7 @@ CHECK_RULES = (
 
 Output = Literal["persp", "screen", "depth", "tri_id"]
 Method = Literal["hw", "divw", "homogeneous", "homogeneous64", "solve4"]
+Interpolation = Literal["center", "centroid", "sample"]
 QueryBool = Literal["true", "false"]
 
 _OUTPUT_LIST = "(persp|screen|depth|tri_id)(,(persp|screen|depth|tri_id))*"
@@ -87,6 +93,11 @@ _OPTION_DOCS = {
                "'comparison' and the X-Glraster-Comparison header.",
     "cull_backfaces": "Drop clockwise triangles (GPU only).",
     "crop": "EXR: store only the covered pixels' bounding box (lossless).",
+    "samples": "Samples per pixel: 1 or a count the driver offers (README, Multisampling); "
+               "per-sample arrays have a sample axis after W and the .npz holds "
+               "sample_positions. No EXR form (406).",
+    "interpolation": "Where multisampled barycentrics are evaluated: the pixel centre, a "
+                     "centroid or every sample (GLSL's qualifiers).",
 }
 
 
@@ -106,12 +117,16 @@ class Models:
                              f"{limits.max_triangles}.", max_length=limits.max_triangles)]
         resolution = Annotated[list[side], _doc("(height, width) in pixels.", min_length=2,
                                                 max_length=2)]
+        samples = Annotated[int, _doc(_OPTION_DOCS["samples"], 1, ge=1, le=MAX_SAMPLES)]
+        interpolation = Annotated[Interpolation, _doc(_OPTION_DOCS["interpolation"], "center")]
         body_options = {
             "outputs": Annotated[list[Output], _doc(_OPTION_DOCS["outputs"],
                                                     list(OUTPUT_NAMES), min_length=1)],
             "method": Annotated[Method, _doc(_OPTION_DOCS["method"], "hw")],
             **{n: Annotated[bool, _doc(_OPTION_DOCS[n], False)]
                for n in ("reference", "compare", "cull_backfaces", "crop")},
+            "samples": samples,
+            "interpolation": interpolation,
         }
         self.RasterizeBody = msgspec.defstruct(
             "Scene",
@@ -139,6 +154,8 @@ class Models:
             "method": Annotated[Method, _doc(_OPTION_DOCS["method"], "hw")],
             **{n: Annotated[QueryBool, _doc(_OPTION_DOCS[n], "false")]
                for n in ("reference", "compare", "cull_backfaces", "crop")},
+            "samples": samples,
+            "interpolation": interpolation,
         }
         self.RasterizeQuery = msgspec.defstruct(
             "RasterizeQuery",

@@ -20,7 +20,9 @@ Options: ``outputs`` (subset of persp, screen, depth, tri_id; default all), ``me
 (hw, divw, homogeneous, homogeneous64, solve4), ``reference`` (return the float64
 reference instead of the GPU raster), ``compare`` (compare the GPU raster with the reference
 under the method's error model), ``cull_backfaces``, ``crop`` (EXR: store only the covered
-pixels' bounding box).
+pixels' bounding box), ``samples`` (per pixel, 1 or a count the driver offers) and
+``interpolation`` (center, centroid, sample): multisampled results carry per-sample arrays
+(a sample axis after W) and ``sample_positions`` in the .npz, and have no EXR form.
 
 Results by ``Accept``: ``application/json`` (statistics, the comparison), ``application/x-npz``
 (the arrays, bit for bit as :func:`glraster.rasterize` returns them, plus ``mask``),
@@ -129,6 +131,8 @@ class RasterizeRequest:
     compare: bool = False
     cull_backfaces: bool = False
     crop: bool = False
+    samples: int = 1
+    interpolation: str = "center"
 
 
 def _options(body_options: dict, query_options: dict) -> dict:
@@ -378,6 +382,8 @@ def encode_npz(raster, outputs, extra: dict | None = None, into=None):
     archive's bytes."""
     arrays = {n: getattr(raster, n) for n in outputs if getattr(raster, n) is not None}
     arrays["mask"] = raster.mask
+    if getattr(raster, "samples", 1) > 1:
+        arrays["sample_positions"] = raster.sample_positions
     for key, value in (extra or {}).items():
         arrays[key] = np.array(json.dumps(_jsonable(value)))
     size = npz_nbytes(arrays)

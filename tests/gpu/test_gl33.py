@@ -209,6 +209,8 @@ def test_each_patch_applies_once_to_the_gl33_shaders_keeping_lines(m, ctx33):
 def test_every_mutant_is_caught_on_the_gl33_path(ctx33):
     names = ("tiny_viewport", "basic_triangle", "quad_shared_diagonal", "pixel_center_edges",
              "depth_interpenetrating")
+    if 4 in ctx33.sample_counts:     # the multisampling mutants need a multisample scene
+        names += ("ms_perspective_sample", "ms_perspective_centroid")
     scenes = [load_scene(n) for n in names]
     refs = {n: golden.reference_for(s) for n, s in zip(names, scenes)}
     results, control_failures = check.run_mutants(ctx33, scenes, refs)
