@@ -7,7 +7,7 @@ import numbers
 
 import numpy as np
 
-from glraster.types import OUTPUTS
+from glraster.types import INTERPOLATIONS, OUTPUTS
 
 
 def positions(pos) -> np.ndarray:
@@ -137,3 +137,35 @@ def intrinsics(K) -> np.ndarray:
     if K[0, 0] <= 0.0 or K[1, 1] <= 0.0:
         raise ValueError(f"K must have fx > 0 and fy > 0, got fx={K[0, 0]}, fy={K[1, 1]}")
     return K
+
+
+def samples(value, offered: tuple | None = None, where: str = "") -> int:
+    """``samples`` as a python int: a power of two >= 1, one of ``offered`` when given (the
+    counts a driver offers, e.g. ``Context.sample_counts``; ``where`` names it)."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1 \
+            or value & (value - 1):
+        raise ValueError(f"samples must be a power of two >= 1 (1, 2, 4, 8, ...), got {value!r}")
+    value = int(value)
+    if offered is not None and value not in offered:
+        raise ValueError(f"samples={value} is not offered{where}: choose one of "
+                         f"{tuple(offered)}")
+    return value
+
+
+def interpolation(value) -> str:
+    """``interpolation`` as one of :data:`glraster.types.INTERPOLATIONS`."""
+    if not isinstance(value, str) or value not in INTERPOLATIONS:
+        raise ValueError(f"interpolation must be one of {INTERPOLATIONS}, got {value!r}")
+    return value
+
+
+def sample_positions(value, count: int) -> np.ndarray:
+    """``value`` as (count, 2) float64 offsets inside the pixel, each in [0, 1)."""
+    array = np.asarray(value, dtype=np.float64) if value is not None else None
+    if array is None or array.shape != (count, 2):
+        raise ValueError(f"sample_positions must have shape ({count}, 2) (samples, (x, y)), "
+                         f"got {None if array is None else array.shape}")
+    if not (np.isfinite(array).all() and (array >= 0).all() and (array < 1).all()):
+        raise ValueError("sample_positions must be offsets inside the pixel, each coordinate "
+                         f"in [0, 1), got {array.tolist()}")
+    return array

@@ -8,6 +8,7 @@ the number of calls.
 
 from __future__ import annotations
 
+import ctypes
 import os
 import re
 import threading
@@ -31,6 +32,14 @@ FRAMEBUFFER_CACHE_SIZE = 4
 STORAGE_GL = 43
 GLSL450_GL = 45
 
+# glGetIntegerv / glGetMultisamplefv enums (GL 4.5 core, tables 23.x)
+GL_SAMPLES = 0x80A9
+GL_SAMPLE_POSITION = 0x8E50
+# the limits a multisample render target must respect, all of them (GL 4.5 section 9.2.4,
+# 8.8: a texture of an integer format takes at most MAX_INTEGER_SAMPLES)
+SAMPLE_LIMITS = ("GL_MAX_SAMPLES", "GL_MAX_COLOR_TEXTURE_SAMPLES",
+                 "GL_MAX_DEPTH_TEXTURE_SAMPLES", "GL_MAX_INTEGER_SAMPLES")
+
 
 def parse_gl_version(value, what: str = "max_gl") -> int:
     """33, 330, "3.3" or "33" -> 33 (major * 10 + minor); ValueError naming ``what``."""
@@ -53,12 +62,16 @@ class Targets:
 
     ``color`` maps output name ("persp", "screen", "tri_id") to its color attachment
     index; ``depth`` is the DEPTH_COMPONENT32F attachment (texture or renderbuffer).
+    ``samples`` > 1: multisample textures (depth too), ``sample_positions`` (S, 2) float64
+    as the driver reports them for this framebuffer (GL_SAMPLE_POSITION, pixel units).
     """
 
     fbo: object
     color: dict
     attachments: list
     depth: object
+    samples: int = 1
+    sample_positions: np.ndarray | None = None
 
     def release(self):
         self.fbo.release()
@@ -110,6 +123,8 @@ class Context:
         self._framebuffers: OrderedDict = OrderedDict()
         self._buffers: dict = {}
         self._attribute_arrays: dict = {}  # (program glo, name) -> (buffers..., vao)
+        self._gl_functions: dict = {}
+        self._sample_counts: tuple | None = None
         with self:
             info = self.mgl.info
             self.renderer = info["GL_RENDERER"]
@@ -128,6 +143,8 @@ class Context:
                 if self.gl_version_number >= STORAGE_GL else 0
             self.mgl.enable(self.mgl.DEPTH_TEST)
             self.mgl.depth_func = "<"
+            limits = [int(info.get(name, 0) or 0) for name in SAMPLE_LIMITS]
+            self.max_samples = max(1, min(limits))
 
     def require_gl(self, needed: int, feature: str, why: str = "") -> None:
         """Raise :class:`GLVersionError` (a ValueError) naming ``feature``, the version this
@@ -143,6 +160,41 @@ class Context:
         raise GLVersionError(
             f"{feature} needs OpenGL {version_text(needed)}{f' ({why})' if why else ''}; "
             f"{offered}", feature, self.gl_version_number, needed)
+
+    def gl_function(self, name: str, restype, *argtypes):
+        """The OpenGL entry point ``name`` as a ctypes function (cached), for the few calls
+        moderngl does not wrap (glGetMultisamplefv). Call it inside ``with ctx:``."""
+        function = self._gl_functions.get(name)
+        if function is None:
+            address = self._backend._loader.load_opengl_function(name)
+            if not address:
+                raise GLVersionError(f"{name} is missing from the driver ({self.renderer})",
+                                     name, self.gl_version_number, self.gl_version_number)
+            function = ctypes.CFUNCTYPE(restype, *argtypes)(address)
+            self._gl_functions[name] = function
+        return function
+
+    @property
+    def sample_counts(self) -> tuple[int, ...]:
+        """The sample counts glraster can render with here: 1, and each power of two up to
+        :attr:`max_samples` for which a framebuffer of float, integer and depth multisample
+        textures really has that many samples (GL_SAMPLES; a driver may round a request
+        up: llvmpipe offers 4 but not 2). Measured once."""
+        if self._sample_counts is None:
+            counts = [1]
+            k = 2
+            while k <= self.max_samples:
+                with self:
+                    targets = self._new_targets((1, 1), {"f": (3, "f4"), "i": (1, "i4")},
+                                                True, k)
+                    if targets.samples == k:
+                        counts.append(k)
+                    # (framebuffer 0 first: see release_targets)
+                    self.mgl.detect_framebuffer(0).use()
+                    targets.release()
+                k *= 2
+            self._sample_counts = tuple(counts)
+        return self._sample_counts
 
     @property
     def is_llvmpipe(self) -> bool:
@@ -190,21 +242,24 @@ class Context:
             self._compute[key] = program
         return program
 
-    def targets(self, resolution: tuple[int, int], color_formats: dict, depth_texture: bool):
+    def targets(self, resolution: tuple[int, int], color_formats: dict, depth_texture: bool,
+                samples: int = 1):
         """Framebuffer of ``resolution`` (H, W) with one color attachment per entry of
         ``color_formats`` (name -> (components, dtype)) and a float32 depth attachment
-        (a texture when it is read back, else a renderbuffer). Least recently used first out.
+        (a texture when it is read back, else a renderbuffer; always a texture when
+        ``samples`` > 1, multisample textures then). Least recently used first out.
         """
-        key = (resolution, tuple(color_formats.items()), depth_texture)
+        key = (resolution, tuple(color_formats.items()), depth_texture, samples)
         targets = self._framebuffers.pop(key, None)
         if targets is None:
-            targets = self._new_targets(resolution, color_formats, depth_texture)
+            targets = self._new_targets(resolution, color_formats, depth_texture, samples)
             while len(self._framebuffers) >= FRAMEBUFFER_CACHE_SIZE:
                 self._framebuffers.popitem(last=False)[1].release()
         self._framebuffers[key] = targets
         return targets
 
-    def _new_targets(self, resolution, color_formats: dict, depth_texture: bool) -> Targets:
+    def _new_targets(self, resolution, color_formats: dict, depth_texture: bool,
+                     samples: int = 1) -> Targets:
         """Allocate the framebuffer of :meth:`targets`; a size the driver cannot allocate
         is a ValueError naming the resolution (nothing is left allocated)."""
         height, width = resolution
@@ -212,8 +267,11 @@ class Context:
         try:
             for name, (components, dtype) in color_formats.items():
                 color[name] = len(attachments)
-                attachments.append(self.mgl.texture((width, height), components, dtype=dtype))
-            if depth_texture:
+                attachments.append(self.mgl.texture((width, height), components, dtype=dtype,
+                                                    samples=samples if samples > 1 else 0))
+            if samples > 1:
+                depth = self.mgl.depth_texture((width, height), samples=samples)
+            elif depth_texture:
                 depth = self.mgl.depth_texture((width, height))
             else:
                 depth = self.mgl.depth_renderbuffer((width, height))
@@ -231,7 +289,27 @@ class Context:
                 f"{biggest * height * width / 2**30:.2f} GiB or more; llvmpipe refuses a texture "
                 "over 1.5 GiB (a 10032x10032 RGBA32F one is its largest square). Request "
                 "fewer outputs or a smaller resolution.") from None
-        return Targets(fbo, color, attachments, depth)
+        targets = Targets(fbo, color, attachments, depth)
+        if samples > 1:
+            targets.samples, targets.sample_positions = self._query_samples(fbo)
+        return targets
+
+    def _query_samples(self, fbo) -> tuple[int, np.ndarray]:
+        """(GL_SAMPLES, (S, 2) GL_SAMPLE_POSITION of each sample) of a multisample
+        framebuffer, as the driver reports them (GL 4.5 section 14.3.1.1)."""
+        get_integer = self.gl_function("glGetIntegerv", None, ctypes.c_uint,
+                                       ctypes.POINTER(ctypes.c_int))
+        get_position = self.gl_function("glGetMultisamplefv", None, ctypes.c_uint,
+                                        ctypes.c_uint, ctypes.POINTER(ctypes.c_float))
+        fbo.use()
+        count = ctypes.c_int(0)
+        get_integer(GL_SAMPLES, ctypes.byref(count))
+        positions = np.zeros((count.value, 2), np.float64)
+        value = (ctypes.c_float * 2)()
+        for k in range(count.value):
+            get_position(GL_SAMPLE_POSITION, k, value)
+            positions[k] = value[0], value[1]
+        return count.value, positions
 
     def storage_buffer(self, name: str, data):
         """A buffer holding ``data`` (a C-contiguous array), reused between calls; grows by

@@ -21,6 +21,7 @@ from typing import Callable
 
 
 from glraster.errors import GLVersionError
+from glraster.types import INTERPOLATIONS
 from glraster.gpu import homogeneous as _homogeneous
 from glraster.verify.tolerance import ErrorModel
 
@@ -51,6 +52,10 @@ class Method:
                       vertex buffer (:class:`pipeline.Draw`), not from storage buffers
     fallback        : the variant used on contexts below ``min_gl`` (None: the method
                       is unavailable there)
+    interpolations  : the ``interpolation`` modes the method offers when multisampling
+                      (the ones that read the driver's varyings take the GLSL ``centroid``
+                      and ``sample`` qualifiers; those computing from gl_FragCoord evaluate
+                      at the pixel center only)
     """
 
     name: str
@@ -71,6 +76,7 @@ class Method:
     needs: str = "shader storage buffers, GLSL 4.50"
     vertex_input: bool = False
     fallback: Method | None = None
+    interpolations: tuple[str, ...] = ("center",)
 
     def error_model(self, ctx=None, clip_defect: bool | None = None) -> ErrorModel:
         """The per-pixel error model for this method on a context (None: llvmpipe).
@@ -105,16 +111,19 @@ def _solve4_uniforms(height, width):
 HW_GL33 = Method("hw", "the driver's smooth / noperspective interpolation (GL 3.3 path: "
                        "vertex attributes)",
                  "raster33/raster.vert", "raster33/raster.frag", remaps_ids=False,
-                 clip_defect_outputs=("screen",), min_gl=33, needs="", vertex_input=True)
+                 clip_defect_outputs=("screen",), min_gl=33, needs="", vertex_input=True,
+                 interpolations=INTERPOLATIONS)
 
 METHODS: dict[str, Method] = {m.name: m for m in (
     Method("hw", "the driver's smooth / noperspective interpolation",
            "raster/raster.vert", "raster/raster.frag",
-           remaps_ids=False, clip_defect_outputs=("screen",), fallback=HW_GL33),
+           remaps_ids=False, clip_defect_outputs=("screen",), fallback=HW_GL33,
+           interpolations=INTERPOLATIONS),
     Method("divw", "noperspective barycentrics divided by per-vertex w in the shader "
                    "(seed 002 eq. 2.4.9)",
            "raster/pull.vert", "methods/divw.frag", varies_screen=True,
-           persp_from_screen=True, clip_defect_outputs=("screen", "persp")),
+           persp_from_screen=True, clip_defect_outputs=("screen", "persp"),
+           interpolations=INTERPOLATIONS),
     Method("homogeneous", "2D homogeneous edge functions per pixel, relative to a vertex, "
                           "compensated float32",
            "raster/pull.vert", "methods/homogeneous.frag", setup=_homogeneous_setup(False),

@@ -10,20 +10,31 @@ corner k % 3 of triangle k / 3, and the shaders get its clip position in one of 
   into a vertex buffer of 3 T positions, the attribute ``a_position``, beside the vertex
   numbers k (``a_vertex``; see :meth:`Context.attribute_array`).
 
+Multisampling (``Draw.samples`` S > 1): the targets are multisample textures, depth too,
+and every sample is read back exactly by a resolve pass (``raster/resolve.frag``: one
+``texelFetch`` per sample into a single-sample target S times as wide), never by the
+driver's averaging blit; each target then reads back with a sample axis after W.
+
 :func:`glraster.rasterize`, the fault-injection mutants and the differentiable ops all
 draw through it.
 """
 
 from __future__ import annotations
 
+import ctypes
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from glraster.errors import GLError
+from glraster.gpu.shaders import shader_path
 
 # moderngl dtype name -> NumPy dtype of a read-back target
 NUMPY_DTYPES = {"f4": np.float32, "f2": np.float16, "i4": np.int32, "u4": np.uint32}
+# moderngl dtype -> (multisample sampler, vector type) of the resolve pass
+RESOLVE_TYPES = {"f4": ("sampler2DMS", "vec4"), "f2": ("sampler2DMS", "vec4"),
+                 "i4": ("isampler2DMS", "ivec4"), "u4": ("usampler2DMS", "uvec4")}
+GL_MULTISAMPLE = 0x809D
 
 
 @dataclass
@@ -44,6 +55,11 @@ class Draw:
     vertex_input : positions as the vertex attribute ``a_position`` of a de-indexed vertex
                    buffer (GL 3.3 shaders, e.g. ``raster33/``) instead of storage buffers;
                    ``per_triangle`` must then be empty
+    samples      : samples per pixel (1: single-sample targets, today's path); > 1 needs a
+                   count the context offers (``Context.sample_counts``)
+    multisample  : False disables GL_MULTISAMPLE: each fragment then covers all samples
+                   of a pixel whose center it covers (GL 4.5 section 14.3.1; a mutant)
+    depth_clear, depth_func : the depth buffer's clear value and the test ("<": LESS)
     """
 
     program: object
@@ -56,6 +72,10 @@ class Draw:
     depth_test: bool = True
     textures: dict = field(default_factory=dict)
     vertex_input: bool = False
+    samples: int = 1
+    multisample: bool = True
+    depth_clear: float = 1.0
+    depth_func: str = "<"
 
 
 # Triangles per draw on the vertex-attribute path: bounds the host's de-indexed copy of
@@ -69,6 +89,9 @@ def draw(ctx, spec: Draw, pos: np.ndarray, tri: np.ndarray, resolution, *,
 
     Returns target name -> array read back: (H, W, C) for C > 1 components, else (H, W),
     of the target's NumPy dtype, plus "depth" (H, W) float32 when ``spec.read_depth``.
+    With ``spec.samples`` S > 1 every array has a sample axis after W ((H, W, S, C) or
+    (H, W, S)) and "sample_positions" (S, 2) float64 holds the positions the driver
+    reports for the framebuffer (GL_SAMPLE_POSITION, pixel units, y up).
     Arrays given in ``out`` (same names, shapes and dtypes) are filled instead of new ones.
     Raises :class:`GLError` if the driver reports an error.
     """
@@ -80,14 +103,21 @@ def draw(ctx, spec: Draw, pos: np.ndarray, tri: np.ndarray, resolution, *,
         program = spec.program
         for name, value in spec.uniforms.items():
             program[name].value = value
-        targets = ctx.targets((height, width), spec.colors, depth_texture=spec.read_depth)
+        targets = ctx.targets((height, width), spec.colors, depth_texture=spec.read_depth,
+                              samples=spec.samples)
         targets.fbo.use()
-        targets.fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        targets.fbo.clear(0.0, 0.0, 0.0, 0.0, depth=spec.depth_clear)
         for unit, (name, texture) in enumerate(spec.textures.items()):
             texture.use(location=unit)
             program[name].value = unit
         if len(tri):
             _draw_batches(ctx, spec, pos, tri)
+        if spec.samples > 1:
+            values = _read_samples(ctx, spec, targets, (height, width))
+            error = mgl.error
+            if error != "GL_NO_ERROR":
+                raise GLError(error, during)
+            return values
         for name, (components, dtype) in spec.colors.items():
             shape = (height, width, components) if components > 1 else (height, width)
             array = out.get(name)
@@ -127,6 +157,10 @@ def _draw_batches(ctx, spec: Draw, pos, tri) -> None:
         mgl.enable(mgl.CULL_FACE)
     if not spec.depth_test:
         mgl.disable(mgl.DEPTH_TEST)
+    if spec.depth_func != "<":
+        mgl.depth_func = spec.depth_func
+    if not spec.multisample:
+        ctx.gl_function("glDisable", None, ctypes.c_uint)(GL_MULTISAMPLE)
     try:
         for number, base in enumerate(range(0, len(tri), batch)):
             # One buffer per batch: llvmpipe shades fragments when the binned draw is
@@ -151,6 +185,53 @@ def _draw_batches(ctx, spec: Draw, pos, tri) -> None:
             mgl.disable(mgl.CULL_FACE)
         if not spec.depth_test:
             mgl.enable(mgl.DEPTH_TEST)
+        if spec.depth_func != "<":
+            mgl.depth_func = "<"
+        if not spec.multisample:
+            ctx.gl_function("glEnable", None, ctypes.c_uint)(GL_MULTISAMPLE)
+
+
+def _read_samples(ctx, spec: Draw, targets, resolution) -> dict:
+    """Every sample of the multisample ``targets``, exactly: the resolve pass copies
+    sample s of pixel (x, y) to (S x + s, y) of single-sample targets (color formats
+    unchanged, depth as R32F), read back as (H, W, S, C) / (H, W, S) arrays."""
+    height, width = resolution
+    samples = targets.samples
+    if width * samples > ctx.max_texture_size:
+        raise ValueError(
+            f"resolution {height}x{width} with samples={samples}: the exact readback needs "
+            f"a target {width * samples} wide, above the driver's limit of "
+            f"{ctx.max_texture_size}; use a width up to {ctx.max_texture_size // samples}")
+    mgl = ctx.mgl
+    sources = {name: (fmt, targets.attachments[targets.color[name]])
+               for name, fmt in spec.colors.items()}
+    if spec.read_depth:
+        sources["depth"] = ((1, "f4"), targets.depth)
+    formats = {name: fmt for name, (fmt, _) in sources.items()}
+    defines = {"SAMPLES": samples}
+    for slot, (components, dtype) in enumerate(formats.values()):
+        defines[f"SLOT{slot}_SAMPLER"], defines[f"SLOT{slot}_VEC"] = RESOLVE_TYPES[dtype]
+    program, vao = ctx.program(shader_path("raster/resolve.vert"),
+                               shader_path("raster/resolve.frag"), defines)
+    resolved = ctx.targets((height, width * samples), formats, depth_texture=False)
+    resolved.fbo.use()
+    for slot, (_, texture) in enumerate(sources.values()):
+        texture.use(location=slot)
+        program[f"u_in{slot}"].value = slot
+    mgl.disable(mgl.DEPTH_TEST)
+    try:
+        vao.render(mgl.TRIANGLES, vertices=3)
+    finally:
+        mgl.enable(mgl.DEPTH_TEST)
+    values = {}
+    for name, (components, dtype) in formats.items():
+        shape = (height, width, samples) + ((components,) if components > 1 else ())
+        array = np.empty(shape, NUMPY_DTYPES[dtype])
+        resolved.fbo.read_into(array, components=components,
+                               attachment=resolved.color[name], dtype=dtype)
+        values[name] = array
+    values["sample_positions"] = targets.sample_positions.copy()
+    return values
 
 
 def output_defines(colors: dict) -> dict:
@@ -183,4 +264,4 @@ def coverage(values: dict) -> np.ndarray:
     if "depth" in values:
         return values["depth"] < 1.0
     bary = values.get("persp", values.get("screen"))
-    return bary.sum(axis=2) > 0.5
+    return bary.sum(axis=-1) > 0.5

@@ -22,7 +22,7 @@ from glraster.gpu.methods import (  # noqa: F401 (public)
     get,
 )
 from glraster.gpu.shaders import shader_path
-from glraster.types import OUTPUTS, Raster
+from glraster.types import OUTPUTS, Raster, first_covered_sample, per_pixel
 
 # Below this many triangles host-side culling saves less than it costs (a few numpy calls,
 # ~0.1 ms); the driver drops such triangles itself, with the same result.
@@ -108,6 +108,8 @@ def rasterize(
     cull: bool | str = "auto",
     affine: bool | None = None,
     out: Raster | None = None,
+    samples: int = 1,
+    interpolation: str = "center",
 ) -> Raster:
     """Rasterize triangles on the GPU and read back barycentric targets.
 
@@ -146,7 +148,21 @@ def rasterize(
     out : Raster, optional
         A raster of the same resolution holding arrays for the requested outputs and the
         mask (e.g. an earlier result): they are filled in place, no new frame-sized
-        arrays are allocated. The returned Raster shares them.
+        arrays are allocated. The returned Raster shares them. Only with ``samples=1``.
+    samples : int
+        Samples per pixel: 1 (single-sample rendering, the pixel center) or a count the
+        driver offers (``ctx.sample_counts``, powers of two up to GL_MAX_SAMPLES;
+        llvmpipe: 1 and 4). With S > 1 ``tri_id``, ``depth`` and ``mask`` are per sample,
+        (H, W, S); ``sample_positions`` (S, 2) are the driver's (docs/multisampling.md).
+    interpolation : {"center", "centroid", "sample"}
+        Where barycentrics are evaluated when S > 1: at the pixel center, at a point
+        inside both the pixel and the triangle (GLSL ``centroid``), or at every sample
+        (GLSL ``sample``: per-sample shading, ``persp`` / ``screen`` (H, W, S, 3)). With
+        "center" / "centroid" ``persp`` / ``screen`` are (H, W, 3): the fragment of the
+        pixel's lowest-numbered covered sample (:func:`glraster.types.first_covered_sample`).
+        Methods "hw" and "divw" offer all three; "homogeneous", "homogeneous64" and
+        "solve4" compute at gl_FragCoord and offer "center" only. With S = 1 every mode
+        is the pixel center.
 
     Returns
     -------
@@ -157,6 +173,11 @@ def rasterize(
     """
     names = validate.outputs(outputs)
     m = get(method)
+    samples = validate.samples(samples)
+    interpolation = validate.interpolation(interpolation)
+    if samples > 1 and out is not None:
+        raise ValueError("out is only supported with samples=1 (multisampled arrays have "
+                         "a sample axis)")
     if shader_files is not None and method != "hw":
         raise ValueError(f"shader_files replaces the 'hw' shaders; got method {method!r}")
     if affine not in (None, False):
@@ -165,6 +186,8 @@ def rasterize(
         raise ValueError(f"cull must be True, False or 'auto', got {cull!r}")
     ctx = ctx if ctx is not None else default_context()
     m = for_context(m, ctx)  # hw below GL 4.5: the vertex-attribute variant
+    if samples > 1:
+        _check_multisampling(ctx, m, samples, interpolation)
     pos = validate.positions(pos)
     tri = validate.triangles(tri, len(pos))
     height, width = validate.resolution(resolution, ctx.max_texture_size)
@@ -210,6 +233,10 @@ def rasterize(
         defines["AFFINE"] = 1
     if m.varies_screen and needs_bary:
         defines["VARY_SCREEN"] = 1
+    if samples > 1 and interpolation != "center" and needs_bary:
+        defines["INTERPOLATION"] = interpolation
+        if m.vertex_input:
+            defines["AUX_QUALIFIERS"] = 1
 
     per_triangle = {}
     if m.setup is not None and needs_bary and len(tri):
@@ -222,7 +249,7 @@ def rasterize(
     spec = pipeline.Draw(
         program, vao, colors, read_depth="depth" in names, per_triangle=per_triangle,
         uniforms=m.uniforms(height, width) if m.uniforms and needs_bary else {},
-        cull_backfaces=cull_backfaces, vertex_input=m.vertex_input)
+        cull_backfaces=cull_backfaces, vertex_input=m.vertex_input, samples=samples)
 
     # caller arrays are filled directly where the target layout is the output's own
     targets_out = {n: fill[n] for n in colors if n in fill}
@@ -233,6 +260,7 @@ def rasterize(
     if "depth" in fill:
         targets_out["depth"] = fill["depth"]
     values = pipeline.draw(ctx, spec, pos, tri, (height, width), out=targets_out)
+    positions = values.pop("sample_positions", None)
 
     if m.value_dtype == "f8":
         values = _join_float64(values, fill)
@@ -250,7 +278,47 @@ def rasterize(
     if "mask" in fill:
         np.copyto(fill["mask"], mask)
         mask = fill["mask"]
+    if samples > 1:
+        return multisampled(values, mask, positions, interpolation, (height, width), info)
     return Raster(resolution=(height, width), mask=mask, info=info, **values)
+
+
+def multisampled(values: dict, mask, positions, interpolation: str, resolution,
+                 info: dict) -> Raster:
+    """The :class:`Raster` of a multisampled draw from its per-sample arrays ``values``
+    (tri_id / depth (H, W, S), persp / screen (H, W, S, 3)), ``mask`` (H, W, S) and the
+    driver's ``positions`` (S, 2): "center" / "centroid" keep one barycentric value per
+    pixel, that of the lowest-numbered covered sample's fragment."""
+    if interpolation != "sample":
+        first = first_covered_sample(mask)
+        for name in ("persp", "screen"):
+            if name in values:
+                values[name] = per_pixel(values[name], first)
+    return Raster(resolution=resolution, mask=mask, info=info, samples=len(positions),
+                  interpolation=interpolation, sample_positions=positions, **values)
+
+
+def _check_multisampling(ctx, m: Method, samples: int, interpolation: str) -> None:
+    """ValueError naming what is missing when ``ctx`` cannot draw method ``m`` with
+    ``samples`` per pixel and ``interpolation``."""
+    offered = ctx.sample_counts
+    if samples not in offered:
+        raise ValueError(
+            f"samples={samples} is not offered by this driver ({ctx.renderer}): choose one "
+            f"of {offered} (GL_MAX_SAMPLES and the integer / depth texture limits: "
+            f"{ctx.max_samples})")
+    if interpolation not in m.interpolations:
+        raise ValueError(
+            f"method {m.name!r} computes barycentrics at gl_FragCoord (the pixel center) and "
+            f"offers interpolation {m.interpolations}, got {interpolation!r}; use method "
+            f"'hw' or 'divw'")
+    if m.vertex_input and interpolation != "center":
+        missing = [e for e in ("GL_ARB_shading_language_420pack", "GL_ARB_gpu_shader5")
+                   if e not in ctx.mgl.extensions]
+        if missing:
+            raise ValueError(
+                f"interpolation={interpolation!r} on the OpenGL 3.3 path needs "
+                f"{' and '.join(missing)}, which this driver ({ctx.renderer}) lacks")
 
 
 def _copy_into(dest: np.ndarray, src: np.ndarray) -> np.ndarray:
@@ -267,7 +335,7 @@ def _join_float64(values: dict, fill: dict) -> dict:
             continue
         dest = fill.get(name)
         if dest is None:
-            dest = np.empty(values[name + ".b0"].shape[:2] + (3,), np.float64)
+            dest = np.empty(values[name + ".b0"].shape[:-1] + (3,), np.float64)
         for k in range(3):
             dest[..., k:k + 1] = _doubles(values[f"{name}.b{k}"])
         joined[name] = dest

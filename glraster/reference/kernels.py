@@ -42,7 +42,7 @@ EXTRAPOLATION_SLACK = 1e-6
 
 @_parallel
 def depth_test(span_tri, span_y, span_x0, span_x1, depth_plane, screen_planes, depth_error,
-               width, best_depth, best_tri, best_error, others_low, bands):
+               width, best_depth, best_tri, best_error, others_low, bands, ox=0.5, oy=0.5):
     """Depth-test the fragments of spans: S spans, fragments (x, span_y[s]) of triangle
     span_tri[s] for span_x0[s] <= x <= span_x1[s] (int64 arrays, pixel units).
 
@@ -53,6 +53,8 @@ def depth_test(span_tri, span_y, span_x0, span_x1, depth_plane, screen_planes, d
                              pixel covered outside the float triangle, some lambda_k < 0)
     bands                    the rows are split into this many bands, one per thread, so
                              that no two threads touch the same pixel
+    ox, oy                   the sample's position inside the pixel (pixel units; the
+                             center 0.5, 0.5): pixel (x, y) is sampled at (x + ox, y + oy)
     """
     height = best_depth.shape[0] // width
     for band in numba.prange(bands):
@@ -63,7 +65,7 @@ def depth_test(span_tri, span_y, span_x0, span_x1, depth_plane, screen_planes, d
                 continue
             t = span_tri[i]
             a, b, c = depth_plane[t, 0], depth_plane[t, 1], depth_plane[t, 2]
-            cy = py + 0.5
+            cy = py + oy
             row = py * width
             # The part of the span inside the float triangle: lambda_k(p) = A p_x + B >=
             # -slack for every k, an interval of p_x (lambda is linear along the row).
@@ -79,7 +81,7 @@ def depth_test(span_tri, span_y, span_x0, span_x1, depth_plane, screen_planes, d
                 elif not offset >= 0:                   # also NaN: never inside
                     inside_hi = -np.inf
             for px in range(span_x0[i], span_x1[i] + 1):
-                cx = px + 0.5
+                cx = px + ox
                 depth = a * cx + b * cy + c              # (a p_x + b p_y) + c
                 # GL stores float32 depth and tests LESS against the cleared 1.0 (NaN fails)
                 if not np.float32(depth) < np.float32(1.0):
@@ -153,7 +155,8 @@ def _grown(array, size):
 
 
 @_compiled
-def float_spans(tris, adj, det, depth_plane, bbox, cover, mark_band, band_px, width, band):
+def float_spans(tris, adj, det, depth_plane, bbox, cover, mark_band, band_px, width, band,
+                ox=0.5, oy=0.5):
     """Test every pixel center of the bounding boxes of ``tris`` in float64: the covered
     pixels as spans, and the edge band.
 
@@ -164,6 +167,8 @@ def float_spans(tris, adj, det, depth_plane, bbox, cover, mark_band, band_px, wi
     - mark_band[t]: set band[p] (N,) bool at the centers p with ((s_0 + s_1) + s_2) > 0
       that lie within ``band_px`` of an edge or of the near/far line and on no edge's
       far side by more than that; s_k |det| / |(A_k, B_k)| is the signed distance to edge k.
+    Pixel (x, y) is tested at (x + ox, y + oy): the center by default, a sample position
+    when multisampling.
     Returns (span_tri, span_y, span_x0, span_x1) as :func:`fixed_point_spans`.
     """
     # a convex region has one span per row, but rounding may split one: grow as needed
@@ -182,12 +187,12 @@ def float_spans(tris, adj, det, depth_plane, bbox, cover, mark_band, band_px, wi
             grad[k] = math.hypot(adj[t, k, 0], adj[t, k, 1])
         zgrad = 2 * math.hypot(depth_plane[t, 0], depth_plane[t, 1])
         for py in range(bbox[t, 2], bbox[t, 3] + 1):
-            cy = py + 0.5
+            cy = py + oy
             run = -1                                     # first px of the open span
             for px in range(bbox[t, 0], bbox[t, 1] + 2):
                 inside = False
                 if px <= bbox[t, 1]:
-                    cx = px + 0.5
+                    cx = px + ox
                     for k in range(3):
                         s[k] = (adj[t, k, 0] * cx + adj[t, k, 1] * cy + adj[t, k, 2]) / det[t]
                     total = s[0] + s[1] + s[2]
@@ -223,14 +228,15 @@ def float_spans(tris, adj, det, depth_plane, bbox, cover, mark_band, band_px, wi
 
 
 @_parallel
-def values(best_tri, width, adj, det, w, z, persp, screen, depth):
+def values(best_tri, width, adj, det, w, z, persp, screen, depth, ox=0.5, oy=0.5):
     """The outputs at every covered pixel from its winning triangle, in float64.
 
     best_tri (N,) int64; adj (T, 3, 3) edge rows [A, B, C]; det (T,); w, z (T, 3) clip
     w and z per vertex. Fills persp (N, 3), screen (N, 3) and depth (N,) where they are
     not empty (an output that was not requested is passed with length 0):
 
-        s_k    = ((A_k p_x + B_k p_y) + C_k) / det      p = the pixel center
+        s_k    = ((A_k p_x + B_k p_y) + C_k) / det      p = (x + ox, y + oy), by
+                                                        default the pixel center
         persp  = s_k / ((s_0 + s_1) + s_2)
         screen = s_k w_k
         depth  = ((s_0 z_0 + s_1 z_1) + s_2 z_2) / 2 + 1/2
@@ -242,8 +248,8 @@ def values(best_tri, width, adj, det, w, z, persp, screen, depth):
         t = best_tri[p]
         if t < 0:
             continue
-        cx = p % width + 0.5
-        cy = p // width + 0.5
+        cx = p % width + ox
+        cy = p // width + oy
         s0 = (adj[t, 0, 0] * cx + adj[t, 0, 1] * cy + adj[t, 0, 2]) / det[t]
         s1 = (adj[t, 1, 0] * cx + adj[t, 1, 1] * cy + adj[t, 1, 2]) / det[t]
         s2 = (adj[t, 2, 0] * cx + adj[t, 2, 1] * cy + adj[t, 2, 2]) / det[t]

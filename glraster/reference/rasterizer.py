@@ -49,8 +49,9 @@ from glraster.geometry.fill_rule import (  # noqa: F401 (part of this API)
 )
 from glraster.geometry.triangles import TriangleGeometry
 from glraster.geometry.triangles import edge_functions, homogeneous_vertices
+from glraster.geometry.samples import fixed_offsets, standard_positions
 from glraster.geometry.window import window_float32
-from glraster.types import Raster
+from glraster.types import Raster, first_covered_sample, per_pixel
 from glraster.verify.tolerance import depth_error
 
 DEFAULT_EDGE_BAND_PX = 4.0 / FIXED_ONE
@@ -217,6 +218,9 @@ def rasterize(
     outputs=OUTPUTS,
     fill_rule: str | FillRule | None = "llvmpipe",
     edge_band_px: float | None = None,
+    samples: int = 1,
+    sample_positions=None,
+    interpolation: str = "center",
 ) -> ReferenceRaster:
     """Rasterize analytically in float64, with the same conventions as :func:`glraster.rasterize`.
 
@@ -234,11 +238,29 @@ def rasterize(
         Half-width, in pixels, of the band around edges where coverage is not judged.
         None: the rule's :attr:`~glraster.geometry.fill_rule.FillRule.edge_band_px`
         (4/256 px for llvmpipe's and without a rule, DEFAULT_EDGE_BAND_PX).
+    samples : int
+        Samples per pixel S. S > 1: every sample is rasterized like a pixel center, at
+        its position: the same fixed-point edge functions, offset by the sample's
+        position in fixed-point steps (exact where the offsets are whole steps, as
+        llvmpipe's 1/8 px ones are at 8 subpixel bits; else the float test and the edge
+        band), depth and the LESS test per sample; the arrays get a sample axis after W
+        as in :func:`glraster.rasterize`.
+    sample_positions : (S, 2) array_like or None
+        Offsets inside the pixel, pixel units, y up (a GPU raster's ``sample_positions``);
+        None: the standard pattern (:data:`glraster.geometry.samples.STANDARD_POSITIONS`).
+    interpolation : {"center", "centroid", "sample"}
+        As for :func:`glraster.rasterize`. "sample": persp / screen (H, W, S, 3) at every
+        sample. "center" / "centroid": (H, W, 3), the triangle of the pixel's
+        lowest-numbered covered sample, evaluated at the pixel center, or at its
+        centroid point: the pixel center when the triangle covers every sample of the
+        pixel, else the lowest-numbered sample it covers (a point inside both the pixel
+        and the triangle, as GL requires; llvmpipe's choice). GL allows any such point:
+        judge a driver's centroid with :func:`glraster.verify.centroid.check_centroid`.
 
     Returns
     -------
     ReferenceRaster with float64 ``persp``/``screen``/``depth``, int32 ``tri_id``, plus
-    ``edge_band`` and ``depth_tie`` (H, W) bool.
+    ``edge_band`` and ``depth_tie`` (H, W) bool ((H, W, S) when multisampled).
     """
     names = validate.outputs(outputs)
     rule = fill_rule_of(fill_rule)
@@ -246,9 +268,90 @@ def rasterize(
         edge_band_px = rule.edge_band_px if rule is not None else DEFAULT_EDGE_BAND_PX
     if not (np.isfinite(edge_band_px) and edge_band_px >= 0):
         raise ValueError(f"edge_band_px must be a finite number >= 0, got {edge_band_px!r}")
+    samples = validate.samples(samples)
+    interpolation = validate.interpolation(interpolation)
+    positions = standard_positions(samples) if sample_positions is None \
+        else validate.sample_positions(sample_positions, samples)
     pos = validate.positions(pos)
     tri = validate.triangles(tri, len(pos))
     height, width = validate.resolution(resolution)
+    shape = (height, width)
+    ts = setup(pos, tri, (height, width), rule) if len(tri) else None
+    info = {"backend": "reference", "renderer": "float64 (numba), fill rule "
+            + ("llvmpipe" if rule == LLVMPIPE else str(rule))}
+    if samples == 1:
+        best_tri, band, tie = _rasterize_at(ts, rule, shape, edge_band_px, 0.5, 0.5)
+        covered = best_tri >= 0
+        return ReferenceRaster(
+            resolution=shape, mask=covered.reshape(shape), edge_band=band.reshape(shape),
+            depth_tie=tie.reshape(shape),
+            triangles=ts.geometry() if ts is not None else None, info=info,
+            **_values(ts, best_tri, shape, names))
+    return _multisampled(ts, rule, shape, edge_band_px, names, positions, interpolation,
+                         info)
+
+
+def _multisampled(ts, rule, shape, edge_band_px, names, positions, interpolation, info):
+    """:func:`rasterize` with S = len(positions) > 1 samples per pixel."""
+    height, width = shape
+    samples = len(positions)
+    offsets = fixed_offsets(positions, rule.one) if rule is not None else None
+    best, bands, ties, per_sample = [], [], [], []
+    for k, (ox, oy) in enumerate(positions):
+        moved = ts
+        if ts is not None and rule is not None:
+            moved = _offset_setup(ts, None if offsets is None else offsets[k])
+        best_tri, band, tie = _rasterize_at(moved, rule, shape, edge_band_px, ox, oy)
+        best.append(best_tri)
+        bands.append(band)
+        ties.append(tie)
+        if interpolation == "sample" or "depth" in names:
+            wanted = names if interpolation == "sample" else ("depth",)
+            per_sample.append(_values(ts, best_tri, shape, wanted, ox, oy))
+    tri_id = np.stack(best, axis=1).reshape(height, width, samples)
+    mask = tri_id >= 0
+    out = {}
+    for name in ("persp", "screen", "depth"):
+        if per_sample and name in per_sample[0]:
+            out[name] = np.stack([v[name] for v in per_sample], axis=2)
+    if interpolation != "sample" and ("persp" in names or "screen" in names):
+        first = first_covered_sample(mask)
+        pixel_tri = per_pixel(tri_id, first)
+        point = np.full((height, width, 2), 0.5)
+        if interpolation == "centroid" and ts is not None:
+            point = centroid_points(ts, rule, pixel_tri, positions, offsets)
+        out.update(_point_values(ts, pixel_tri, point, names))
+    if "tri_id" in names:
+        out["tri_id"] = tri_id.astype(np.int32)
+    return ReferenceRaster(
+        resolution=shape, mask=mask,
+        edge_band=np.stack(bands, axis=1).reshape(height, width, samples),
+        depth_tie=np.stack(ties, axis=1).reshape(height, width, samples),
+        triangles=ts.geometry() if ts is not None else None, info=info,
+        samples=samples, interpolation=interpolation, sample_positions=positions.copy(),
+        **out)
+
+
+def _offset_setup(ts: TriangleSetup, offset) -> TriangleSetup:
+    """``ts`` with its fixed-point edges moved to sample at ``offset`` (dx, dy) fixed-point
+    steps from the pixel center: on edge (dcdx, dcdy, c) the test c - dcdx x + dcdy y >= 1
+    at (x + dx, y + dy) is (c - dcdx dx + dcdy dy) - dcdx x + dcdy y >= 1. ``offset`` None
+    (not whole steps): no triangle is modeled exactly, every one gets the float test and
+    the edge band."""
+    from dataclasses import replace
+
+    if offset is None:
+        return replace(ts, fixed_ok=np.zeros_like(ts.fixed_ok), exact=np.zeros_like(ts.exact))
+    fixed = ts.fixed.copy()
+    dx, dy = int(offset[0]), int(offset[1])
+    fixed[..., 2] += -fixed[..., 0] * dx + fixed[..., 1] * dy
+    return replace(ts, fixed=fixed)
+
+
+def _rasterize_at(ts, rule, shape, edge_band_px, ox, oy):
+    """Coverage and depth test of every pixel sampled at (x + ox, y + oy): (best_tri
+    (N,) int64, edge band (N,) bool, depth tie (N,) bool) over the N = H W pixels."""
+    height, width = shape
     n = height * width
 
     # the depth test state of reference_kernels
@@ -257,7 +360,6 @@ def rasterize(
     best_error = np.zeros(n)
     others_low = np.full(n, np.inf)
     band = np.zeros(n, bool)
-    ts = setup(pos, tri, (height, width), rule) if len(tri) else None
     if ts is not None:
         error = depth_error(ts)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -272,27 +374,90 @@ def rasterize(
         for spans in (
             kernels.fixed_point_spans(fixed, ts.fixed, ts.bbox, rule.one if rule else 1),
             kernels.float_spans(loose, ts.adj, ts.det, ts.depth_plane, ts.bbox, ~ts.fixed_ok,
-                                ~ts.exact & ~ts.culled, edge_band_px, width, band),
+                                ~ts.exact & ~ts.culled, edge_band_px, width, band, ox, oy),
         ):
             if not len(spans[0]):
                 continue                                 # nothing to test (saves a launch)
             with _PARALLEL_KERNEL:
                 kernels.depth_test(*spans, ts.depth_plane, screen_planes, error, width,
                                    best_depth, best_tri, best_error, others_low,
-                                   numba.get_num_threads())
+                                   numba.get_num_threads(), ox, oy)
 
     covered = best_tri >= 0
-    shape = (height, width)
-    return ReferenceRaster(
-        resolution=shape,
-        mask=covered.reshape(shape),
-        edge_band=band.reshape(shape),
-        depth_tie=(covered & (others_low <= best_depth + best_error + DEPTH_TIE)).reshape(shape),
-        triangles=ts.geometry() if ts is not None else None,
-        info={"backend": "reference", "renderer": "float64 (numba), fill rule "
-              + ("llvmpipe" if rule == LLVMPIPE else str(rule))},
-        **_values(ts, best_tri, shape, names),
-    )
+    return best_tri, band, covered & (others_low <= best_depth + best_error + DEPTH_TIE)
+
+
+def covers(ts: TriangleSetup, rule, t, px, py, positions, offsets) -> np.ndarray:
+    """(N, S) bool: whether triangle t (N,) covers sample s of pixel (px, py) (N,) by
+    itself (rasterization, before the depth test): the fixed-point test of its edges
+    where it is modeled exactly, else the float test s_k >= 0 at the sample (and in front
+    of the eye, inside the near and far planes)."""
+    samples = len(positions)
+    out = np.zeros((len(t), samples), bool)
+    exact = ts.fixed_ok[t] & ts.exact[t] if offsets is not None else np.zeros(len(t), bool)
+    one = rule.one if rule is not None else 1
+    if exact.any():
+        e = ts.fixed[t[exact]]                                  # (K, 3, 3)
+        x = (one * px[exact])[:, None, None] + offsets[None, :, 0, None]  # (K, S, 1)
+        y = (one * py[exact])[:, None, None] + offsets[None, :, 1, None]
+        value = e[:, None, :, 2] - e[:, None, :, 0] * x + e[:, None, :, 1] * y
+        out[exact] = (value >= 1).all(axis=2)
+    loose = ~exact
+    if loose.any():
+        tl = t[loose]
+        a = ts.adj[tl]                                           # (K, 3, 3)
+        cx = px[loose][:, None] + positions[None, :, 0]          # (K, S)
+        cy = py[loose][:, None] + positions[None, :, 1]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = (a[:, None, :, 0] * cx[..., None] + a[:, None, :, 1] * cy[..., None]
+                 + a[:, None, :, 2]) / ts.det[tl][:, None, None]
+            plane = ts.depth_plane[tl]
+            z_ndc = 2 * (plane[:, None, 0] * cx + plane[:, None, 1] * cy + plane[:, None, 2]) - 1
+        out[loose] = (s >= 0).all(axis=2) & (s.sum(axis=2) > 0) & (np.abs(z_ndc) <= 1)
+    return out
+
+
+def centroid_points(ts, rule, pixel_tri, positions, offsets) -> np.ndarray:
+    """(H, W, 2) the reference's centroid point of each pixel's fragment of triangle
+    ``pixel_tri`` (H, W) (-1: none, the center): the pixel center when the triangle
+    covers all of the pixel's samples, else the position of the lowest-numbered sample it
+    covers. Both lie inside the pixel and, but for a center on the boundary, inside the
+    triangle, which is what GL 4.5 section 14.6.6 asks of a centroid ("must be a point
+    that lies in both the pixel and in the primitive"); a covered sample is the one such
+    point that is exact in the fixed point the driver decides coverage with."""
+    height, width = pixel_tri.shape
+    point = np.full((height, width, 2), 0.5)
+    py, px = np.nonzero(pixel_tri >= 0)
+    if not len(px):
+        return point
+    t = pixel_tri[py, px].astype(np.int64)
+    cov = covers(ts, rule, t, px, py, positions, offsets)
+    partial = ~cov.all(axis=1)
+    first = np.argmax(cov, axis=1)
+    chosen = np.where(partial[:, None], positions[first], 0.5)
+    point[py, px] = chosen
+    return point
+
+
+def _point_values(ts, pixel_tri, point, names) -> dict:
+    """persp / screen (H, W, 3) float64 of triangle ``pixel_tri`` (H, W) at the window
+    point (x + point_x, y + point_y) of each pixel (formulas of kernels.values)."""
+    height, width = pixel_tri.shape
+    out = {n: np.zeros((height, width, 3)) for n in ("persp", "screen") if n in names}
+    if ts is None:
+        return out
+    py, px = np.nonzero(pixel_tri >= 0)
+    t = pixel_tri[py, px].astype(np.int64)
+    a = ts.adj[t]
+    cx = px + point[py, px, 0]
+    cy = py + point[py, px, 1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = (a[..., 0] * cx[:, None] + a[..., 1] * cy[:, None] + a[..., 2]) / ts.det[t][:, None]
+        if "persp" in out:
+            out["persp"][py, px] = s / ((s[:, 0] + s[:, 1]) + s[:, 2])[:, None]
+        if "screen" in out:
+            out["screen"][py, px] = s * ts.clip[t, :, 3]
+    return out
 
 
 def edge_values(ts: TriangleGeometry, t, px, py):
@@ -308,9 +473,10 @@ def edge_values(ts: TriangleGeometry, t, px, py):
     return s, a
 
 
-def _values(ts, best_tri, shape, names) -> dict:
+def _values(ts, best_tri, shape, names, ox=0.5, oy=0.5) -> dict:
     """The requested outputs (float64, and int32 ``tri_id``) at every pixel from the
-    winning triangle ``best_tri`` (N,), computed by :func:`reference_kernels.values`."""
+    winning triangle ``best_tri`` (N,), computed by :func:`reference_kernels.values` at
+    (x + ox, y + oy) (the center by default)."""
     height, width = shape
     n = height * width
     persp = np.zeros((n, 3) if "persp" in names else (0, 3))
@@ -320,7 +486,7 @@ def _values(ts, best_tri, shape, names) -> dict:
         with _PARALLEL_KERNEL:
             kernels.values(best_tri, width, ts.adj, ts.det,
                            np.ascontiguousarray(ts.clip[..., 3]),
-                           np.ascontiguousarray(ts.clip[..., 2]), persp, screen, depth)
+                           np.ascontiguousarray(ts.clip[..., 2]), persp, screen, depth, ox, oy)
     out = {}
     if "persp" in names:
         out["persp"] = persp.reshape(height, width, 3)

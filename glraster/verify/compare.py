@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from glraster.geometry.triangles import TriangleGeometry
-from glraster.types import VALUE_OUTPUTS
+from glraster.types import VALUE_OUTPUTS, first_covered_sample, per_pixel
+from glraster.verify.interpolation import PointCheck, check_point
 from glraster.verify.tolerance import ErrorModel, mesa_noperspective_clip_bug, value_tolerance
 
 
@@ -83,6 +85,10 @@ class Report:
     values : output name -> ValueStats
     model : the ErrorModel the values were judged with
     maps : the per-pixel :class:`ErrorMaps`
+    samples, interpolation : of the compared rasters; multisampled, coverage and id counts
+        are over samples, and the maps (H, W) hold each pixel's worst sample
+    point : the :class:`~glraster.verify.interpolation.PointCheck` of the per-pixel
+        "center" / "centroid" values (None otherwise); its failures count in ``ok``
     """
 
     resolution: tuple
@@ -94,6 +100,9 @@ class Report:
     values: dict = field(default_factory=dict)
     model: ErrorModel = ErrorModel()
     maps: ErrorMaps | None = field(default=None, repr=False)
+    samples: int = 1
+    interpolation: str = "center"
+    point: PointCheck | None = None
 
     def ok(self, max_coverage_mismatch: int = 0) -> bool:
         """True when coverage outside the band matches (up to ``max_coverage_mismatch``),
@@ -102,6 +111,7 @@ class Report:
             self.coverage_mismatch <= max_coverage_mismatch
             and self.tri_id_mismatch == 0
             and all(v.over_tolerance == 0 for v in self.values.values())
+            and (self.point is None or self.point.failures == 0)
         )
 
     def summary(self) -> str:
@@ -120,6 +130,12 @@ class Report:
                 f"{name:<8}{v.pixels:>9}{v.max:>11.3e}{v.p999:>11.3e}{v.mean:>11.3e}"
                 f"{v.over_tolerance:>7}{v.worst_ratio:>9.3f}{v.waived:>8}"
             )
+        if self.point is not None:
+            p = self.point
+            lines.append(f"{self.interpolation} point: {p.pixels} pixels judged, "
+                         f"{p.outside_pixel} outside the pixel, {p.outside_triangle} "
+                         f"outside the triangle, {p.persp_inconsistent} persp not "
+                         f"perspective-correct there (worst ratio {p.worst_ratio:.3f})")
         lines.append("PASS" if self.ok() else "FAIL")
         return "\n".join(lines)
 
@@ -157,11 +173,100 @@ def compare(gpu, ref, model: ErrorModel | None = None) -> Report:
     :mod:`glraster.verify.tolerance`), computed from ``ref.triangles`` and ``ref.tri_id``.
     ``report.maps`` (:class:`ErrorMaps`) holds the per-pixel error and error / tolerance
     ((H, W) max over channels) and the coverage difference for reports.
+
+    Multisampled rasters (S > 1, the same S and interpolation on both sides): every sample
+    is compared like a pixel, with the tolerances evaluated at its position (ref's
+    ``sample_positions``); per-pixel "center" / "centroid" barycentrics are judged by the
+    condition GLSL puts on the point they were evaluated at
+    (:func:`glraster.verify.interpolation.check_point`), not against one reference point.
     """
     if tuple(gpu.resolution) != tuple(ref.resolution):
         raise ValueError(
             f"gpu and ref must have the same resolution, got {gpu.resolution} and {ref.resolution}"
         )
+    samples = getattr(gpu, "samples", 1), getattr(ref, "samples", 1)
+    if samples[0] != samples[1] or gpu.mask.shape != ref.mask.shape:
+        raise ValueError(f"gpu and ref must have the same samples per pixel, got "
+                         f"{samples[0]} and {samples[1]}")
+    if samples[1] == 1:
+        return _compare(gpu, ref, model)
+    if gpu.interpolation != ref.interpolation:
+        raise ValueError(f"gpu and ref must have the same interpolation, got "
+                         f"{gpu.interpolation!r} and {ref.interpolation!r}")
+    return _compare_samples(gpu, ref, model or ErrorModel())
+
+
+def _sample_view(raster, k: int, values: bool):
+    """Sample ``k`` of a multisampled raster as a single-sample one (views, no copies);
+    ``values``: keep persp / screen (per-sample with interpolation "sample")."""
+    view = copy.copy(raster)
+    view.samples, view.sample_positions = 1, None
+    view.mask = raster.mask[..., k]
+    for name in ("tri_id", "depth", "edge_band", "depth_tie"):
+        if getattr(raster, name, None) is not None:
+            setattr(view, name, getattr(raster, name)[..., k])
+    for name in ("persp", "screen"):
+        if getattr(raster, name) is not None:
+            setattr(view, name, getattr(raster, name)[..., k, :] if values else None)
+    return view
+
+
+def _compare_samples(gpu, ref, model: ErrorModel) -> Report:
+    """:func:`compare` of multisampled rasters: one single-sample comparison per sample,
+    merged, plus the point check of per-pixel barycentrics."""
+    per_sample = ref.interpolation == "sample"
+    reports = [_compare(_sample_view(gpu, k, per_sample), _sample_view(ref, k, per_sample),
+                        model, offset=tuple(ref.sample_positions[k]))
+               for k in range(ref.samples)]
+    merged = _merge(reports)
+    merged.samples, merged.interpolation = ref.samples, ref.interpolation
+    if not per_sample and (gpu.persp is not None or gpu.screen is not None) \
+            and ref.triangles is not None and gpu.tri_id is not None:
+        first = first_covered_sample(gpu.mask)
+        gpu_tri = per_pixel(gpu.tri_id, first)
+        ref_tri = per_pixel(ref.tri_id, first)
+        judged = (gpu_tri == ref_tri) & (gpu_tri >= 0) & ~ref.ambiguous.any(axis=2)
+        front = (ref.triangles.clip[:, :, 3] > 0).all(axis=1)
+        judged[judged] &= front[gpu_tri[judged]]
+        if model.waived_outputs and gpu.screen is not None:
+            judged &= ~waived_pixels(ref.triangles, np.where(judged, gpu_tri, -1), model)
+        merged.point = check_point(ref.triangles, gpu_tri, judged, gpu.persp, gpu.screen,
+                                   ref.interpolation, model)
+    return merged
+
+
+def _merge(reports: list) -> Report:
+    """One Report from per-sample ones: counts summed, worst values kept, maps (H, W)
+    holding each pixel's worst sample."""
+    first = reports[0]
+    values = {}
+    for name in first.values:
+        parts = [r.values[name] for r in reports]
+        pixels = sum(v.pixels for v in parts)
+        values[name] = ValueStats(
+            pixels=pixels, max=max(v.max for v in parts), p999=max(v.p999 for v in parts),
+            mean=sum(v.mean * v.pixels for v in parts) / pixels if pixels else 0.0,
+            over_tolerance=sum(v.over_tolerance for v in parts),
+            worst_ratio=max(v.worst_ratio for v in parts), waived=sum(v.waived for v in parts))
+    coverage = np.stack([r.maps.coverage for r in reports])
+    strongest = np.abs(coverage).argmax(axis=0)
+    maps = ErrorMaps(coverage=np.take_along_axis(coverage, strongest[None], 0)[0])
+    for name in first.maps.outputs:
+        for key in ("error", "ratio"):
+            setattr(maps, f"{name}_{key}",
+                    np.max([getattr(r.maps, f"{name}_{key}") for r in reports], axis=0))
+    return Report(
+        resolution=first.resolution,
+        covered_gpu=sum(r.covered_gpu for r in reports),
+        covered_ref=sum(r.covered_ref for r in reports),
+        coverage_mismatch=sum(r.coverage_mismatch for r in reports),
+        coverage_mismatch_in_band=sum(r.coverage_mismatch_in_band for r in reports),
+        tri_id_mismatch=sum(r.tri_id_mismatch for r in reports),
+        values=values, model=first.model, maps=maps)
+
+
+def _compare(gpu, ref, model: ErrorModel | None = None, offset=(0.5, 0.5)) -> Report:
+    """:func:`compare` of single-sample rasters, values evaluated at ``offset``."""
     if ref.tri_id is None:
         raise ValueError("ref must include the 'tri_id' output (the tolerance model needs it)")
     model = model or ErrorModel()
@@ -178,7 +283,7 @@ def compare(gpu, ref, model: ErrorModel | None = None) -> Report:
 
     compared = tuple(n for n in VALUE_OUTPUTS
                      if getattr(gpu, n) is not None and getattr(ref, n) is not None)
-    tolerances = value_tolerance(ref.triangles, ref.tri_id, compared, model)
+    tolerances = value_tolerance(ref.triangles, ref.tri_id, compared, model, offset)
     values = {}
     for name in compared:
         g, r = getattr(gpu, name), getattr(ref, name)

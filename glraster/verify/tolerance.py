@@ -124,7 +124,8 @@ class Tolerances:
 
 
 def value_tolerance(triangles: TriangleGeometry | None, tri_id: np.ndarray,
-                    outputs=VALUE_OUTPUTS, model: ErrorModel = ErrorModel()) -> Tolerances:
+                    outputs=VALUE_OUTPUTS, model: ErrorModel = ErrorModel(),
+                    offset=(0.5, 0.5)) -> Tolerances:
     """Per-pixel tolerances of the value outputs of a raster.
 
     triangles : the T triangles' :class:`TriangleGeometry` (the reference's
@@ -132,6 +133,9 @@ def value_tolerance(triangles: TriangleGeometry | None, tri_id: np.ndarray,
     tri_id : (H, W) int, the triangle seen at each pixel (index into ``triangles``), -1
         where empty (the reference's ``tri_id``)
     outputs : which of "persp", "screen", "depth" to bound (the others stay None)
+    offset : (ox, oy), where in the pixel the values were evaluated (pixel units; the
+        center by default, a sample position when multisampling): the bound is the same
+        model evaluated at (x + ox, y + oy)
 
     The per-pixel bounds are evaluated by a compiled loop (:func:`_tolerances`).
     """
@@ -161,7 +165,7 @@ def value_tolerance(triangles: TriangleGeometry | None, tri_id: np.ndarray,
                     model.position_error_px,
                     # compensated evaluation: the position terms carry eps32^2
                     EPS32 if model.compensated else 1.0, model.persp_from_screen,
-                    screen, persp, depth)
+                    screen, persp, depth, float(offset[0]), float(offset[1]))
     return Tolerances(
         persp=persp.reshape(height, width, 3) if "persp" in names else None,
         screen=screen.reshape(height, width, 3) if "screen" in names else None,
@@ -179,7 +183,7 @@ def _bound(unit, value, grad, vertex_value, shrink, reach, span, delta):
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _tolerances(pix, tri_id, width, adj, det, clip, reach, span, S, N, wmin, unit, delta,
-                shrink, persp_from_screen, screen_tol, persp_tol, depth_tol):
+                shrink, persp_from_screen, screen_tol, persp_tol, depth_tol, ox=0.5, oy=0.5):
     """Fill the bounds of :func:`value_tolerance` at the covered pixels ``pix`` (K,) of
     ``tri_id`` (H*W,): screen_tol and persp_tol (H*W, 3), depth_tol (H*W,), each skipped
     when empty. adj (T, 3, 3), det (T,), clip (T, 3, 4) from the TriangleGeometry; reach =
@@ -191,8 +195,8 @@ def _tolerances(pix, tri_id, width, adj, det, clip, reach, span, S, N, wmin, uni
     for i in range(pix.shape[0]):
         p = pix[i]
         t = tri_id[p]
-        cx = p % width + 0.5
-        cy = p // width + 0.5
+        cx = p % width + ox
+        cy = p // width + oy
         for k in range(3):                               # s = M^-1 (p, 1), |grad s_k|_1
             s[k] = (adj[t, k, 0] * cx + adj[t, k, 1] * cy + adj[t, k, 2]) / det[t]
             grad[k] = (abs(adj[t, k, 0]) + abs(adj[t, k, 1])) / abs(det[t])

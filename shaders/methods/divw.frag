@@ -13,7 +13,12 @@ layout(std430, binding = 1) readonly buffer Indices { int indices[]; };
 layout(std430, binding = 3) readonly buffer Ids { int ids[]; };
 #endif
 
-noperspective in vec3 v_screen;
+// INTERPOLATION (host define, multisampling): "centroid" or "sample", the auxiliary
+// qualifier of the barycentric inputs (GLSL 4.50 section 4.5); empty: the pixel center.
+#ifndef INTERPOLATION
+#define INTERPOLATION
+#endif
+INTERPOLATION noperspective in vec3 v_screen;
 #ifdef OUT_PERSP
 layout(location = PERSP_LOCATION) out vec3 out_persp;
 #endif

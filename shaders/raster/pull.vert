@@ -9,8 +9,15 @@
 layout(std430, binding = 0) readonly buffer Positions { vec4 positions[]; };  // (V, 4) clip space
 layout(std430, binding = 1) readonly buffer Indices { int indices[]; };       // (T, 3) flattened
 
+// INTERPOLATION (host define, multisampling): "centroid" or "sample", the auxiliary
+// qualifier of the barycentric outputs, the same as divw.frag's inputs (GLSL 4.50
+// section 4.5); empty: the pixel center.
+#ifndef INTERPOLATION
+#define INTERPOLATION
+#endif
+
 #ifdef VARY_SCREEN
-noperspective out vec3 v_screen;  // linear in window space: GL 4.5 core eq. 14.10
+INTERPOLATION noperspective out vec3 v_screen;  // linear in window space: GL 4.5 core eq. 14.10
 #endif
 
 void main() {

@@ -5,12 +5,18 @@
 // Host defines: OUT_PERSP, OUT_SCREEN, OUT_TRI_ID and PERSP_LOCATION, SCREEN_LOCATION,
 // TRI_ID_LOCATION (the color attachment of each).
 
+// INTERPOLATION (host define, multisampling): "centroid" or "sample", the auxiliary
+// qualifier of the barycentric inputs (GLSL 4.50 section 4.5); empty: the pixel center.
+#ifndef INTERPOLATION
+#define INTERPOLATION
+#endif
+
 #ifdef OUT_PERSP
-smooth in vec3 v_persp;
+INTERPOLATION smooth in vec3 v_persp;
 layout(location = PERSP_LOCATION) out vec3 out_persp;
 #endif
 #ifdef OUT_SCREEN
-noperspective in vec3 v_screen;
+INTERPOLATION noperspective in vec3 v_screen;
 layout(location = SCREEN_LOCATION) out vec3 out_screen;
 #endif
 #ifdef OUT_TRI_ID

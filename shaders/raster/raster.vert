@@ -10,11 +10,18 @@ layout(std430, binding = 1) readonly buffer Indices { int indices[]; };       //
 #define VERTEX_ID gl_VertexID  // 3 * triangle + corner (raster33/: a vertex attribute)
 #define CORNER_POSITION positions[indices[VERTEX_ID]]
 
+// INTERPOLATION (host define, multisampling): "centroid" or "sample", the auxiliary
+// qualifier of the barycentric outputs, the same as raster.frag's inputs (GLSL 4.50
+// section 4.5); empty: the pixel center.
+#ifndef INTERPOLATION
+#define INTERPOLATION
+#endif
+
 #ifdef OUT_PERSP
-smooth out vec3 v_persp;          // perspective-correct: GL 4.5 core eq. 14.9
+INTERPOLATION smooth out vec3 v_persp;          // perspective-correct: GL 4.5 core eq. 14.9
 #endif
 #ifdef OUT_SCREEN
-noperspective out vec3 v_screen;  // linear in window space: GL 4.5 core eq. 14.10
+INTERPOLATION noperspective out vec3 v_screen;  // linear in window space: GL 4.5 core eq. 14.10
 #endif
 
 void main() {

@@ -5,6 +5,13 @@
 // GL_ARB_gpu_shader5 is enabled where the driver has it (softpipe does) for
 // interpolateAtOffset, which only the pixel_corner_sampling mutant uses.
 #extension GL_ARB_gpu_shader5 : enable
+// GL_ARB_shading_language_420pack lets the auxiliary qualifier of INTERPOLATION come
+// before smooth / noperspective as in raster/ (GLSL 3.30 wants it after them); the host
+// asks for it, and GL_ARB_gpu_shader5's "sample" qualifier, only when multisampling.
+#ifdef AUX_QUALIFIERS
+#extension GL_ARB_shading_language_420pack : require
+#extension GL_ARB_gpu_shader5 : require
+#endif
 //
 // Host defines: OUT_PERSP, OUT_SCREEN, OUT_TRI_ID and PERSP_LOCATION, SCREEN_LOCATION,
 // TRI_ID_LOCATION (the color attachment of each).
@@ -13,12 +20,18 @@
 flat in int v_primitive;  // the triangle's index in this draw (a_vertex / 3)
 #endif
 
+// INTERPOLATION (host define, multisampling): "centroid" or "sample", the auxiliary
+// qualifier of the barycentric inputs (GLSL 3.30 section 4.5); empty: the pixel center.
+#ifndef INTERPOLATION
+#define INTERPOLATION
+#endif
+
 #ifdef OUT_PERSP
-smooth in vec3 v_persp;
+INTERPOLATION smooth in vec3 v_persp;
 layout(location = PERSP_LOCATION) out vec3 out_persp;
 #endif
 #ifdef OUT_SCREEN
-noperspective in vec3 v_screen;
+INTERPOLATION noperspective in vec3 v_screen;
 layout(location = SCREEN_LOCATION) out vec3 out_screen;
 #endif
 #ifdef OUT_TRI_ID

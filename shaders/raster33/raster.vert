@@ -12,7 +12,12 @@
 // From "#ifdef OUT_PERSP" on, the text is that of raster/raster.vert (plus the id line at
 // the end of main), so the fault-injection mutants' patches apply to both files.
 //
-// Host defines (one line each, inserted after #version): OUT_PERSP, OUT_SCREEN, OUT_TRI_ID.
+// Host defines (one line each, inserted after #version): OUT_PERSP, OUT_SCREEN, OUT_TRI_ID;
+// AUX_QUALIFIERS (multisampling: see raster33/raster.frag).
+#ifdef AUX_QUALIFIERS
+#extension GL_ARB_shading_language_420pack : require
+#extension GL_ARB_gpu_shader5 : require
+#endif
 
 layout(location = 0) in vec4 a_position;  // (3 T, 4) clip space, one vertex per corner
 layout(location = 1) in int a_vertex;     // k = 3 * (triangle in this draw) + corner
@@ -22,11 +27,18 @@ layout(location = 1) in int a_vertex;     // k = 3 * (triangle in this draw) + c
 flat out int v_primitive;  // triangle index in this draw
 #endif
 
+// INTERPOLATION (host define, multisampling): "centroid" or "sample", the auxiliary
+// qualifier of the barycentric outputs, the same as raster.frag's inputs (GLSL 3.30
+// section 4.5); empty: the pixel center.
+#ifndef INTERPOLATION
+#define INTERPOLATION
+#endif
+
 #ifdef OUT_PERSP
-smooth out vec3 v_persp;          // perspective-correct: GL 4.5 core eq. 14.9
+INTERPOLATION smooth out vec3 v_persp;          // perspective-correct: GL 4.5 core eq. 14.9
 #endif
 #ifdef OUT_SCREEN
-noperspective out vec3 v_screen;  // linear in window space: GL 4.5 core eq. 14.10
+INTERPOLATION noperspective out vec3 v_screen;  // linear in window space: GL 4.5 core eq. 14.10
 #endif
 
 void main() {

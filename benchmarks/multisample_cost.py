@@ -1,0 +1,81 @@
+"""Multisampling cost, in one run: ``samples=1`` against the previous commit's rasterize
+(the single-sample path must be no slower), and S samples against 1.
+
+    python benchmarks/multisample_cost.py --base /path/to/checkout/of/the/previous/commit
+
+Each measurement is a fresh interpreter (``PYTHONPATH`` = one source tree) that warms up
+and prints the median of ``--calls`` calls of ``glraster.rasterize`` on the benchmark
+terrain; trees and sample counts alternate round by round (interleaved A/B) and the
+medians over ``--rounds`` rounds are compared. Timings on a shared machine are noisy:
+read the ratio, not the milliseconds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+from pathlib import Path
+
+TIMER = r"""
+import json, sys, time
+import numpy as np
+import glraster as gr
+from glraster.studies.bench import make_bench_scene
+samples, calls, height, width, count = map(int, sys.argv[1:6])
+scene = make_bench_scene("terrain", count)
+ctx = gr.Context()
+kwargs = {} if samples == 1 and sys.argv[6] == "plain" else {"samples": samples}
+for _ in range(3):
+    gr.rasterize(scene.pos, scene.faces, (height, width), ctx=ctx, **kwargs)
+times = []
+for _ in range(calls):
+    start = time.perf_counter()
+    gr.rasterize(scene.pos, scene.faces, (height, width), ctx=ctx, **kwargs)
+    times.append(time.perf_counter() - start)
+print(json.dumps(sorted(times)[len(times) // 2]))
+"""
+
+
+def measure(tree: Path, samples: int, args, plain: bool = False) -> float:
+    env = dict(os.environ, PYTHONPATH=str(tree))
+    out = subprocess.run(
+        [sys.executable, "-c", TIMER, str(samples), str(args.calls), str(args.size),
+         str(args.size), str(args.triangles), "plain" if plain else "samples"],
+        env=env, check=True, capture_output=True, text=True, cwd=str(tree))
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--base", type=Path, required=True,
+                        help="a checkout of the commit before multisampling")
+    parser.add_argument("--rounds", type=int, default=5)
+    parser.add_argument("--calls", type=int, default=15)
+    parser.add_argument("--size", type=int, default=512)
+    parser.add_argument("--triangles", type=int, default=20000)
+    args = parser.parse_args(argv)
+    here = Path(__file__).resolve().parent.parent
+    import glraster as gr
+    counts = [s for s in gr.Context().sample_counts if s > 1]
+    runs = {"base": [], "samples=1": [], **{f"samples={s}": [] for s in counts}}
+    for number in range(args.rounds):
+        order = [("base", args.base, 1, True), ("samples=1", here, 1, False)]
+        order += [(f"samples={s}", here, s, False) for s in counts]
+        if number % 2:
+            order.reverse()
+        for name, tree, samples, plain in order:
+            runs[name].append(measure(tree, samples, args, plain))
+    median = {name: statistics.median(times) for name, times in runs.items()}
+    print(f"terrain, {args.triangles} triangles, {args.size}x{args.size}, all outputs; "
+          f"median of {args.rounds} interleaved rounds x {args.calls} calls (shared machine)")
+    for name, value in median.items():
+        print(f"  {name:11s} {1e3 * value:8.2f} ms   ratio to base {value / median['base']:.3f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
