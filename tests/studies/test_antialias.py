@@ -1,0 +1,99 @@
+"""The antialiasing study (glraster.studies.antialias) on a small frame: every method is
+run, measured against the exact area coverage, and the files are written atomically."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from glraster.cli import main
+from glraster.reference.area import area_coverage
+from glraster.studies import antialias as study
+
+SIZE = (40, 40)     # small enough to run in seconds; still dozens of edge pixels per scene
+
+
+@pytest.fixture(scope="module")
+def result(gl_context):
+    # one run per backend, shared by the tests below (the run is what takes the time)
+    assert gl_context.gl_error() == "GL_NO_ERROR"
+    out = study.run_study(SIZE, repeats=1, ctx=gl_context)
+    assert gl_context.gl_error() == "GL_NO_ERROR", "the study left a GL error set"
+    return out
+
+
+def test_every_method_the_driver_offers_is_measured(result, ctx):
+    names = [r["name"] for r in result["methods"]]
+    expected = {"1 sample", "SSAA 2x2", "SSAA 4x4", "SSAA 8x8", "analytic AA"}
+    expected |= {f"MSAA {s}" for s in ctx.sample_counts if s > 1}
+    assert set(names) == expected
+    assert set(result["scenes"]) == {"fan", "thin", "floor"}
+    for r in result["methods"]:
+        for name, s in r["scenes"].items():
+            assert s["time_s"] > 0, (r["name"], name)
+    mean = [r["mean_rmse"] for r in result["methods"]]
+    assert mean == sorted(mean)                              # ordered by error
+
+
+def test_sampling_methods_are_exact_off_the_edges_and_converge_on_them(result):
+    # Pixels wholly inside or outside (area exactly 0 or 1) have every sample inside or
+    # outside: no sampling method may be wrong there (tolerance 1e-12: the exact area of a
+    # pixel split between two triangles sums to 1 within a few float64 ulps). On edge pixels the
+    # box-filtered coverage of k x k samples converges to the area: the error must shrink
+    # with every step 1 -> 2x2 -> 4x4 -> 8x8 on every scene.
+    rows = {r["name"]: r for r in result["methods"]}
+    for name, r in rows.items():
+        if name != "analytic AA":
+            for scene, s in r["scenes"].items():
+                assert s["max_off_edge"] <= 1e-12, (name, scene)
+    for scene in result["scenes"]:
+        chain = [rows[n]["scenes"][scene]["rmse"]
+                 for n in ("1 sample", "SSAA 2x2", "SSAA 4x4", "SSAA 8x8")]
+        assert chain == sorted(chain, reverse=True) and chain[-1] < chain[0] / 4, (scene, chain)
+        for n, r in rows.items():
+            if n.startswith("MSAA"):
+                assert r["scenes"][scene]["rmse"] < rows["1 sample"]["scenes"][scene]["rmse"]
+
+
+def test_one_sample_and_ssaa_images_are_what_their_definitions_say(result, ctx):
+    # The study's 1-sample image is the pixel-centre mask; the exact area is the reference's
+    # area_coverage; SSAA 2x2 is the mean of the 2x2 blocks of a 2x-resolution render.
+    from glraster.gpu.rasterize import rasterize
+
+    scene = study.builtin_scenes(SIZE)[0]
+    images = result["_images"][scene.name]
+    np.testing.assert_array_equal(images["truth"], area_coverage(scene.pos, scene.tri, SIZE))
+    single = rasterize(scene.pos, scene.tri, SIZE, ctx=ctx, outputs=("tri_id",)).mask
+    np.testing.assert_array_equal(images["1 sample"], single)
+    big = rasterize(scene.pos, scene.tri, (80, 80), ctx=ctx, outputs=("tri_id",)).mask
+    np.testing.assert_array_equal(images["SSAA 2x2"],
+                                  big.reshape(40, 2, 40, 2).mean(axis=(1, 3)))
+
+
+def test_msaa_is_compared_with_ssaa_at_the_same_sample_count(result, ctx):
+    pairs = {c["samples"]: c for c in result["msaa_vs_ssaa"]}
+    squares = [s for s in ctx.sample_counts if s in (4, 16, 64)]
+    assert sorted(pairs) == squares
+    for s, c in pairs.items():
+        assert c["ssaa"] == f"SSAA {int(s ** 0.5)}x{int(s ** 0.5)}" and c["time_ratio"] > 0
+
+
+def test_cli_writes_the_json_and_both_figures(gl_backend, tmp_path, capsys):
+    out = tmp_path / "aa"
+    code = main(["antialias-study", "--out", str(out), "--size", "32", "--repeats", "1",
+                 "--backend", gl_backend])
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert "SSAA 8x8" in printed and "exact area coverage in" in printed
+    files = sorted(p.name for p in out.iterdir())
+    assert files == ["antialias.json", "antialias_error_time.png", "antialias_zoom.png"]
+    data = json.loads((out / "antialias.json").read_text())
+    assert data["resolution"] == [32, 32] and "_images" not in data
+    assert all(set(r["scenes"]) == {"fan", "thin", "floor"} for r in data["methods"])
+
+
+def test_cli_rejects_a_tiny_frame(tmp_path, capsys):
+    assert main(["antialias-study", "--out", str(tmp_path), "--size", "4"]) != 0
+    assert "--size must be at least 16" in capsys.readouterr().err
