@@ -25,7 +25,8 @@ the triangles cover. Errors are taken over the **edge pixels** (0 < area < 1: th
 an edge crosses), as RMSE and max; elsewhere every method but a broken one is exact
 (``max_off_edge`` says so). Times are medians over ``repeats`` runs of the whole method
 (draw, readback, filter) after a warm-up, in rounds that run every method once (so a
-slow spell of a shared machine hits all alike); the topology hash of the analytic op is built once
+slow spell of a shared machine hits all alike; in a new random order each round, so none
+is always first); the topology hash of the analytic op is built once
 per scene outside the timing (the mesh does not change from frame to frame).
 """
 
@@ -245,11 +246,13 @@ def run_study(resolution=(128, 128), repeats: int = 5, ctx=None, scenes=None) ->
     for key, run in runs.items():
         images[key[1]][key[0]] = run()
     times = {key: [] for key in runs}
+    keys = list(runs)
+    order = np.random.default_rng(0)
     for _ in range(repeats):
-        for key, run in runs.items():
+        for i in order.permutation(len(keys)):       # a new order each round
             t0 = time.perf_counter()
-            run()
-            times[key].append(time.perf_counter() - t0)
+            runs[keys[i]]()
+            times[keys[i]].append(time.perf_counter() - t0)
     for m in all_methods:
         row = {"name": m.name, "samples": m.samples, "kind": m.kind, "scenes": {}}
         for scene in scenes:
@@ -325,7 +328,9 @@ def write_figures(result: dict, out_dir) -> list[str]:
     out_dir = Path(out_dir)
     rows = result["methods"]
     names = [r["name"] for r in rows]
-    colors = figures.colors(names)
+    # colours by method, in a fixed order (fewest samples first), whatever the ranking
+    colors = figures.colors(sorted(names, key=lambda n: (
+        next(r["samples"] for r in rows if r["name"] == n), n)))
     markers = dict(zip(result["scenes"], "osD^v"))
     files = []
 
