@@ -14,6 +14,7 @@ Methods (:func:`methods`), each giving a coverage image (H, W) in [0, 1]:
 
 - ``1 sample``: the pixel centre only (coverage 0 or 1);
 - ``SSAA kxk`` (k = 2, 4, 8): render at k times the resolution, box filter (mean of k x k);
+  for an MSAA count that is not a square, also the SSAA grid of that count (8: 4x2);
 - ``MSAA S``: ``rasterize(samples=S)``, :attr:`glraster.types.Raster.coverage`, for every
   S > 1 the driver offers (``Context.sample_counts``);
 - ``analytic AA``: :func:`glraster.diff.antialias.antialias` applied to the 1-sample
@@ -33,7 +34,6 @@ per scene outside the timing (the mesh does not change from frame to frame).
 from __future__ import annotations
 
 import json
-import math
 import time
 from dataclasses import dataclass, field
 
@@ -46,7 +46,7 @@ from glraster.io.atomic import atomic_write
 from glraster.reference.area import area_coverage
 
 __all__ = ["Scene", "Method", "builtin_scenes", "methods", "run_study", "write_study",
-           "SSAA_FACTORS", "ORIENTATION"]
+           "SSAA_FACTORS", "ORIENTATION", "ssaa_grid"]
 
 SSAA_FACTORS = (2, 4, 8)
 ORIENTATION = "upright: file row 0 is the top row (glraster array row H-1)"
@@ -141,9 +141,10 @@ class Method:
     prepare: object = field(repr=False)
 
 
-def _box(a: np.ndarray, k: int) -> np.ndarray:
-    height, width = a.shape[0] // k, a.shape[1] // k
-    return a.reshape(height, k, width, k).mean(axis=(1, 3))
+def _box(a: np.ndarray, kx: int, ky: int) -> np.ndarray:
+    """Mean of the ky x kx blocks of (ky H, kx W) -> (H, W)."""
+    height, width = a.shape[0] // ky, a.shape[1] // kx
+    return a.reshape(height, ky, width, kx).mean(axis=(1, 3))
 
 
 def _single(scene, resolution, ctx):
@@ -153,14 +154,23 @@ def _single(scene, resolution, ctx):
                              outputs=("tri_id",)).mask.astype(np.float64)
 
 
-def _ssaa(k):
+def _ssaa(kx, ky):
     def prepare(scene, resolution, ctx):
         from glraster.gpu.rasterize import rasterize
 
-        big = (resolution[0] * k, resolution[1] * k)
+        big = (resolution[0] * ky, resolution[1] * kx)
         return lambda: _box(rasterize(scene.pos, scene.tri, big, ctx=ctx,
-                                      outputs=("tri_id",)).mask.astype(np.float64), k)
+                                      outputs=("tri_id",)).mask.astype(np.float64), kx, ky)
     return prepare
+
+
+def ssaa_grid(samples: int) -> tuple[int, int]:
+    """(kx, ky) of the SSAA grid with ``samples`` samples (a power of two): square when
+    it can be, else twice as wide as high (8 -> 4x2)."""
+    n = validate.positive_int("samples", samples).bit_length() - 1
+    if 1 << n != samples:
+        raise ValueError(f"samples must be a power of two, got {samples}")
+    return 1 << ((n + 1) // 2), 1 << (n // 2)
 
 
 def _msaa(s):
@@ -189,9 +199,15 @@ def _analytic(scene, resolution, ctx):
 
 def methods(ctx) -> list[Method]:
     """Every method the context ``ctx`` can run: 1 sample, SSAA 2x2 / 4x4 / 8x8, MSAA at
-    each sample count > 1 the driver offers, the analytic antialias op."""
+    each sample count > 1 the driver offers (and an SSAA grid of the same count where it is
+    not a square: 2x1, 4x2, ...), the analytic antialias op."""
     out = [Method("1 sample", 1, "single", _single)]
-    out += [Method(f"SSAA {k}x{k}", k * k, "ssaa", _ssaa(k)) for k in SSAA_FACTORS]
+    out += [Method(f"SSAA {k}x{k}", k * k, "ssaa", _ssaa(k, k)) for k in SSAA_FACTORS]
+    # an SSAA grid with the sample count of each MSAA count that has no square one
+    for s in ctx.sample_counts:
+        kx, ky = ssaa_grid(s)
+        if s > 1 and kx != ky:
+            out.append(Method(f"SSAA {kx}x{ky}", s, "ssaa", _ssaa(kx, ky)))
     out += [Method(f"MSAA {s}", s, "msaa", _msaa(s)) for s in ctx.sample_counts if s > 1]
     out.append(Method("analytic AA", 1, "analytic", _analytic))
     return out
@@ -265,9 +281,9 @@ def run_study(resolution=(128, 128), repeats: int = 5, ctx=None, scenes=None) ->
     result["methods"].sort(key=lambda r: r["mean_rmse"])
     by_name = {r["name"]: r for r in result["methods"]}
     for m in all_methods:
-        k = math.isqrt(m.samples)
-        if m.kind == "msaa" and k * k == m.samples and f"SSAA {k}x{k}" in by_name:
-            ms, ss = by_name[m.name], by_name[f"SSAA {k}x{k}"]
+        kx, ky = ssaa_grid(m.samples)
+        if m.kind == "msaa":
+            ms, ss = by_name[m.name], by_name[f"SSAA {kx}x{ky}"]
             result["msaa_vs_ssaa"].append({
                 "samples": m.samples, "msaa": m.name, "ssaa": ss["name"],
                 "time_ratio": ss["total_time_s"] / ms["total_time_s"],

@@ -28,6 +28,7 @@ def test_every_method_the_driver_offers_is_measured(result, ctx):
     names = [r["name"] for r in result["methods"]]
     expected = {"1 sample", "SSAA 2x2", "SSAA 4x4", "SSAA 8x8", "analytic AA"}
     expected |= {f"MSAA {s}" for s in ctx.sample_counts if s > 1}
+    expected |= {"SSAA {}x{}".format(*study.ssaa_grid(s)) for s in ctx.sample_counts if s > 1}
     assert set(names) == expected
     assert set(result["scenes"]) == {"fan", "thin", "floor"}
     for r in result["methods"]:
@@ -74,10 +75,17 @@ def test_one_sample_and_ssaa_images_are_what_their_definitions_say(result, ctx):
 
 def test_msaa_is_compared_with_ssaa_at_the_same_sample_count(result, ctx):
     pairs = {c["samples"]: c for c in result["msaa_vs_ssaa"]}
-    squares = [s for s in ctx.sample_counts if s in (4, 16, 64)]
-    assert sorted(pairs) == squares
+    assert sorted(pairs) == [s for s in ctx.sample_counts if s > 1]
     for s, c in pairs.items():
-        assert c["ssaa"] == f"SSAA {int(s ** 0.5)}x{int(s ** 0.5)}" and c["time_ratio"] > 0
+        kx, ky = study.ssaa_grid(s)
+        assert c["ssaa"] == f"SSAA {kx}x{ky}" and kx * ky == s and c["time_ratio"] > 0
+
+
+def test_ssaa_grids_have_the_sample_count_asked_for():
+    assert [study.ssaa_grid(s) for s in (1, 2, 4, 8, 16, 32)] == [
+        (1, 1), (2, 1), (2, 2), (4, 2), (4, 4), (8, 4)]
+    with pytest.raises(ValueError, match="samples must be a power of two, got 6"):
+        study.ssaa_grid(6)
 
 
 def test_cli_writes_the_json_and_both_figures(gl_backend, tmp_path, capsys):
