@@ -165,8 +165,11 @@ class Client:
 
     def rasterize(self, pos, tri, resolution, *, outputs=OUTPUTS, method: str = "hw",
                   reference: bool = False, compare: bool = False, cull_backfaces: bool = False,
-                  crop: bool = False, result: str = "npz", deadline: float | None = None):
+                  crop: bool = False, result: str = "npz", deadline: float | None = None,
+                  samples: int = 1, interpolation: str = "center"):
         """``POST /v1/rasterize`` with the scene as .npz (exact float32 / int32 bytes).
+        ``samples`` / ``interpolation``: multisampling, as for :func:`glraster.rasterize`
+        (per-sample arrays in the result).
 
         result : "npz" -> a :class:`glraster.Raster` (arrays bit for bit as the server's
                  :func:`glraster.rasterize` returned them; ``info["comparison"]`` with
@@ -182,6 +185,8 @@ class Client:
                            ("cull_backfaces", cull_backfaces), ("crop", crop)):
             if value:
                 query[key] = "true"
+        if samples != 1 or interpolation != "center":
+            query.update(samples=str(samples), interpolation=interpolation)
         if deadline is not None:
             query["deadline"] = f"{deadline:g}"
         _, headers, data = self.request("POST", "/v1/rasterize", body, content_type=NPZ,
@@ -259,4 +264,10 @@ def decode_raster(data, headers: dict | None = None) -> Raster:
     if headers is not None:
         info["headers"] = dict(headers)
     fields = {n: arrays[n] for n in OUTPUTS if n in arrays}
+    if "sample_positions" in arrays:           # multisampled: a sample axis after W
+        positions = arrays.pop("sample_positions")
+        interpolation = json.loads(str(arrays.pop("interpolation", '"center"')))
+        return Raster(resolution=tuple(mask.shape[:2]), mask=mask, info=info,
+                      samples=len(positions), interpolation=interpolation,
+                      sample_positions=positions, **fields)
     return Raster(resolution=tuple(mask.shape), mask=mask, info=info, **fields)

@@ -43,8 +43,9 @@ from glraster.conformance import rules as _rules
 from glraster.verify.compare import compare, waived_pixels
 from glraster.gpu.methods import METHODS, error_model
 from glraster.gpu.rasterize import rasterize
-from glraster.conformance.scenes import Scene, list_scenes, load_scene
-from glraster.verify.tolerance import ErrorModel
+from glraster.conformance.scenes import Scene, list_scenes, load_scene, with_samples
+from glraster.geometry.samples import STANDARD_POSITIONS
+from glraster.verify.tolerance import ErrorModel, mesa_noperspective_clip_bug
 
 # References kept in memory for the mutant pass: scenes up to this many pixels.
 REFERENCE_CACHE_PIXELS = 1 << 20
@@ -67,6 +68,8 @@ class SceneResult:
     description: str
     resolution: tuple
     triangles: int
+    samples: int = 1
+    interpolation: str = "center"
     status: str = "pass"
     report: object = None
     golden: object = None
@@ -85,6 +88,11 @@ class SceneResult:
     @property
     def seconds(self) -> float:
         return sum(self.timings.values())
+
+    @property
+    def sampling(self) -> str:
+        """"1", or samples and interpolation (e.g. "4 centroid"), for reports."""
+        return "1" if self.samples == 1 else f"{self.samples} {self.interpolation}"
 
 
 @dataclass
@@ -170,15 +178,27 @@ def evaluate(gpu, ref, ctx, model=None) -> Evaluation:
     model = model if model is not None else ErrorModel.for_context(ctx)
     rep = compare(gpu, ref, model=model)
     failures = []
-    pix = np.flatnonzero(gpu.mask)               # work on covered pixels only
+    covered = gpu.mask if gpu.mask.ndim == 2 else gpu.mask.any(axis=2)
+    pix = np.flatnonzero(covered)                # work on covered pixels only
     nonfinite = np.zeros(len(pix), bool)
     for name in ("persp", "screen", "depth"):
         a = getattr(gpu, name)
         if a is None:
             continue
-        nf = ~np.isfinite(a.reshape(a.shape[0] * a.shape[1], -1)[pix]).all(axis=1)
+        flat = a.reshape(a.shape[0] * a.shape[1], -1)[pix]
+        if a.ndim > 2 + (name != "depth"):       # per sample: only the covered samples
+            flat = np.where(gpu.mask.reshape(-1, gpu.samples, 1)[pix], flat.reshape(
+                len(pix), gpu.samples, -1), 0).reshape(len(pix), -1)
+        elif name == "depth" and a.ndim == 3:
+            flat = np.where(gpu.mask.reshape(-1, gpu.samples)[pix], flat, 0)
+        nf = ~np.isfinite(flat).all(axis=1)
         if name in model.waived_outputs and nf.any():
-            nf &= ~waived_pixels(ref.triangles, ref.tri_id, model).reshape(-1)[pix]
+            if gpu.samples == 1:
+                nf &= ~waived_pixels(ref.triangles, ref.tri_id, model).reshape(-1)[pix]
+            elif ref.triangles is not None:
+                ids = ref.tri_id.reshape(-1, gpu.samples)[pix]
+                bug = mesa_noperspective_clip_bug(ref.triangles)
+                nf &= ~np.where(ids >= 0, bug[np.maximum(ids, 0)], False).any(axis=1)
         nonfinite |= nf
     n_nonfinite = int(nonfinite.sum())
     if rep.coverage_mismatch:
@@ -187,23 +207,39 @@ def evaluate(gpu, ref, ctx, model=None) -> Evaluation:
         failures.append(f"{rep.tri_id_mismatch} triangle id mismatches")
     if n_nonfinite:
         failures.append(f"{n_nonfinite} covered pixels with NaN/Inf values")
+    unit = "samples" if rep.samples > 1 else "pixels"
     for name, stats in rep.values.items():
         if stats.over_tolerance:
-            failures.append(f"{name}: {stats.over_tolerance} pixels over tolerance (worst "
+            failures.append(f"{name}: {stats.over_tolerance} {unit} over tolerance (worst "
                             f"error/tolerance {stats.worst_ratio:.3g}, max error {stats.max:.3g})")
+    if rep.point is not None and rep.point.failures:
+        p = rep.point
+        failures.append(
+            f"{rep.interpolation} values: {p.failures} pixels break GLSL's condition on the "
+            f"point ({p.outside_pixel} outside the pixel, {p.outside_triangle} outside the "
+            f"triangle, {p.persp_inconsistent} persp not perspective-correct there; worst "
+            f"ratio {p.worst_ratio:.3g})")
     waived = {n: v.waived for n, v in rep.values.items() if getattr(v, "waived", 0)}
     return Evaluation(rep, failures, n_nonfinite, waived)
 
 
 def _golden_max_error(gpu, g) -> float:
-    """Largest |GPU - golden| over the golden's window, where both hold the same id."""
+    """Largest |GPU - golden| over the golden's window, where both hold the same id
+    (multisampled: per sample, when the driver's sample positions are the goldens'
+    standard ones; NaN otherwise)."""
+    arrays = {n: getattr(gpu, n) for n in ("persp", "screen", "depth", "tri_id")}
+    if gpu.samples > 1:
+        standard = np.array(STANDARD_POSITIONS.get(gpu.samples, ()), np.float64)
+        if not np.array_equal(gpu.sample_positions, standard):
+            return float("nan")
+        arrays = _golden.folded(gpu, tuple(n for n, a in arrays.items() if a is not None))
     y0, y1, x0, x1 = g.window
     worst = 0.0
     same = None
-    if g.tri_id is not None and gpu.tri_id is not None:
-        same = (gpu.tri_id[y0:y1, x0:x1] == g.tri_id) & (g.tri_id >= 0)
+    if g.tri_id is not None and arrays.get("tri_id") is not None:
+        same = (arrays["tri_id"][y0:y1, x0:x1] == g.tri_id) & (g.tri_id >= 0)
     for name in ("persp", "screen", "depth"):
-        a, b = getattr(gpu, name), getattr(g, name)
+        a, b = arrays.get(name), getattr(g, name)
         if a is None or b is None:
             continue
         err = np.abs(a[y0:y1, x0:x1].astype(np.float64) - b)
@@ -218,25 +254,37 @@ def _golden_max_error(gpu, g) -> float:
 
 
 def run_scene(scene: Scene, ctx, *, method="hw", golden_dir=None, check_golden=True, keep=False,
-              ref=None, fill_rule=_golden.FILL_RULE, clip_defect=None):
+              ref=None, fill_rule=_golden.FILL_RULE, clip_defect=None,
+              sample_persp_defect=None):
     """Check one scene rendered with ``method``. Returns (SceneResult, artifacts) where
     artifacts is a :class:`SceneArtifacts` when ``keep`` (for reports) else None. ``ref``: the
     scene's reference raster when already computed (from
     :func:`glraster.conformance.golden.reference_for` with ``fill_rule``). ``fill_rule``:
     the driver's rule the coverage is judged by (a FillRule, "llvmpipe", or None for the
-    edge band); the golden is checked against llvmpipe's reference either way."""
-    res = SceneResult(scene.name, scene.description, tuple(scene.resolution), len(scene.tri))
+    edge band); the golden is checked against llvmpipe's reference either way.
+    Multisample scenes render with their ``samples`` and ``interpolation`` and are judged
+    per sample against a reference at the positions the driver reports (the probe
+    ``sample_positions`` checks those against the ones it uses)."""
+    res = SceneResult(scene.name, scene.description, tuple(scene.resolution), len(scene.tri),
+                      scene.samples, scene.interpolation)
     artifacts = None
     try:
         t = time.perf_counter()
+        multisample = {"samples": scene.samples, "interpolation": scene.interpolation} \
+            if scene.samples > 1 else {}
         gpu = rasterize(scene.pos, scene.tri, scene.resolution, ctx=ctx, outputs=scene.outputs,
-                        method=method)
+                        method=method, **multisample)
         res.timings["gpu"] = time.perf_counter() - t
         t = time.perf_counter()
-        ref = ref if ref is not None else _golden.reference_for(scene, fill_rule=fill_rule)
+        if ref is not None and scene.samples > 1 \
+                and not np.array_equal(ref.sample_positions, gpu.sample_positions):
+            ref = None
+        ref = ref if ref is not None else _golden.reference_for(
+            scene, fill_rule=fill_rule,
+            sample_positions=gpu.sample_positions if scene.samples > 1 else None)
         res.timings["reference"] = time.perf_counter() - t
         t = time.perf_counter()
-        ev = evaluate(gpu, ref, ctx, error_model(method, ctx, clip_defect))
+        ev = evaluate(gpu, ref, ctx, error_model(method, ctx, clip_defect, sample_persp_defect))
         res.report, res.nonfinite, res.waived = ev.report, ev.nonfinite, ev.waived
         res.failures = ev.failures
         res.timings["compare"] = time.perf_counter() - t
@@ -298,7 +346,8 @@ def run_mutants(ctx, candidates, references, mutant_list=None, progress=None, pr
     control_failures = []
     for scene in order:
         gpu = _mutants.render(None, scene.pos, scene.tri, scene.resolution, ctx=ctx,
-                              outputs=scene.outputs)
+                              outputs=scene.outputs, samples=scene.samples,
+                              interpolation=scene.interpolation)
         if not evaluate(gpu, references[scene.name], ctx, model).ok:
             control_failures.append(scene.name)
     results = []
@@ -311,7 +360,8 @@ def run_mutants(ctx, candidates, references, mutant_list=None, progress=None, pr
             mr.scenes_tried += 1
             try:
                 gpu = _mutants.render(m, scene.pos, scene.tri, scene.resolution, ctx=ctx,
-                                      outputs=scene.outputs)
+                                      outputs=scene.outputs, samples=scene.samples,
+                                      interpolation=scene.interpolation)
             except Exception as exc:
                 mr.error = f"{type(exc).__name__}: {exc}"
                 break
@@ -389,19 +439,27 @@ def run(ctx, names=None, *, method="hw", golden_dir=None, check_golden=True, mut
     clip_probe = next((p for p in out.probes if p.name == "noperspective_clip"), None)
     clip_defect = None if clip_probe is None or clip_probe.status not in ("pass", "known") \
         else clip_probe.status == "known"
+    # the same for the multisampled perspective defect (ErrorModel.center_one_over_w)
+    persp_probe = next((p for p in out.probes if p.name == "sample_perspective"), None)
+    persp_defect = None if persp_probe is None or persp_probe.status not in ("pass", "known") \
+        else persp_probe.status == "known"
     mutant_refs = {}
     passed = []
     mutant_list = _mutants.select(mutant_pattern) if mutants else []
-    total = len(names) + (len(mutant_list) if mutants else 0)
-    for i, name in enumerate(names):
+    scenes = _with_sample_counts([load_scene(n) for n in names], ctx, out.notes, method)
+    total = len(scenes) + (len(mutant_list) if mutants else 0)
+    for i, scene in enumerate(scenes):
+        name = scene.name
         if progress:
             progress(i, total, name)
-        scene = load_scene(name)
         cached = references.get(key(name)) if references is not None else None
+        # goldens hold the catalog's sample count; other counts are judged by the reference
+        own_count = name in names
         res, art = run_scene(scene, ctx, method=method, golden_dir=golden_dir,
-                             check_golden=check_golden,
+                             check_golden=check_golden and own_count,
                              keep=bool(on_scene) or mutants or references is not None,
-                             ref=cached, fill_rule=rule, clip_defect=clip_defect)
+                             ref=cached, fill_rule=rule, clip_defect=clip_defect,
+                             sample_persp_defect=persp_defect)
         res.explained_by = [(p.name, p.diagnosis) for p in failed_probes
                             if p.explains_scene(scene, res)]
         for p in failed_probes:
@@ -423,10 +481,14 @@ def run(ctx, names=None, *, method="hw", golden_dir=None, check_golden=True, mut
                 continue
             scene = load_scene(name)
             h, w = scene.resolution
+            if scene.samples > 1 and scene.samples not in ctx.sample_counts:
+                continue
             if h * w <= REFERENCE_CACHE_PIXELS:
                 cached = references.get(key(name)) if references is not None else None
+                positions = _driver_positions(ctx, scene.samples) if scene.samples > 1 else None
                 mutant_refs[name] = (cached if cached is not None
-                                     else _golden.reference_for(scene, fill_rule=rule))
+                                     else _golden.reference_for(scene, fill_rule=rule,
+                                                                sample_positions=positions))
                 passed.append(scene)
     if mutants:
         def mprog(j, label):
@@ -434,10 +496,44 @@ def run(ctx, names=None, *, method="hw", golden_dir=None, check_golden=True, mut
                 progress(len(names) + j, total, f"mutant {label}")
         out.mutants, out.control_failures = run_mutants(
             ctx, passed, mutant_refs, mutant_list, mprog, out.probes, out.rules,
-            model=error_model("hw", ctx, clip_defect))
+            model=error_model("hw", ctx, clip_defect, persp_defect))
     if progress:
         progress(total, total, "done")
     out.seconds = time.perf_counter() - t0
+    return out
+
+
+def _driver_positions(ctx, samples: int) -> np.ndarray:
+    """(S, 2) the sample positions the driver reports for ``samples``."""
+    full = np.array([[-1, -1, 0, 1], [3, -1, 0, 1], [-1, 3, 0, 1]], np.float32)
+    return rasterize(full, [[0, 1, 2]], (1, 1), ctx=ctx, outputs=("tri_id",),
+                     samples=samples).sample_positions
+
+
+def _with_sample_counts(scenes, ctx, notes, method="hw") -> list:
+    """The scenes to run: single-sample ones as they are, each multisample one at every
+    sample count the driver offers (``Context.sample_counts``; the catalog's count keeps
+    the scene's name, others are ``<name>@<S>x``); none where the driver offers no
+    multisampling, nor those whose interpolation ``method`` does not offer (said in
+    ``notes``)."""
+    counts = [s for s in ctx.sample_counts if s > 1]
+    offered = METHODS[method].interpolations
+    out, dropped, unoffered = [], [], []
+    for scene in scenes:
+        if scene.samples == 1:
+            out.append(scene)
+        elif not counts:
+            dropped.append(scene.name)
+        elif scene.interpolation not in offered:
+            unoffered.append(scene.name)
+        else:
+            out += [with_samples(scene, s) for s in counts]
+    if dropped:
+        notes.append(f"{len(dropped)} multisample scenes not run: {ctx.renderer} offers no "
+                     f"multisampling (GL_MAX_SAMPLES {ctx.max_samples})")
+    if unoffered:
+        notes.append(f"{len(unoffered)} multisample scenes not run: method {method!r} offers "
+                     f"interpolation {offered} only ({', '.join(unoffered)})")
     return out
 
 
@@ -473,6 +569,7 @@ def to_dict(result: CheckResult) -> dict:
         scenes.append({
             "name": s.name, "description": s.description, "status": s.status,
             "resolution": list(s.resolution), "triangles": s.triangles,
+            "samples": s.samples, "interpolation": s.interpolation,
             "failures": list(s.failures), "error": s.error, "seconds": s.seconds,
             "covered": rep.covered_gpu if rep else 0,
             "coverage_mismatch": rep.coverage_mismatch if rep else 0,
@@ -503,7 +600,7 @@ def format_table(result: CheckResult) -> str:
     if result.probes:
         lines[-1:-1] = [f"probes ({sum(p.ok for p in result.probes)}/{len(result.probes)} ok):"] \
             + [f"  {line}" for p in result.probes for line in p.line().split("\n")]
-    hdr = (f"{'scene':<28}{'size':>11}{'tris':>8}{'covered':>9}{'cov!':>6}{'id!':>5}"
+    hdr = (f"{'scene':<28}{'size':>11}{'samples':>15}{'tris':>8}{'covered':>9}{'cov!':>6}{'id!':>5}"
            f"{'persp e/tol':>12}{'screen e/tol':>13}{'depth e/tol':>12}{'golden':>8}"
            f"{'secs':>7}  status")
     lines.append(hdr)
@@ -520,7 +617,7 @@ def format_table(result: CheckResult) -> str:
         if s.waived:
             status += f" (waived {sum(s.waived.values())} px)"
         lines.append(
-            f"{s.name:<28}{f'{w}x{h}':>11}{s.triangles:>8}"
+            f"{s.name:<28}{f'{w}x{h}':>11}{s.sampling:>15}{s.triangles:>8}"
             f"{(rep.covered_gpu if rep else 0):>9}{(rep.coverage_mismatch if rep else 0):>6}"
             f"{(rep.tri_id_mismatch if rep else 0):>5}{ratio('persp'):>12}{ratio('screen'):>13}"
             f"{ratio('depth'):>12}{gold:>8}{s.seconds:>7.2f}  {status}")

@@ -6,6 +6,13 @@ float32, cropped to the bounding box of covered pixels (lossless: everything out
 empty). Goldens do not depend on any driver, so ``check`` can run anywhere: it recomputes
 the reference and demands every stored bit back (float32 bit patterns, ids exactly), and
 that the scene's geometry hash still matches the one recorded in the file.
+
+Multisample scenes (S samples, the standard sample positions of
+:mod:`glraster.geometry.samples`) keep the same EXR layout with the sample axis folded
+into the width: an image W S wide whose column S x + s holds sample s of pixel x (the
+layout of the GPU's resolve pass). Per-pixel barycentrics ("center", "centroid") are
+repeated on the S columns of their pixel. The metadata records ``samples``,
+``interpolation``, ``sample_positions`` and ``layout``.
 """
 
 from __future__ import annotations
@@ -19,6 +26,7 @@ import numpy as np
 from glraster.io import exr
 from glraster import reference as _reference
 from glraster.conformance.scenes import Scene, list_scenes, load_scene
+from glraster.geometry.samples import standard_positions
 
 PRODUCER = "glraster.reference.rasterize (float64, fill rule llvmpipe), rounded to float32"
 FILL_RULE = "llvmpipe"
@@ -46,24 +54,53 @@ def golden_path(name: str, directory=None) -> Path:
     return golden_dir(directory) / f"{name}.exr"
 
 
-def reference_for(scene: Scene, fill_rule=FILL_RULE):
+LAYOUT = "sample axis folded into the width: column S x + s is sample s of pixel x"
+
+
+def reference_for(scene: Scene, fill_rule=FILL_RULE, sample_positions=None):
     """The float64 reference raster of a scene (all of the scene's outputs, plus tri_id,
     which the tolerance model needs). ``fill_rule``: llvmpipe's for the goldens; a driver's
-    detected FillRule (or None, the edge band) when judging that driver's coverage."""
+    detected FillRule (or None, the edge band) when judging that driver's coverage.
+    Multisample scenes: ``sample_positions`` (S, 2), the driver's (None: the standard
+    pattern, as the goldens)."""
     outputs = tuple(dict.fromkeys(scene.outputs + ("tri_id",)))
+    if scene.samples == 1:
+        return _reference.rasterize(scene.pos, scene.tri, scene.resolution, outputs=outputs,
+                                    fill_rule=fill_rule)
     return _reference.rasterize(scene.pos, scene.tri, scene.resolution, outputs=outputs,
-                                fill_rule=fill_rule)
+                                fill_rule=fill_rule, samples=scene.samples,
+                                sample_positions=sample_positions,
+                                interpolation=scene.interpolation)
+
+
+def folded(raster, names) -> dict:
+    """Output name -> (H, W S[, 3]) array of a multisampled raster, sample axis folded
+    into the width (per-pixel barycentrics repeated on their pixel's S columns)."""
+    samples = raster.samples
+    out = {}
+    for name in names:
+        a = getattr(raster, name)
+        if a is None:
+            continue
+        if name in ("persp", "screen") and raster.interpolation != "sample":
+            a = np.repeat(a[:, :, None, :], samples, axis=2)
+        h, w = a.shape[:2]
+        out[name] = a.reshape((h, w * samples) + a.shape[3:])
+    return out
 
 
 def write_golden(scene: Scene, ref=None, directory=None) -> Path:
     """Write ``golden/<scene>.exr`` from the reference (computed unless given)."""
     ref = ref if ref is not None else reference_for(scene)
     kept = {n: getattr(ref, n) for n in scene.outputs}
-    return exr.write_raster(
-        golden_path(scene.name, directory), **kept,
-        metadata={"scene": scene.name, "scene_hash": scene.hash, "producer": PRODUCER,
-                  "fill_rule": FILL_RULE},
-    )
+    metadata = {"scene": scene.name, "scene_hash": scene.hash, "producer": PRODUCER,
+                "fill_rule": FILL_RULE}
+    if scene.samples > 1:
+        kept = folded(ref, scene.outputs)
+        metadata.update(samples=str(scene.samples), interpolation=scene.interpolation,
+                        sample_positions=str(standard_positions(scene.samples).tolist()),
+                        layout=LAYOUT)
+    return exr.write_raster(golden_path(scene.name, directory), **kept, metadata=metadata)
 
 
 def update(names=None, directory=None, progress=None, force=False) -> list[Path]:
@@ -117,21 +154,33 @@ def check_scene(scene: Scene, ref=None, directory=None) -> GoldenResult:
                             f"scene geometry hash {scene.hash} differs from the golden's "
                             f"{stored_hash}: the scene changed (or its float64 generation "
                             f"rounds differently on this platform); regenerate the golden")
-    if gold.resolution != tuple(scene.resolution):
+    height, width = scene.resolution
+    if gold.resolution != (height, width * scene.samples):
         return GoldenResult(scene.name, False, f"golden resolution {gold.resolution} != "
-                                               f"scene resolution {scene.resolution}")
+                                               f"scene resolution {scene.resolution}"
+                            + (f" x {scene.samples} samples" if scene.samples > 1 else ""))
+    if str(gold.metadata.get("samples", "1")) != str(scene.samples) \
+            or gold.metadata.get("interpolation", "center") != scene.interpolation:
+        return GoldenResult(scene.name, False, "golden samples / interpolation differ from "
+                                               "the scene's; regenerate the golden")
     missing = [n for n in scene.outputs if getattr(gold, n) is None]
     if missing:
         return GoldenResult(scene.name, False, f"golden lacks outputs {missing}")
     ref = ref if ref is not None else reference_for(scene)
+    if scene.samples > 1 and not np.array_equal(ref.sample_positions,
+                                                standard_positions(scene.samples)):
+        ref = reference_for(scene)                # the goldens use the standard pattern
+    arrays = folded(ref, scene.outputs + ("tri_id",)) if scene.samples > 1 else \
+        {n: getattr(ref, n) for n in scene.outputs + ("tri_id",)}
+    mask = arrays["tri_id"] >= 0
     # Outside the data window the golden is empty by construction: the reference must be
     # too. Inside it, compare stored bits (float32 patterns, ids exactly).
     y0, y1, x0, x1 = gold.window
-    outside = int(ref.mask.sum()) - int(ref.mask[y0:y1, x0:x1].sum())
+    outside = int(mask.sum()) - int(mask[y0:y1, x0:x1].sum())
     mismatches = {}
     for name in scene.outputs:
         g = getattr(gold, name)
-        r = getattr(ref, name)[y0:y1, x0:x1]
+        r = arrays[name][y0:y1, x0:x1]
         if name == "tri_id":
             diff = g != r
         else:

@@ -90,6 +90,24 @@ def coverage_codes(gpu_mask, ref_mask, ambiguous, id_mismatch) -> np.ndarray:
     return code
 
 
+def _sample_zero(raster):
+    """Sample 0 of a multisampled raster as a single-sample one, with its per-pixel
+    barycentrics ("center" / "centroid") or those of sample 0 ("sample")."""
+    import copy
+
+    view = copy.copy(raster)
+    view.samples = 1
+    view.mask = raster.mask[..., 0]
+    for name in ("tri_id", "depth", "edge_band", "depth_tie"):
+        if getattr(raster, name, None) is not None:
+            setattr(view, name, getattr(raster, name)[..., 0])
+    if raster.interpolation == "sample":
+        for name in ("persp", "screen"):
+            if getattr(raster, name) is not None:
+                setattr(view, name, getattr(raster, name)[..., 0, :])
+    return view
+
+
 class HtmlReport:
     """Collects scenes during a check run and writes ``directory/index.html``.
 
@@ -108,6 +126,8 @@ class HtmlReport:
         if art is None:
             return
         gpu, ref, rep = art.gpu, art.ref, art.report
+        if getattr(gpu, "samples", 1) > 1:       # the pictures show sample 0
+            gpu, ref = _sample_zero(gpu), _sample_zero(ref)
         y0, y1, x0, x1 = _crop_window(gpu.mask | ref.mask)
         f = _factor((y1 - y0, x1 - x0))
         sl = (slice(y0, y1), slice(x0, x1))
@@ -213,7 +233,8 @@ Coverage: <span style="background:#6e6e6e"></span>both
             parts.append(f'<img src="img/{fig}" alt="worst error/tolerance per scene" '
                          f'style="max-width:100%">')
         parts.append("<h2>Scenes</h2><table><tr><th class=l>scene</th><th>size</th>"
-                     "<th>triangles</th><th>covered</th><th>coverage mismatches</th>"
+                     "<th>samples</th><th>triangles</th><th>covered</th>"
+                     "<th>coverage mismatches</th>"
                      "<th>id mismatches</th><th>persp err/tol</th><th>screen err/tol</th>"
                      "<th>depth err/tol</th><th>golden</th><th>s</th><th>status</th></tr>")
         for s in result.scenes:
@@ -227,7 +248,8 @@ Coverage: <span style="background:#6e6e6e"></span>both
                                          if s.waived else "")
             parts.append(
                 f'<tr class="{"" if s.ok else "fail"}"><td class=l><a href="#{e(s.name)}">'
-                f'{e(s.name)}</a></td><td>{w}x{h}</td><td>{s.triangles}</td>'
+                f'{e(s.name)}</a></td><td>{w}x{h}</td><td>{e(s.sampling)}</td>'
+                f'<td>{s.triangles}</td>'
                 f'<td>{rep.covered_gpu if rep else "-"}</td>'
                 f'<td>{rep.coverage_mismatch if rep else "-"}</td>'
                 f'<td>{rep.tri_id_mismatch if rep else "-"}</td><td>{r("persp")}</td>'
@@ -266,7 +288,7 @@ Coverage: <span style="background:#6e6e6e"></span>both
         out = [f'<section class="scene" id="{e(s.name)}"><h3>{e(s.name)} '
                f'<span class="verdict {s.status.upper()}">{s.status.upper()}</span></h3>',
                f"<p>{e(s.description)} &mdash; {w}x{h}, {s.triangles} "
-               f"triangle{'' if s.triangles == 1 else 's'}</p>"]
+               f"triangle{'' if s.triangles == 1 else 's'}, samples {e(s.sampling)}</p>"]
         info = self.images.get(s.name)
         if info:
             y0, y1, x0, x1 = info["crop"]

@@ -31,9 +31,14 @@ def _set_counts(element, tests, failures, errors, seconds, skipped=0) -> None:
     element.set("time", f"{seconds:.3f}")
 
 
-def _case(parent, classname, name, seconds, failure=None, error=None, out=None):
+def _case(parent, classname, name, seconds, failure=None, error=None, out=None,
+          properties=None):
     case = ET.SubElement(parent, "testcase", classname=classname, name=name,
                          time=f"{seconds:.3f}")
+    if properties:
+        props = ET.SubElement(case, "properties")
+        for key, value in properties.items():
+            ET.SubElement(props, "property", name=key, value=str(value))
     if error:
         ET.SubElement(case, "error", message=error[:500], type="error").text = error
     elif failure:
@@ -95,18 +100,23 @@ def to_xml(result) -> ET.ElementTree:
             summary += f"\nnot judged (documented driver deviation, see ErrorModel): {s.waived}"
         h, w = s.resolution
         tris = f"{s.triangles} triangle" + ("" if s.triangles == 1 else "s")
-        summary = f"{s.description}\n{w}x{h}, {tris}\n{summary}"
+        sampling = getattr(s, "sampling", "1")
+        sampling = "1 sample" if sampling == "1" else \
+            f"{s.samples} samples, interpolation {s.interpolation}"
+        summary = f"{s.description}\n{w}x{h}, {tris}, {sampling}\n{summary}"
         for probe, diagnosis in getattr(s, "explained_by", ()):
             summary += f"\nexplained by probe {probe}: {diagnosis}"
+        props = {"samples": getattr(s, "samples", 1),
+                 "interpolation": getattr(s, "interpolation", "center")}
         if s.status == "error":
             errors += 1
-            _case(suite, cls, s.name, s.seconds, error=s.error, out=summary)
+            _case(suite, cls, s.name, s.seconds, error=s.error, out=summary, properties=props)
         elif s.status == "fail":
             fails += 1
             _case(suite, cls, s.name, s.seconds,
-                  failure=("; ".join(s.failures), summary), out=summary)
+                  failure=("; ".join(s.failures), summary), out=summary, properties=props)
         else:
-            _case(suite, cls, s.name, s.seconds, out=summary)
+            _case(suite, cls, s.name, s.seconds, out=summary, properties=props)
     _set_counts(suite, len(result.scenes), fails, errors, sum(s.seconds for s in result.scenes))
     total = (len(result.scenes), fails, errors)
     if getattr(result, "probes", None) and (not shard or shard[0] == 1):

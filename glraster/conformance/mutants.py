@@ -78,6 +78,9 @@ class Mutant:
     rotate_180  : the vertex shader renders the image rotated by 180 degrees; the host
                   rotates the read-back arrays back
     viewport_uniform : set ``uniform vec2 u_viewport = (width, height)``
+    multisample : False disables GL_MULTISAMPLE: each fragment covers every sample of a
+                  pixel whose center it covers (the per-sample coverage mask ignored)
+    depth_clear, depth_func : the depth buffer's clear value and test ("<", 1.0: real)
     """
 
     name: str
@@ -87,6 +90,9 @@ class Mutant:
     depth_test: bool = True
     rotate_180: bool = False
     viewport_uniform: bool = False
+    multisample: bool = True
+    depth_clear: float = 1.0
+    depth_func: str = "<"
     expected: tuple = field(default_factory=tuple)  # scenes that should catch it (documentation)
 
     def __post_init__(self):
@@ -103,7 +109,8 @@ class Mutant:
     @property
     def needs_host_changes(self) -> bool:
         return (self.target_dtype != "f4" or not self.depth_test or self.rotate_180
-                or self.viewport_uniform)
+                or self.viewport_uniform or not self.multisample or self.depth_clear != 1.0
+                or self.depth_func != "<")
 
     @property
     def patched_files(self) -> tuple[str, ...]:
@@ -244,6 +251,27 @@ MUTANTS: tuple[Mutant, ...] = (
            target_dtype="f2"),
     Mutant("depth_test_dropped", "depth test disabled: the last triangle drawn wins",
            depth_test=False),
+    # multisampling (caught by the multisample scenes)
+    Mutant("wrong_sample_position", "per-sample values interpolated at the next sample's "
+                                    "position instead of their own", patches=(
+        Patch(FRAG, "out_persp = v_persp;",
+              "out_persp = interpolateAtSample(v_persp, (gl_SampleID + 1) % gl_NumSamples);"),
+        Patch(FRAG, "out_screen = v_screen;",
+              "out_screen = interpolateAtSample(v_screen, (gl_SampleID + 1) % gl_NumSamples);"),
+    )),
+    Mutant("centroid_as_center", "centroid (and per-sample) values taken at the pixel "
+                                 "center, also where the center is outside the triangle",
+           patches=(
+        Patch(FRAG, "out_persp = v_persp;", "out_persp = interpolateAtOffset(v_persp, vec2(0.0));"),
+        Patch(FRAG, "out_screen = v_screen;",
+              "out_screen = interpolateAtOffset(v_screen, vec2(0.0));"),
+    )),
+    Mutant("sample_mask_ignored", "the per-sample coverage mask ignored: a fragment covers "
+                                  "every sample of a pixel whose center it covers",
+           multisample=False),
+    Mutant("reversed_occlusion", "depth buffer cleared to 0 and the test reversed "
+                                 "(GREATER): the farthest triangle wins",
+           depth_clear=0.0, depth_func=">"),
 )
 
 
@@ -268,16 +296,21 @@ def select(pattern: str | None) -> list[Mutant]:
     return chosen
 
 
-def render(mutant: Mutant | None, pos, tri, resolution, *, ctx, outputs=OUTPUTS):
+def render(mutant: Mutant | None, pos, tri, resolution, *, ctx, outputs=OUTPUTS,
+           samples: int = 1, interpolation: str = "center"):
     """Rasterize with a mutant's shaders and host changes; ``mutant=None`` renders the real
     shaders through this same path (the control for false alarms).
 
     Same arguments and result as :func:`glraster.rasterize` (a :class:`glraster.Raster`,
-    arrays indexed [y, x] with row 0 at the bottom, float32 barycentrics/depth, int32 ids).
+    arrays indexed [y, x] with row 0 at the bottom, float32 barycentrics/depth, int32 ids;
+    per-sample arrays when ``samples`` > 1).
     """
+    samples = validate.samples(samples)
+    interpolation = validate.interpolation(interpolation)
     if mutant is not None and not mutant.needs_host_changes:
         return _raster.rasterize(pos, tri, resolution, ctx=ctx, outputs=outputs,
-                                 shader_files=mutant.shader_files(ctx))
+                                 shader_files=mutant.shader_files(ctx), samples=samples,
+                                 interpolation=interpolation)
     m = mutant or Mutant("control", "none")
     names = validate.outputs(outputs)
     pos = validate.positions(pos)
@@ -287,19 +320,31 @@ def render(mutant: Mutant | None, pos, tri, resolution, *, ctx, outputs=OUTPUTS)
     colors = {n: (c, m.target_dtype if dtype == "f4" else dtype)
               for n, (c, dtype) in _raster.color_targets(names, hw).items()}
     vert, frag = m.shader_files(ctx)
+    defines = _pipeline.output_defines(colors)
+    if samples > 1:
+        _raster._check_multisampling(ctx, hw, samples, interpolation)
+        if interpolation != "center" and ("persp" in names or "screen" in names):
+            defines["INTERPOLATION"] = interpolation
+            if hw.vertex_input:
+                defines["AUX_QUALIFIERS"] = 1
     with ctx:
-        program, vao = ctx.program(vert, frag, _pipeline.output_defines(colors))
+        program, vao = ctx.program(vert, frag, defines)
     spec = _pipeline.Draw(
         program, vao, colors, read_depth="depth" in names, depth_test=m.depth_test,
-        vertex_input=hw.vertex_input,
+        vertex_input=hw.vertex_input, samples=samples, multisample=m.multisample,
+        depth_clear=m.depth_clear, depth_func=m.depth_func,
         uniforms={"u_viewport": (float(width), float(height))} if m.viewport_uniform else {})
     values = _pipeline.draw(ctx, spec, pos, tri, (height, width),
                             during=f"rendering mutant {m.name}")
+    positions = values.pop("sample_positions", None)
     values = {n: v.astype(np.float32) if v.dtype == np.float16 else v for n, v in values.items()}
     if "tri_id" in values:
         _pipeline.decode_ids(values["tri_id"])
     if m.rotate_180:
         values = {k: np.ascontiguousarray(v[::-1, ::-1]) for k, v in values.items()}
-    return Raster(resolution=(height, width), mask=_pipeline.coverage(values),
-                  info={"backend": ctx.backend, "renderer": ctx.renderer,
-                        "method": f"mutant:{m.name}"}, **values)
+    info = {"backend": ctx.backend, "renderer": ctx.renderer, "method": f"mutant:{m.name}"}
+    mask = _pipeline.coverage(values)
+    if samples > 1:
+        return _raster.multisampled(values, mask, positions, interpolation, (height, width),
+                                    info)
+    return Raster(resolution=(height, width), mask=mask, info=info, **values)

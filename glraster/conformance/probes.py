@@ -12,9 +12,11 @@ deviation, e.g. Mesa's noperspective clipping defect, counted like the error mod
 waivers and not failing the run), "skipped" (this context cannot run it, e.g. a GL 4.5
 shader patch on a GL 3.3 context) or "error" (the probe raised).
 
-Every probe draws through ``render(pos, tri, resolution, outputs) -> Raster``, by default
-:func:`glraster.rasterize` on the context, or a fault-injection mutant's render
-(tests/conformance/test_probes.py: the tri_id_off_by_one mutant fails the id probe).
+Every probe draws through ``render(pos, tri, resolution, outputs, **multisample) -> Raster``
+(``multisample``: ``samples`` and ``interpolation``), by default :func:`glraster.rasterize`
+on the context, or a fault-injection mutant's render (tests/conformance/test_probes.py:
+the tri_id_off_by_one mutant fails the id probe). The multisampling probes are in
+:mod:`glraster.conformance.msaa_probes`.
 """
 
 from __future__ import annotations
@@ -434,6 +436,13 @@ PROBES = (("shared_edges", probe_shared_edges),
           ("noperspective_clip", probe_noperspective_clip), ("depth_precision", probe_depth))
 
 
+def all_probes():
+    """PROBES and the multisampling probes (glraster.conformance.msaa_probes)."""
+    from glraster.conformance import msaa_probes
+
+    return PROBES + msaa_probes.PROBES
+
+
 def run(ctx, render=None) -> list[ProbeResult]:
     """Run every probe on ``ctx``; ``render(pos, tri, resolution, outputs) -> Raster``
     replaces the draw (default :func:`glraster.rasterize` with host culling off, so that
@@ -441,10 +450,11 @@ def run(ctx, render=None) -> list[ProbeResult]:
     if render is None:
         from glraster.gpu.rasterize import rasterize
 
-        def render(pos, tri, resolution, outputs):
-            return rasterize(pos, tri, resolution, ctx=ctx, outputs=outputs, cull=False)
+        def render(pos, tri, resolution, outputs, **multisample):
+            return rasterize(pos, tri, resolution, ctx=ctx, outputs=outputs, cull=False,
+                             **multisample)
     results = []
-    for name, probe in PROBES:
+    for name, probe in all_probes():
         t = time.perf_counter()
         try:
             if "earlier" in probe.__code__.co_varnames:
@@ -463,8 +473,9 @@ def mutant_render(mutant, ctx):
     """A ``render`` for :func:`run` drawing with a fault-injection mutant."""
     from glraster.conformance import mutants as _mutants
 
-    def render(pos, tri, resolution, outputs):
-        return _mutants.render(mutant, pos, tri, resolution, ctx=ctx, outputs=outputs)
+    def render(pos, tri, resolution, outputs, **multisample):
+        return _mutants.render(mutant, pos, tri, resolution, ctx=ctx, outputs=outputs,
+                               **multisample)
     return render
 
 

@@ -78,7 +78,8 @@ class Method:
     fallback: Method | None = None
     interpolations: tuple[str, ...] = ("center",)
 
-    def error_model(self, ctx=None, clip_defect: bool | None = None) -> ErrorModel:
+    def error_model(self, ctx=None, clip_defect: bool | None = None,
+                    sample_persp_defect: bool | None = None) -> ErrorModel:
         """The per-pixel error model for this method on a context (None: llvmpipe).
 
         The driver model (:meth:`ErrorModel.for_context`) bounds every method that
@@ -86,13 +87,19 @@ class Method:
         the compensated methods shrink its position terms; outputs built on the driver's
         noperspective varyings are waived where the driver has Mesa's clipper defect:
         ``clip_defect`` says whether it has (the conformance probe ``noperspective_clip``
-        measures it); None assumes it on llvmpipe only.
+        measures it); None assumes it on llvmpipe only. ``sample_persp_defect``: whether
+        the driver divides by the pixel center's 1 / w at samples and centroids (the probe
+        ``sample_perspective`` measures it; None: assumed on llvmpipe only), for the
+        methods that read the driver's smooth varyings ("hw").
         """
         base = ErrorModel.for_context(ctx)
         has_defect = bool(base.waived_outputs) if clip_defect is None else clip_defect
         waived = self.clip_defect_outputs if has_defect else ()
+        llvmpipe = ctx is None or ctx.is_llvmpipe
+        persp_defect = llvmpipe if sample_persp_defect is None else sample_persp_defect
         return replace(base, waived_outputs=waived, compensated=self.compensated,
-                       persp_from_screen=self.persp_from_screen)
+                       persp_from_screen=self.persp_from_screen,
+                       center_one_over_w=bool(persp_defect) and not self.persp_from_screen)
 
 
 def _homogeneous_setup(fp64: bool):
@@ -174,6 +181,7 @@ def available(ctx) -> dict[str, Method | None]:
     return out
 
 
-def error_model(method: str, ctx=None, clip_defect: bool | None = None) -> ErrorModel:
+def error_model(method: str, ctx=None, clip_defect: bool | None = None,
+                sample_persp_defect: bool | None = None) -> ErrorModel:
     """:meth:`Method.error_model` of the method called ``method``."""
-    return get(method).error_model(ctx, clip_defect)
+    return get(method).error_model(ctx, clip_defect, sample_persp_defect)

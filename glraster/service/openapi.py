@@ -27,6 +27,13 @@ _OPTIONS = {
                        "description": "Drop clockwise triangles (GPU only)."},
     "crop": {"type": "boolean", "default": False,
              "description": "EXR: store only the covered pixels' bounding box (lossless)."},
+    "samples": {"type": "integer", "minimum": 1, "maximum": 64, "default": 1,
+                "description": "Samples per pixel: 1 or a count the driver offers (README, "
+                               "Multisampling); per-sample arrays have a sample axis after W "
+                               "and the .npz holds sample_positions. No EXR form."},
+    "interpolation": {"type": "string", "enum": ["center", "centroid", "sample"],
+                      "default": "center",
+                      "description": "Where multisampled barycentrics are evaluated."},
 }
 
 _QUERY_OPTIONS = [
@@ -38,6 +45,9 @@ _QUERY_OPTIONS = [
     *({"name": n, "in": "query", "required": False,
        "schema": {"type": "string", "enum": ["true", "false"]}}
       for n in ("reference", "compare", "cull_backfaces", "crop")),
+    {"name": "samples", "in": "query", "required": False, "schema": {"type": "integer"}},
+    {"name": "interpolation", "in": "query", "required": False,
+     "schema": {"type": "string", "enum": ["center", "centroid", "sample"]}},
 ]
 
 _DEADLINE = {"name": "deadline", "in": "query", "required": False,

@@ -16,7 +16,9 @@ Options: ``outputs`` (subset of persp, screen, depth, tri_id; default all), ``me
 (hw, divw, homogeneous, homogeneous64, solve4), ``reference`` (return the float64
 reference instead of the GPU raster), ``compare`` (compare the GPU raster with the reference
 under the method's error model), ``cull_backfaces``, ``crop`` (EXR: store only the covered
-pixels' bounding box).
+pixels' bounding box), ``samples`` (per pixel, 1 or a count the driver offers) and
+``interpolation`` (center, centroid, sample): multisampled results carry per-sample arrays
+(a sample axis after W) and ``sample_positions`` in the .npz, and have no EXR form.
 
 Results by ``Accept``: ``application/json`` (statistics, the comparison), ``application/x-npz``
 (the arrays, bit for bit as :func:`glraster.rasterize` returns them, plus ``mask``),
@@ -40,7 +42,9 @@ from glraster.io.npz import NpzError, npz_nbytes, read_npz, write_npz_into
 OUTPUT_NAMES = ("persp", "screen", "depth", "tri_id")
 METHOD_NAMES = ("hw", "divw", "homogeneous", "homogeneous64", "solve4")
 ARRAY_FIELDS = ("pos", "tri", "resolution")
-OPTION_FIELDS = ("outputs", "method", "reference", "compare", "cull_backfaces", "crop")
+OPTION_FIELDS = ("outputs", "method", "reference", "compare", "cull_backfaces", "crop",
+                 "samples", "interpolation")
+INTERPOLATION_NAMES = ("center", "centroid", "sample")
 CHECK_FIELDS = ("scenes", "method", "golden", "mutants", "shard")
 
 JSON = "application/json"
@@ -129,6 +133,26 @@ class RasterizeRequest:
     compare: bool = False
     cull_backfaces: bool = False
     crop: bool = False
+    samples: int = 1
+    interpolation: str = "center"
+
+
+def _samples(value):
+    """A sample count from JSON (an integer) or a query string; whether the driver offers
+    it is glraster.rasterize's to say."""
+    if isinstance(value, str) and value.strip().isdigit():
+        value = int(value)
+    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 64:
+        raise RequestError(422, "samples", f"samples must be an integer from 1 to 64 (a "
+                                           f"count the driver offers), got {value!r}"[:300])
+    return value
+
+
+def _interpolation(value):
+    if not isinstance(value, str) or value not in INTERPOLATION_NAMES:
+        raise RequestError(422, "interpolation", f"interpolation must be one of "
+                                                 f"{list(INTERPOLATION_NAMES)}, got {value!r}"[:300])
+    return value
 
 
 def _options(given: dict) -> dict:
@@ -138,6 +162,10 @@ def _options(given: dict) -> dict:
             out[key] = _outputs(value)
         elif key == "method":
             out[key] = _method(value)
+        elif key == "samples":
+            out[key] = _samples(value)
+        elif key == "interpolation":
+            out[key] = _interpolation(value)
         else:
             out[key] = _bool(key, value)
     return out
@@ -417,6 +445,8 @@ def encode_npz(raster, outputs, extra: dict | None = None, into=None):
     archive's bytes."""
     arrays = {n: getattr(raster, n) for n in outputs if getattr(raster, n) is not None}
     arrays["mask"] = raster.mask
+    if getattr(raster, "samples", 1) > 1:
+        arrays["sample_positions"] = raster.sample_positions
     for key, value in (extra or {}).items():
         arrays[key] = np.array(json.dumps(_jsonable(value)))
     size = npz_nbytes(arrays)

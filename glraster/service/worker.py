@@ -90,19 +90,25 @@ class Handler:
             if not req.reference or req.compare:
                 t = time.perf_counter()
                 key = (req.resolution, req.outputs, req.method)
-                reuse = self._frame[1] if self._frame and self._frame[0] == key else None
+                single = req.samples == 1
+                reuse = self._frame[1] if single and self._frame and self._frame[0] == key \
+                    else None
                 gpu = gr.rasterize(req.pos, req.tri, req.resolution, ctx=ctx, outputs=req.outputs,
                                    method=req.method, cull_backfaces=req.cull_backfaces,
-                                   out=reuse)
-                if _nbytes(gpu) <= REUSE_MAX_BYTES:
+                                   out=reuse, samples=req.samples,
+                                   interpolation=req.interpolation)
+                if single and _nbytes(gpu) <= REUSE_MAX_BYTES:
                     self._frame = (key, gpu)
                 timings["rasterize"] = time.perf_counter() - t
             if req.reference or req.compare:
                 t = time.perf_counter()
                 wanted = tuple(dict.fromkeys(req.outputs + ("tri_id",))) if req.compare \
                     else req.outputs
-                ref = gr.reference.rasterize(req.pos, req.tri, req.resolution, outputs=wanted,
-                                             fill_rule="llvmpipe")
+                ref = gr.reference.rasterize(
+                    req.pos, req.tri, req.resolution, outputs=wanted, fill_rule="llvmpipe",
+                    samples=req.samples, interpolation=req.interpolation,
+                    sample_positions=gpu.sample_positions if gpu is not None and req.samples > 1
+                    else None)
                 timings["reference"] = time.perf_counter() - t
         except ValueError as exc:
             msg = str(exc)
@@ -126,7 +132,9 @@ class Handler:
         accept = meta["accept"]
         t = time.perf_counter()
         if accept == "npz":
-            extra = {"comparison": evaluation} if evaluation is not None else None
+            extra = {"comparison": evaluation} if evaluation is not None else {}
+            if req.samples > 1:
+                extra["interpolation"] = req.interpolation
             cell = meta.get("cell") if self.cells is not None else None
             into = self.cells.cell(cell) if cell is not None else self._result
             data, ctype = p.encode_npz(raster, outputs, extra, into), p.NPZ
@@ -135,6 +143,9 @@ class Handler:
                 return p.Result(200, ctype, b"", headers, cell_bytes=len(data))
             if cell is None and data.obj is not into and len(data) <= REUSE_MAX_BYTES:
                 self._result = data.obj        # grown: the next results reuse it
+        elif accept == "exr" and req.samples > 1:
+            raise p.RequestError(406, "samples", "multisampled results (samples > 1) come as "
+                                                 ".npz or JSON, not EXR")
         elif accept == "exr":
             md = {"producer": producer, "source": source, "method": req.method}
             if evaluation is not None:
@@ -145,6 +156,8 @@ class Handler:
                 "resolution": list(req.resolution), "vertices": int(len(req.pos)),
                 "triangles": int(len(req.tri)), "outputs": list(outputs),
                 "method": req.method, "source": source, **p.raster_stats(raster),
+                "samples": req.samples, "interpolation": req.interpolation,
+                "sample_positions": raster.sample_positions.tolist(),
                 "info": p._jsonable(gpu.info) if gpu is not None else {},
                 "backend": ctx.backend, "renderer": ctx.renderer, "gl_version": ctx.gl_version,
                 "timings": timings,

@@ -215,11 +215,22 @@ def _compare_samples(gpu, ref, model: ErrorModel) -> Report:
     """:func:`compare` of multisampled rasters: one single-sample comparison per sample,
     merged, plus the point check of per-pixel barycentrics."""
     per_sample = ref.interpolation == "sample"
-    reports = [_compare(_sample_view(gpu, k, per_sample), _sample_view(ref, k, per_sample),
-                        model, offset=tuple(ref.sample_positions[k]))
-               for k in range(ref.samples)]
+    # the documented defect (ErrorModel.center_one_over_w): persp off the center waived
+    waive_persp = model.center_one_over_w and ref.interpolation != "center" \
+        and gpu.persp is not None
+    reports = []
+    waived = 0
+    for k in range(ref.samples):
+        g, r = _sample_view(gpu, k, per_sample), _sample_view(ref, k, per_sample)
+        if waive_persp and per_sample:
+            g.persp = None
+            if g.tri_id is not None:
+                waived += int((g.mask & r.mask & (g.tri_id == r.tri_id)).sum())
+        reports.append(_compare(g, r, model, offset=tuple(ref.sample_positions[k])))
     merged = _merge(reports)
     merged.samples, merged.interpolation = ref.samples, ref.interpolation
+    if waive_persp and per_sample:
+        merged.values["persp"] = ValueStats(waived=waived)
     if not per_sample and (gpu.persp is not None or gpu.screen is not None) \
             and ref.triangles is not None and gpu.tri_id is not None:
         first = first_covered_sample(gpu.mask)
@@ -230,8 +241,13 @@ def _compare_samples(gpu, ref, model: ErrorModel) -> Report:
         judged[judged] &= front[gpu_tri[judged]]
         if model.waived_outputs and gpu.screen is not None:
             judged &= ~waived_pixels(ref.triangles, np.where(judged, gpu_tri, -1), model)
-        merged.point = check_point(ref.triangles, gpu_tri, judged, gpu.persp, gpu.screen,
-                                   ref.interpolation, model)
+        persp = gpu.persp
+        if waive_persp and gpu.screen is not None:
+            persp = None
+            merged.values["persp"] = ValueStats(waived=int(judged.sum()))
+        if persp is not None or gpu.screen is not None:
+            merged.point = check_point(ref.triangles, gpu_tri, judged, persp, gpu.screen,
+                                       ref.interpolation, model)
     return merged
 
 

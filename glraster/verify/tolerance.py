@@ -64,6 +64,11 @@ class ErrorModel:
     # persp computed from the window-space barycentrics divided by w ("divw"): it carries
     # the noperspective interpolation error too (see value_tolerance).
     persp_from_screen: bool = False
+    # Multisampling: the driver divides the b_i / w_i it interpolates at a sample or
+    # centroid by the 1 / w of the pixel center, so perspective-correct values off the
+    # center are wrong (llvmpipe 22.3; the probe sample_perspective measures it). Where
+    # set, persp with interpolation "sample" / "centroid" is waived (counted, not judged).
+    center_one_over_w: bool = False
 
     @classmethod
     def for_context(cls, ctx) -> "ErrorModel":

@@ -7,13 +7,21 @@ import pytest
 
 from glraster.conformance import check, golden, mutants
 from glraster.conformance.scenes import list_scenes, load_scene
+from glraster.gpu.methods import error_model as gr_error_model_of
 from glraster.gpu.shaders import shader_dir
+
+
+def gr_error_model(ctx):
+    """The hw error model of the check run (llvmpipe's documented deviations waived)."""
+    return gr_error_model_of("hw", ctx)
 
 # Cheap scenes that between them exercise every mutated feature (perspective, shared
 # edges, ids, depth overlap); the full catalog would only add run time.
 SCENES = ("tiny_viewport", "basic_triangle", "basic_perspective_triangle",
           "quad_shared_diagonal", "pixel_center_edges", "grid_pixel_centers",
-          "depth_interpenetrating", "ortho_box", "fan_pixel_center")
+          "depth_interpenetrating", "ortho_box", "fan_pixel_center",
+          # multisampling: per-sample values, centroid points, per-sample coverage
+          "ms_perspective_sample", "ms_perspective_centroid", "ms_depth_interpenetrating")
 
 
 @pytest.fixture(scope="module")
@@ -24,8 +32,8 @@ def references():
 def test_at_least_eight_mutants_with_distinct_faults():
     assert len(mutants.MUTANTS) >= 8
     assert len({m.name for m in mutants.MUTANTS}) == len(mutants.MUTANTS)
-    assert len({(m.patches, m.target_dtype, m.depth_test) for m in mutants.MUTANTS}) \
-        == len(mutants.MUTANTS)
+    assert len({(m.patches, m.target_dtype, m.depth_test, m.multisample, m.depth_clear,
+                 m.depth_func) for m in mutants.MUTANTS}) == len(mutants.MUTANTS)
 
 
 @pytest.mark.parametrize("m", mutants.MUTANTS, ids=lambda m: m.name)
@@ -123,14 +131,25 @@ def test_no_full_shader_copies_left():
         f for f in (d / "mutants").iterdir() if f.suffix in (".vert", ".frag")]
 
 
+MULTISAMPLE_MUTANTS = {"wrong_sample_position", "centroid_as_center", "sample_mask_ignored"}
+
+
 def test_every_mutant_is_caught_and_the_control_passes(ctx, references):
     scenes = [load_scene(n) for n in SCENES]
-    results, control_failures = check.run_mutants(ctx, scenes, references)
+    chosen = list(mutants.MUTANTS)
+    if 4 not in ctx.sample_counts:              # no multisample scene can run here
+        scenes = [s for s in scenes if s.samples == 1]
+        chosen = [m for m in chosen if m.name not in MULTISAMPLE_MUTANTS]
+    results, control_failures = check.run_mutants(ctx, scenes, references, chosen,
+                                                  model=gr_error_model(ctx))
     # No false alarm: the real shaders through the mutant renderer pass every scene.
     assert control_failures == []
     escaped = [m.name for m in results if not m.caught]
     assert not escaped, f"mutants not caught on {ctx.backend}: {escaped}"
-    assert {m.name for m in results} == {m.name for m in mutants.MUTANTS}
+    assert {m.name for m in results} == {m.name for m in chosen}
+    caught_by = {m.name: m.caught_by for m in results}
+    for name in MULTISAMPLE_MUTANTS & set(caught_by):
+        assert caught_by[name].startswith("ms_"), (name, caught_by[name])
 
 
 def test_fill_rule_mutant_changes_only_tie_pixels(ctx, references):

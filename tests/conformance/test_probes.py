@@ -18,13 +18,19 @@ def by_name(results):
 
 def test_probes_pass_on_llvmpipe_except_the_documented_clip_defect(ctx):
     results = by_name(probes.run(ctx))
-    assert set(results) == {name for name, _ in probes.PROBES}
+    assert set(results) == {name for name, _ in probes.all_probes()}
     assert results["shared_edges"].status == "pass"
     clip = results.pop("noperspective_clip")
     if ctx.is_llvmpipe:
         assert clip.status == "known"
         assert "x plane and another plane" in clip.diagnosis
         assert "mesa_noperspective_clip_bug" in clip.diagnosis
+        # llvmpipe 22.3 divides by the pixel center's 1/w at samples and centroids
+        # (docs/drivers.md): a documented deviation, named, not a failure
+        for name in ("sample_perspective", "centroid"):
+            known = results.pop(name)
+            assert known.status == "known", (name, known.detail)
+            assert "1/w of the pixel center" in known.diagnosis
     bad = {n: r.diagnosis for n, r in results.items() if r.status != "pass"}
     assert not bad, bad
     assert all(r.ok for r in results.values()) and clip.ok
@@ -72,13 +78,13 @@ def test_check_reports_rules_and_probes_in_text_junit_and_html(ctx, tmp_path):
 
     report = HtmlReport(tmp_path / "html")
     result = check.run(ctx, ["basic_triangle"], on_scene=report.add_scene)
-    assert result.rules is not None and len(result.probes) == len(probes.PROBES)
+    assert result.rules is not None and len(result.probes) == len(probes.all_probes())
     table = check.format_table(result)
     assert result.rules.summary() in table and "probes (" in table
     assert all(p.name in table for p in result.probes)
     root = ET.parse(junit.write(result, tmp_path / "j.xml")).getroot()
     suite = root.find("testsuite[@name='glraster.conformance.probes']")
-    assert suite is not None and len(suite.findall("testcase")) == len(probes.PROBES)
+    assert suite is not None and len(suite.findall("testcase")) == len(probes.all_probes())
     rules_prop = root.find("testsuite/properties/property[@name='rules']")
     assert rules_prop is not None and rules_prop.get("value") == result.rules.summary()
     html = (report.finish(result)).read_text()

@@ -199,3 +199,33 @@ def test_client_error_names_the_field(server):
         c.request("POST", "/v1/rasterize", encode_scene(pos, np.array([[0, 1, 7]]), res),
                   content_type="application/x-npz")
     assert err.value.status == 422 and err.value.field == "tri"
+
+
+def test_multisampled_npz_result_is_the_in_process_raster(server, ctx):
+    """samples / interpolation in the request: per-sample arrays (a sample axis after W)
+    and sample_positions, bit for bit as in-process; EXR is refused with 406."""
+    if len(ctx.sample_counts) < 2:
+        pytest.skip("the driver offers no multisampling")
+    samples = ctx.sample_counts[-1]
+    scene = load_scene("ms_perspective_centroid")
+    for interpolation in ("centroid", "sample"):
+        local = gr.rasterize(scene.pos, scene.tri, scene.resolution, ctx=ctx,
+                             samples=samples, interpolation=interpolation)
+        with server.client() as c:
+            remote = c.rasterize(scene.pos, scene.tri, scene.resolution, samples=samples,
+                                 interpolation=interpolation)
+        assert remote.samples == samples and remote.interpolation == interpolation
+        assert remote.resolution == scene.resolution
+        for out in ("persp", "screen", "depth", "tri_id", "mask", "sample_positions"):
+            assert _same_bits(getattr(remote, out), getattr(local, out)), out
+    with server.client() as c:
+        with pytest.raises(ServiceError) as err:
+            c.rasterize(scene.pos, scene.tri, scene.resolution, samples=samples, result="exr")
+        assert err.value.status == 406 and err.value.field == "samples"
+        with pytest.raises(ServiceError) as err:
+            c.rasterize(scene.pos, scene.tri, scene.resolution, samples=3)
+        assert err.value.status == 422 and err.value.field == "samples"
+        with pytest.raises(ServiceError) as err:
+            c.rasterize(scene.pos, scene.tri, scene.resolution, samples=samples,
+                        interpolation="middle")
+        assert err.value.status == 422 and err.value.field == "interpolation"

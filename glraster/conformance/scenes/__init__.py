@@ -7,7 +7,9 @@ resulting clip-space geometry:
 
 - ``pos``: (V, 4) float32 clip-space positions (the float64 recipe result rounded once);
 - ``tri``: (T, 3) int32 vertex indices;
-- ``resolution``: (height, width) in pixels.
+- ``resolution``: (height, width) in pixels;
+- ``samples``, ``interpolation``: multisampling (catalog scenes tagged "multisample":
+  S = 4 in the catalog, run by ``glraster check`` at every S the driver offers).
 
 Users can also load their own scenes with :func:`load_scene_file` (``.npz`` or ``.json``),
 which validates every field and raises ``ValueError`` naming the file and the field.
@@ -44,6 +46,8 @@ class Scene:
     description: str = ""
     outputs: tuple[str, ...] = ALL_OUTPUTS
     tags: tuple[str, ...] = field(default_factory=tuple)
+    samples: int = 1             # samples per pixel (rasterize(samples=))
+    interpolation: str = "center"  # rasterize(interpolation=)
 
     @property
     def hash(self) -> str:
@@ -122,11 +126,13 @@ def build_scene(entry: dict, source: str = "scene") -> Scene:
         raise ValueError(f"{source}: bad parameters for builder {entry['builder']!r}: {exc}") from exc
     outputs = tuple(entry.get("outputs", ALL_OUTPUTS))
     return make_scene(entry["name"], pos, tri, resolution, entry.get("description", ""),
-                      outputs=outputs, tags=tuple(entry.get("tags", ())), source=source)
+                      outputs=outputs, tags=tuple(entry.get("tags", ())), source=source,
+                      samples=entry.get("samples", 1),
+                      interpolation=entry.get("interpolation", "center"))
 
 
 def make_scene(name, pos, tri, resolution, description="", outputs=ALL_OUTPUTS, tags=(),
-               source="scene") -> Scene:
+               source="scene", samples=1, interpolation="center") -> Scene:
     """Validate arrays and wrap them in a read-only Scene (pos -> float32, tri -> int32).
     Errors are glraster.validate's, prefixed with ``source`` (the file or catalog entry)."""
     try:
@@ -134,11 +140,24 @@ def make_scene(name, pos, tri, resolution, description="", outputs=ALL_OUTPUTS, 
         pos32 = validate.positions(pos)
         tri32 = validate.triangles(tri, len(pos32))
         outputs = validate.outputs(outputs)
+        samples = validate.samples(samples)
+        interpolation = validate.interpolation(interpolation)
     except ValueError as exc:
         raise ValueError(f"{source}: {exc}") from None
     pos32.setflags(write=False)
     tri32.setflags(write=False)
-    return Scene(str(name), pos32, tri32, resolution, description, tuple(outputs), tuple(tags))
+    return Scene(str(name), pos32, tri32, resolution, description, tuple(outputs), tuple(tags),
+                 samples, interpolation)
+
+
+def with_samples(scene: Scene, samples: int) -> Scene:
+    """A multisample scene at another sample count, named ``<name>@<S>x`` (the scene's
+    own count keeps the name)."""
+    from dataclasses import replace
+
+    if samples == scene.samples:
+        return scene
+    return replace(scene, samples=samples, name=f"{scene.name}@{samples}x")
 
 
 def load_scene_file(path) -> Scene:
