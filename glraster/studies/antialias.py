@@ -8,22 +8,27 @@ Scenes (:func:`builtin_scenes`), each a set of opaque, non-overlapping triangles
   triangles that a single sample per pixel misses entirely;
 - ``floor``: the dark squares of a checkerboard on a ground plane receding from behind the
   camera (near-clipped in clip space) to the far distance, where squares shrink below a
-  pixel.
+  pixel;
+- ``checker``: the same floor with every square drawn, in two grey levels (1 and 0.35),
+  as one connected mesh: most of its edges are between two colours, not silhouettes.
 
-Methods (:func:`methods`), each giving a coverage image (H, W) in [0, 1]:
+Every triangle has a flat value (1 in the first three scenes, whose images are then the
+coverage); the background is 0. Methods (:func:`methods`), each giving an image (H, W):
 
-- ``1 sample``: the pixel centre only (coverage 0 or 1);
+- ``1 sample``: the value at the pixel centre;
 - ``SSAA kxk`` (k = 2, 4, 8): render at k times the resolution, box filter (mean of k x k);
   for an MSAA count that is not a square, also the SSAA grid of that count (8: 4x2);
-- ``MSAA S``: ``rasterize(samples=S)``, :attr:`glraster.types.Raster.coverage`, for every
-  S > 1 the driver offers (``Context.sample_counts``);
+- ``MSAA S``: ``rasterize(samples=S)``, the mean of the values of the per-sample triangle
+  ids (with every value 1, :attr:`glraster.types.Raster.coverage`), for every S > 1 the
+  driver offers (``Context.sample_counts``);
 - ``analytic AA``: :func:`glraster.diff.antialias.antialias` applied to the 1-sample
-  coverage (colour 1 where a triangle is, 0 where none): the differentiable op's blend
-  across silhouette edges, from one sample per pixel.
+  image: the differentiable op's blend across silhouette edges, from one sample per pixel.
 
-The truth is :func:`glraster.reference.area_coverage`: the exact float64 area of each pixel
-the triangles cover. Errors are taken over the **edge pixels** (0 < area < 1: the pixels
-an edge crosses), as RMSE and max; elsewhere every method but a broken one is exact
+The truth is the exact box-filtered image (:func:`exact_image`): the visible area of each
+triangle in each pixel (:func:`glraster.reference.visible_area`, float64 polygon clipping)
+times its value; with every value 1 this is :func:`glraster.reference.area_coverage`.
+Errors are taken over the **edge pixels** (where more than one value is visible: the
+pixels an edge crosses), as RMSE and max; elsewhere every method but a broken one is exact
 (``max_off_edge`` says so). Times are medians over ``repeats`` runs of the whole method
 (draw, readback, filter) after a warm-up, in rounds that run every method once (so a
 slow spell of a shared machine hits all alike; in a new random order each round, so none
@@ -43,14 +48,14 @@ from glraster import validate
 from glraster.geometry import camera as cam
 from glraster.geometry.window import window_to_clip
 from glraster.io.atomic import atomic_write
-from glraster.reference.area import area_coverage
+from glraster.reference.area import visible_area
 
 __all__ = ["Scene", "Method", "builtin_scenes", "methods", "run_study", "write_study",
            "SSAA_FACTORS", "ORIENTATION", "ssaa_grid"]
 
 SSAA_FACTORS = (2, 4, 8)
 ORIENTATION = "upright: file row 0 is the top row (glraster array row H-1)"
-# A pixel is an edge pixel when its exact area is in (EDGE_EPS, 1 - EDGE_EPS): the float64
+# A value counts as visible in a pixel over more than EDGE_EPS of its area: the float64
 # areas of interior pixels next to an edge are 1 to within a few ulps.
 EDGE_EPS = 1e-9
 
@@ -60,12 +65,23 @@ EDGE_EPS = 1e-9
 
 @dataclass(frozen=True)
 class Scene:
-    """A study scene: ``pos`` (V, 4) float32 clip space, ``tri`` (T, 3) int32."""
+    """A study scene: ``pos`` (V, 4) float32 clip space, ``tri`` (T, 3) int32, and
+    ``values`` (T,) float64 the flat value (grey level) of each triangle; the background
+    is 0. With every value 1 the image is the coverage."""
 
     name: str
     title: str
     pos: np.ndarray
     tri: np.ndarray
+    values: np.ndarray = None
+
+    def __post_init__(self):
+        if self.values is None:
+            object.__setattr__(self, "values", np.ones(len(self.tri)))
+
+    def shade(self, tri_id: np.ndarray) -> np.ndarray:
+        """The value seen through triangle ids of any shape (-1: background 0), float64."""
+        return np.where(tri_id >= 0, self.values[np.maximum(tri_id, 0)], 0.0)
 
 
 def _fan(resolution) -> Scene:
@@ -98,7 +114,7 @@ def _thin(resolution) -> Scene:
                  np.float32(window_to_clip(np.array(xy), resolution)), tri.astype(np.int32))
 
 
-def _floor(resolution) -> Scene:
+def _floor(resolution, both_colours: bool = False) -> Scene:
     height, width = resolution
     cols, rows = 10, 24
     xs = np.linspace(-5.0, 5.0, cols + 1)
@@ -108,22 +124,27 @@ def _floor(resolution) -> Scene:
     view = cam.look_at([0.0, 0.0, 0.0], [0.0, -0.35, -1.0], [0.0, 1.0, 0.0])
     proj = cam.perspective(60.0, width / height, 0.3, 100.0)
     pos = cam.project(verts, None, view, proj)
-    tri = []
+    tri, values = [], []
     for r in range(rows):
         for c in range(cols):
-            if (r + c) % 2:
+            if (r + c) % 2 and not both_colours:
                 continue
             a, b = r * (cols + 1) + c, r * (cols + 1) + c + 1
             d, e = a + cols + 1, b + cols + 1
             tri += [(a, b, e), (a, e, d)]
+            values += [1.0 if (r + c) % 2 == 0 else 0.35] * 2
+    if both_colours:
+        return Scene("checker", "checker: the floor, both colours (1 and 0.35), one mesh",
+                     np.float32(pos), np.array(tri, np.int32), np.array(values))
     return Scene("floor", "floor: receding checkerboard, near-clipped",
                  np.float32(pos), np.array(tri, np.int32))
 
 
 def builtin_scenes(resolution=(128, 128)) -> list[Scene]:
-    """The fan, thin and floor scenes framed for ``resolution`` (H, W)."""
+    """The fan, thin, floor and checker scenes framed for ``resolution`` (H, W)."""
     resolution = validate.resolution(resolution)
-    return [_fan(resolution), _thin(resolution), _floor(resolution)]
+    return [_fan(resolution), _thin(resolution), _floor(resolution),
+            _floor(resolution, both_colours=True)]
 
 
 # --------------------------------------------------------------------------- methods
@@ -150,8 +171,8 @@ def _box(a: np.ndarray, kx: int, ky: int) -> np.ndarray:
 def _single(scene, resolution, ctx):
     from glraster.gpu.rasterize import rasterize
 
-    return lambda: rasterize(scene.pos, scene.tri, resolution, ctx=ctx,
-                             outputs=("tri_id",)).mask.astype(np.float64)
+    return lambda: scene.shade(rasterize(scene.pos, scene.tri, resolution, ctx=ctx,
+                                         outputs=("tri_id",)).tri_id)
 
 
 def _ssaa(kx, ky):
@@ -159,8 +180,8 @@ def _ssaa(kx, ky):
         from glraster.gpu.rasterize import rasterize
 
         big = (resolution[0] * ky, resolution[1] * kx)
-        return lambda: _box(rasterize(scene.pos, scene.tri, big, ctx=ctx,
-                                      outputs=("tri_id",)).mask.astype(np.float64), kx, ky)
+        return lambda: _box(scene.shade(rasterize(scene.pos, scene.tri, big, ctx=ctx,
+                                                  outputs=("tri_id",)).tri_id), kx, ky)
     return prepare
 
 
@@ -177,8 +198,11 @@ def _msaa(s):
     def prepare(scene, resolution, ctx):
         from glraster.gpu.rasterize import rasterize
 
-        return lambda: rasterize(scene.pos, scene.tri, resolution, ctx=ctx,
-                                 outputs=("tri_id",), samples=s).coverage.astype(np.float64)
+        # the resolve of flat values: the mean over the samples (with every value 1,
+        # Raster.coverage)
+        return lambda: scene.shade(rasterize(scene.pos, scene.tri, resolution, ctx=ctx,
+                                             outputs=("tri_id",), samples=s).tri_id
+                                   ).mean(axis=2)
     return prepare
 
 
@@ -191,7 +215,8 @@ def _analytic(scene, resolution, ctx):
     def run():
         rast, _, _ = diff_rasterize.forward(scene.pos, scene.tri, resolution, ctx=ctx,
                                             grad_db=False)
-        color = (rast[..., 3:4] > 0).astype(np.float32)
+        ids = rast[..., 3].astype(np.int64) - 1           # id + 1 as a float, exact
+        color = scene.shade(ids)[..., None].astype(np.float32)
         out, _ = aa.antialias(color, rast, scene.pos, scene.tri, topology, ctx=ctx)
         return out[0, ..., 0].astype(np.float64)
     return run
@@ -216,8 +241,30 @@ def methods(ctx) -> list[Method]:
 # --------------------------------------------------------------------------- the study
 
 
-def _errors(image: np.ndarray, truth: np.ndarray) -> dict:
-    edge = (truth > EDGE_EPS) & (truth < 1 - EDGE_EPS)
+def exact_image(scene: Scene, resolution) -> tuple[np.ndarray, np.ndarray]:
+    """The exact box-filtered image of ``scene`` (H, W) float64
+    (:meth:`glraster.reference.AreaFragments.resolve` of its values over background 0)
+    and its edge pixels (H, W) bool: those where more than one value is visible (two
+    triangles of different values, or a triangle and the background, each over more than
+    EDGE_EPS of the pixel). With every value 1: the pixels with 0 < area < 1."""
+    height, width = resolution
+    frags = visible_area(scene.pos, scene.tri, resolution)
+    image = frags.resolve(scene.values, 0.0)
+    keep = frags.area > EDGE_EPS
+    pixel = (frags.y * width + frags.x)[keep]
+    values = scene.values[frags.tri_id[keep]]
+    low = np.full(height * width, np.inf)
+    high = np.full(height * width, -np.inf)
+    np.minimum.at(low, pixel, values)
+    np.maximum.at(high, pixel, values)
+    coverage = frags.coverage.ravel()
+    partial = (coverage > EDGE_EPS) & (coverage < 1 - EDGE_EPS)
+    low[partial] = np.minimum(low[partial], 0.0)
+    high[partial] = np.maximum(high[partial], 0.0)
+    return image, (high > low).reshape(height, width)
+
+
+def _errors(image: np.ndarray, truth: np.ndarray, edge: np.ndarray) -> dict:
     err = image - truth
     return {"rmse": float(np.sqrt(np.mean(err[edge] ** 2))) if edge.any() else 0.0,
             "max": float(np.abs(err[edge]).max()) if edge.any() else 0.0,
@@ -229,10 +276,11 @@ def run_study(resolution=(128, 128), repeats: int = 5, ctx=None, scenes=None) ->
 
     Returns:
         {"resolution", "repeats", "renderer", "scenes": {name: {"title", "triangles",
-        "edge_pixels", "area_coverage_s"}}, "methods": [{"name", "samples", "kind",
+        "edge_pixels", "exact_s"}}, "methods": [{"name", "samples", "kind",
         "scenes": {name: {"rmse", "max", "max_off_edge", "time_s"}}, "mean_rmse"}] (ordered
         by mean RMSE, smallest first), "msaa_vs_ssaa": [{"samples", "msaa", "ssaa",
-        "time_ratio", "rmse_ratio"}], and "_images": {scene: {"truth", method: (H, W)}}
+        "time_ratio", "rmse_ratio"}], and "_images": {scene: {"truth", "edge", method:
+        (H, W)}}
         (not serialised).
     """
     from glraster.gpu.context import default_context
@@ -245,16 +293,15 @@ def run_study(resolution=(128, 128), repeats: int = 5, ctx=None, scenes=None) ->
     result = {"resolution": list(resolution), "repeats": repeats, "renderer": ctx.renderer,
               "backend": ctx.backend, "scenes": {}, "methods": [], "msaa_vs_ssaa": []}
     images = {}
-    area_coverage(scenes[0].pos, scenes[0].tri, (16, 16))      # compile (numba) untimed
+    exact_image(scenes[0], (16, 16))                           # compile (numba) untimed
     for scene in scenes:
         t0 = time.perf_counter()
-        truth = area_coverage(scene.pos, scene.tri, resolution)
+        truth, edge = exact_image(scene, resolution)
         elapsed = time.perf_counter() - t0
-        edge = (truth > EDGE_EPS) & (truth < 1 - EDGE_EPS)
         result["scenes"][scene.name] = {"title": scene.title, "triangles": len(scene.tri),
                                         "edge_pixels": int(edge.sum()),
-                                        "area_coverage_s": elapsed}
-        images[scene.name] = {"truth": truth}
+                                        "exact_s": elapsed}
+        images[scene.name] = {"truth": truth, "edge": edge}
     # Every (method, scene) is warmed up, then timed in rounds that run each once, so that
     # a slow spell of a shared machine hits all methods alike (median over the rounds).
     runs = {(m.name, scene.name): m.prepare(scene, resolution, ctx)
@@ -272,7 +319,8 @@ def run_study(resolution=(128, 128), repeats: int = 5, ctx=None, scenes=None) ->
     for m in all_methods:
         row = {"name": m.name, "samples": m.samples, "kind": m.kind, "scenes": {}}
         for scene in scenes:
-            stats = _errors(images[scene.name][m.name], images[scene.name]["truth"])
+            stats = _errors(images[scene.name][m.name], images[scene.name]["truth"],
+                            images[scene.name]["edge"])
             stats["time_s"] = float(np.median(times[m.name, scene.name]))
             row["scenes"][scene.name] = stats
         row["mean_rmse"] = float(np.mean([s["rmse"] for s in row["scenes"].values()]))
@@ -309,7 +357,7 @@ def table(result: dict) -> list[str]:
                      f"time / MSAA time {c['time_ratio']:.2f}, MSAA has {rmse} of SSAA")
     for n, s in result["scenes"].items():
         lines.append(f"{n}: {s['triangles']} triangles, {s['edge_pixels']} edge pixels, exact "
-                     f"area coverage in {1e3 * s['area_coverage_s']:.0f} ms")
+                     f"image (visible areas) in {1e3 * s['exact_s']:.0f} ms")
     return lines
 
 
@@ -320,11 +368,11 @@ def _meta(what: str) -> dict:
     return {"title": f"glraster antialias-study: {what}", "description": ORIENTATION}
 
 
-def _zoom_window(truth: np.ndarray, size: int) -> tuple[slice, slice]:
-    """A size x size crop centred on an edge pixel two fifths of the way from the centre
-    (the fan's edges are clear of each other there)."""
-    height, width = truth.shape
-    edge = np.argwhere((truth > EDGE_EPS) & (truth < 1 - EDGE_EPS))
+def _zoom_window(edge: np.ndarray, size: int) -> tuple[slice, slice]:
+    """A size x size crop centred on the edge pixel (of ``edge`` (H, W) bool) nearest a
+    point up and right of the centre (the fan's edges are clear of each other there)."""
+    height, width = edge.shape
+    edge = np.argwhere(edge)
     target = np.array([height / 2 + 0.4 * height / 2 * 0.6, width / 2 + 0.4 * width / 2 * 0.8])
     y, x = edge[np.argmin(np.sum((edge - target) ** 2, axis=1))] if len(edge) else target
     size = min(size, height, width)
@@ -381,7 +429,7 @@ def write_figures(result: dict, out_dir) -> list[str]:
     images = result["_images"]["fan"] if "fan" in result["_images"] else next(
         iter(result["_images"].values()))
     truth = images["truth"]
-    ys, xs = _zoom_window(truth, 14)
+    ys, xs = _zoom_window(images["edge"], 14)
     p = out_dir / "antialias_zoom.png"
     panels = ["truth"] + names
     with figures.figure(p, figsize=(1.75 * len(panels), 4.2), **_meta("zoomed edge")) as fig:
@@ -389,7 +437,7 @@ def write_figures(result: dict, out_dir) -> list[str]:
         for col, name in enumerate(panels):
             crop = images[name][ys, xs]
             axes[0, col].imshow(crop[::-1], cmap="gray", vmin=0, vmax=1)
-            title = "exact area" if name == "truth" else name
+            title = "exact" if name == "truth" else name
             axes[0, col].set_title(title)
             err = crop - truth[ys, xs]
             im = axes[1, col].imshow(err[::-1], cmap="RdBu_r", vmin=-0.5, vmax=0.5)
@@ -398,9 +446,9 @@ def write_figures(result: dict, out_dir) -> list[str]:
             for ax in axes[:, col]:
                 ax.set_xticks([])
                 ax.set_yticks([])
-        axes[0, 0].set_ylabel("coverage")
+        axes[0, 0].set_ylabel("image")
         axes[1, 0].set_ylabel("error")
-        fig.colorbar(im, ax=axes[1, :].tolist(), shrink=0.9, label="coverage - exact area")
+        fig.colorbar(im, ax=axes[1, :].tolist(), shrink=0.9, label="image - exact")
         fig.suptitle(f"One fan edge, {xs.stop - xs.start}x{ys.stop - ys.start} pixels from "
                      f"({xs.start}, {ys.start}); methods ordered by error")
     files.append(str(p))

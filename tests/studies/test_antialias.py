@@ -30,7 +30,7 @@ def test_every_method_the_driver_offers_is_measured(result, ctx):
     expected |= {f"MSAA {s}" for s in ctx.sample_counts if s > 1}
     expected |= {"SSAA {}x{}".format(*study.ssaa_grid(s)) for s in ctx.sample_counts if s > 1}
     assert set(names) == expected
-    assert set(result["scenes"]) == {"fan", "thin", "floor"}
+    assert set(result["scenes"]) == {"fan", "thin", "floor", "checker"}
     for r in result["methods"]:
         for name, s in r["scenes"].items():
             assert s["time_s"] > 0, (r["name"], name)
@@ -65,7 +65,10 @@ def test_one_sample_and_ssaa_images_are_what_their_definitions_say(result, ctx):
 
     scene = study.builtin_scenes(SIZE)[0]
     images = result["_images"][scene.name]
-    np.testing.assert_array_equal(images["truth"], area_coverage(scene.pos, scene.tri, SIZE))
+    # the fan's values are all 1: its exact image is the area coverage (to 1 ulp: the
+    # coverage is clamped to 1, the resolved sum is not)
+    np.testing.assert_allclose(images["truth"], area_coverage(scene.pos, scene.tri, SIZE),
+                               rtol=0, atol=1e-15)
     single = rasterize(scene.pos, scene.tri, SIZE, ctx=ctx, outputs=("tri_id",)).mask
     np.testing.assert_array_equal(images["1 sample"], single)
     big = rasterize(scene.pos, scene.tri, (80, 80), ctx=ctx, outputs=("tri_id",)).mask
@@ -94,14 +97,37 @@ def test_cli_writes_the_json_and_both_figures(gl_backend, tmp_path, capsys):
                  "--backend", gl_backend])
     assert code == 0
     printed = capsys.readouterr().out
-    assert "SSAA 8x8" in printed and "exact area coverage in" in printed
+    assert "SSAA 8x8" in printed and "exact image (visible areas) in" in printed
     files = sorted(p.name for p in out.iterdir())
     assert files == ["antialias.json", "antialias_error_time.png", "antialias_zoom.png"]
     data = json.loads((out / "antialias.json").read_text())
     assert data["resolution"] == [32, 32] and "_images" not in data
-    assert all(set(r["scenes"]) == {"fan", "thin", "floor"} for r in data["methods"])
+    assert all(set(r["scenes"]) == {"fan", "thin", "floor", "checker"} for r in data["methods"])
 
 
 def test_cli_rejects_a_tiny_frame(tmp_path, capsys):
     assert main(["antialias-study", "--out", str(tmp_path), "--size", "4"]) != 0
     assert "--size must be at least 16" in capsys.readouterr().err
+
+
+def test_edge_pixels_are_where_more_than_one_value_shows():
+    # a square of two triangles split by its diagonal: with equal values only the square's
+    # outline is an edge (the diagonal joins one value to itself); with two values the
+    # diagonal's pixels are edges too, and the exact image there is the area-weighted mean
+    from glraster.geometry.window import window_to_clip
+
+    res = (8, 8)
+    pos = np.float32(window_to_clip(np.array([[1.5, 1.5], [6.5, 1.5], [6.5, 6.5],
+                                              [1.5, 6.5]]), res))
+    tri = np.array([[0, 1, 2], [0, 2, 3]], np.int32)
+    same = study.Scene("same", "same", pos, tri, np.array([1.0, 1.0]))
+    image, edge = study.exact_image(same, res)
+    outline = np.zeros(res, bool)
+    outline[1, 1:7] = outline[6, 1:7] = outline[1:7, 1] = outline[1:7, 6] = True
+    np.testing.assert_array_equal(edge, outline)
+    two = study.Scene("two", "two", pos, tri, np.array([1.0, 0.5]))
+    image, edge = study.exact_image(two, res)
+    diagonal = np.eye(8, dtype=bool)
+    np.testing.assert_array_equal(edge, outline | (diagonal & ~np.isin(np.arange(8), [0, 7])))
+    assert image[3, 3] == pytest.approx(0.75, abs=1e-15)      # half 1, half 0.5
+    assert image[2, 4] == pytest.approx(1.0, abs=1e-15)       # below the diagonal: value 1

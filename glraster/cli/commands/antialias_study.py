@@ -1,10 +1,11 @@
 """`glraster antialias-study`: 1 sample, SSAA, MSAA and the analytic antialias op against the exact area.
 
-Render three scenes (a fan of wedges with edges at 36 angles, thin slivers, a receding
-near-clipped checkerboard floor) with one sample per pixel, supersampling 2x2, 4x4 and 8x8,
-multisampling at every sample count the driver offers and glraster.diff's analytic
-antialias op, and measure each coverage image against the exact area coverage
-(glraster.reference.area_coverage): RMSE and max over edge pixels, and the median time.
+Render four scenes (a fan of wedges with edges at 36 angles, thin slivers, a receding
+near-clipped floor of dark squares, the same floor as a two-colour checkerboard mesh) with
+one sample per pixel, supersampling 2x2, 4x4 and 8x8, multisampling at every sample count
+the driver offers and glraster.diff's analytic antialias op, and measure each image
+against the exact box-filtered one (glraster.reference.visible_area: exact visible areas
+times flat values): RMSE and max over edge pixels, and the median time.
 Prints the table; writes antialias.json, antialias_error_time.png and antialias_zoom.png.
 """
 
