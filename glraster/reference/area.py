@@ -104,8 +104,12 @@ def _window_polygons(clip, height, width, poly_out, counts, planes):
             continue
         # plane through vertices 0, best_i, best_i + 1
         i1, i2 = best_i, best_i + 1
-        ux, uy, uz = poly_out[t, i1, 0] - poly_out[t, 0, 0], poly_out[t, i1, 1] - poly_out[t, 0, 1], zw[i1] - zw[0]
-        vx, vy, vz = poly_out[t, i2, 0] - poly_out[t, 0, 0], poly_out[t, i2, 1] - poly_out[t, 0, 1], zw[i2] - zw[0]
+        ux = poly_out[t, i1, 0] - poly_out[t, 0, 0]
+        uy = poly_out[t, i1, 1] - poly_out[t, 0, 1]
+        uz = zw[i1] - zw[0]
+        vx = poly_out[t, i2, 0] - poly_out[t, 0, 0]
+        vy = poly_out[t, i2, 1] - poly_out[t, 0, 1]
+        vz = zw[i2] - zw[0]
         det = ux * vy - vx * uy
         a = (uz * vy - vz * uy) / det
         b = (ux * vz - vx * uz) / det
@@ -378,7 +382,8 @@ def _split_pixel(local, sizes, depth, visible):
                 w = v + 1 if v + 1 < n else 0
                 xv, xw = local[i, v, 0], local[i, w, 0]
                 if xv != xw and ((xv <= xm <= xw) or (xw <= xm <= xv)):
-                    y = local[i, v, 1] + (local[i, w, 1] - local[i, v, 1]) * ((xm - xv) / (xw - xv))
+                    t = (xm - xv) / (xw - xv)
+                    y = local[i, v, 1] + (local[i, w, 1] - local[i, v, 1]) * t
                     lo[i] = min(lo[i], y)
                     hi[i] = max(hi[i], y)
             present[i] = hi[i] > lo[i]

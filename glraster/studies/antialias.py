@@ -50,8 +50,9 @@ from glraster.geometry.window import window_to_clip
 from glraster.io.atomic import atomic_write
 from glraster.reference.area import visible_area
 
-__all__ = ["Scene", "Method", "builtin_scenes", "methods", "run_study", "write_study",
-           "SSAA_FACTORS", "ORIENTATION", "ssaa_grid"]
+__all__ = ["AntialiasMethod", "AntialiasScene", "EDGE_EPS", "ORIENTATION", "SSAA_FACTORS",
+           "builtin_scenes", "exact_image", "methods", "run_study", "ssaa_grid", "table",
+           "write_figures", "write_study"]
 
 SSAA_FACTORS = (2, 4, 8)
 ORIENTATION = "upright: file row 0 is the top row (glraster array row H-1)"
@@ -64,7 +65,7 @@ EDGE_EPS = 1e-9
 
 
 @dataclass(frozen=True)
-class Scene:
+class AntialiasScene:
     """A study scene: ``pos`` (V, 4) float32 clip space, ``tri`` (T, 3) int32, and
     ``values`` (T,) float64 the flat value (grey level) of each triangle; the background
     is 0. With every value 1 the image is the coverage."""
@@ -84,7 +85,7 @@ class Scene:
         return np.where(tri_id >= 0, self.values[np.maximum(tri_id, 0)], 0.0)
 
 
-def _fan(resolution) -> Scene:
+def _fan(resolution) -> AntialiasScene:
     height, width = resolution
     sectors = 36
     radius = 0.46 * min(height, width)
@@ -93,11 +94,11 @@ def _fan(resolution) -> Scene:
     rim = centre + radius * np.c_[np.cos(angles), np.sin(angles)]
     xy = np.vstack([centre, rim])
     tri = np.array([[0, 1 + s, 2 + s] for s in range(0, sectors, 2)])
-    return Scene("fan", f"fan: {sectors // 2} wedges, edges at {sectors} angles",
+    return AntialiasScene("fan", f"fan: {sectors // 2} wedges, edges at {sectors} angles",
                  np.float32(window_to_clip(xy, resolution)), tri.astype(np.int32))
 
 
-def _thin(resolution) -> Scene:
+def _thin(resolution) -> AntialiasScene:
     height, width = resolution
     rows, cols = 3, 4
     cell = np.array([width / cols, height / rows])
@@ -110,11 +111,11 @@ def _thin(resolution) -> Scene:
         normal = np.array([-d[1], d[0]]) / np.linalg.norm(d)
         xy += [centre - d, centre + d, centre + normal * w]
     tri = np.arange(len(xy)).reshape(-1, 3)
-    return Scene("thin", "thin: 12 slivers 0.04 to 1 px wide",
+    return AntialiasScene("thin", "thin: 12 slivers 0.04 to 1 px wide",
                  np.float32(window_to_clip(np.array(xy), resolution)), tri.astype(np.int32))
 
 
-def _floor(resolution, both_colours: bool = False) -> Scene:
+def _floor(resolution, both_colours: bool = False) -> AntialiasScene:
     height, width = resolution
     cols, rows = 10, 24
     xs = np.linspace(-5.0, 5.0, cols + 1)
@@ -134,13 +135,14 @@ def _floor(resolution, both_colours: bool = False) -> Scene:
             tri += [(a, b, e), (a, e, d)]
             values += [1.0 if (r + c) % 2 == 0 else 0.35] * 2
     if both_colours:
-        return Scene("checker", "checker: the floor, both colours (1 and 0.35), one mesh",
+        return AntialiasScene("checker",
+                              "checker: the floor, both colours (1 and 0.35), one mesh",
                      np.float32(pos), np.array(tri, np.int32), np.array(values))
-    return Scene("floor", "floor: receding checkerboard, near-clipped",
+    return AntialiasScene("floor", "floor: receding checkerboard, near-clipped",
                  np.float32(pos), np.array(tri, np.int32))
 
 
-def builtin_scenes(resolution=(128, 128)) -> list[Scene]:
+def builtin_scenes(resolution=(128, 128)) -> list[AntialiasScene]:
     """The fan, thin, floor and checker scenes framed for ``resolution`` (H, W)."""
     resolution = validate.resolution(resolution)
     return [_fan(resolution), _thin(resolution), _floor(resolution),
@@ -151,10 +153,11 @@ def builtin_scenes(resolution=(128, 128)) -> list[Scene]:
 
 
 @dataclass(frozen=True)
-class Method:
+class AntialiasMethod:
     """An antialiasing method: ``prepare(scene, resolution, ctx)`` returns a callable that
-    renders and returns the coverage image (H, W) float; ``samples`` per pixel (None for
-    the analytic op, which takes one sample and blends)."""
+    renders and returns the scene's image (H, W) float64; ``samples`` per pixel (1 for the
+    analytic op, which takes one sample and blends); ``kind`` one of "single", "ssaa",
+    "msaa", "analytic"."""
 
     name: str
     samples: int
@@ -222,26 +225,28 @@ def _analytic(scene, resolution, ctx):
     return run
 
 
-def methods(ctx) -> list[Method]:
+def methods(ctx) -> list[AntialiasMethod]:
     """Every method the context ``ctx`` can run: 1 sample, SSAA 2x2 / 4x4 / 8x8, MSAA at
     each sample count > 1 the driver offers (and an SSAA grid of the same count where it is
     not a square: 2x1, 4x2, ...), the analytic antialias op."""
-    out = [Method("1 sample", 1, "single", _single)]
-    out += [Method(f"SSAA {k}x{k}", k * k, "ssaa", _ssaa(k, k)) for k in SSAA_FACTORS]
+    out = [AntialiasMethod("1 sample", 1, "single", _single)]
+    out += [AntialiasMethod(f"SSAA {k}x{k}", k * k, "ssaa", _ssaa(k, k))
+            for k in SSAA_FACTORS]
     # an SSAA grid with the sample count of each MSAA count that has no square one
     for s in ctx.sample_counts:
         kx, ky = ssaa_grid(s)
         if s > 1 and kx != ky:
-            out.append(Method(f"SSAA {kx}x{ky}", s, "ssaa", _ssaa(kx, ky)))
-    out += [Method(f"MSAA {s}", s, "msaa", _msaa(s)) for s in ctx.sample_counts if s > 1]
-    out.append(Method("analytic AA", 1, "analytic", _analytic))
+            out.append(AntialiasMethod(f"SSAA {kx}x{ky}", s, "ssaa", _ssaa(kx, ky)))
+    out += [AntialiasMethod(f"MSAA {s}", s, "msaa", _msaa(s))
+            for s in ctx.sample_counts if s > 1]
+    out.append(AntialiasMethod("analytic AA", 1, "analytic", _analytic))
     return out
 
 
 # --------------------------------------------------------------------------- the study
 
 
-def exact_image(scene: Scene, resolution) -> tuple[np.ndarray, np.ndarray]:
+def exact_image(scene: AntialiasScene, resolution) -> tuple[np.ndarray, np.ndarray]:
     """The exact box-filtered image of ``scene`` (H, W) float64
     (:meth:`glraster.reference.AreaFragments.resolve` of its values over background 0)
     and its edge pixels (H, W) bool: those where more than one value is visible (two

@@ -120,12 +120,12 @@ def test_edge_pixels_are_where_more_than_one_value_shows():
     pos = np.float32(window_to_clip(np.array([[1.5, 1.5], [6.5, 1.5], [6.5, 6.5],
                                               [1.5, 6.5]]), res))
     tri = np.array([[0, 1, 2], [0, 2, 3]], np.int32)
-    same = study.Scene("same", "same", pos, tri, np.array([1.0, 1.0]))
+    same = study.AntialiasScene("same", "same", pos, tri, np.array([1.0, 1.0]))
     image, edge = study.exact_image(same, res)
     outline = np.zeros(res, bool)
     outline[1, 1:7] = outline[6, 1:7] = outline[1:7, 1] = outline[1:7, 6] = True
     np.testing.assert_array_equal(edge, outline)
-    two = study.Scene("two", "two", pos, tri, np.array([1.0, 0.5]))
+    two = study.AntialiasScene("two", "two", pos, tri, np.array([1.0, 0.5]))
     image, edge = study.exact_image(two, res)
     diagonal = np.eye(8, dtype=bool)
     np.testing.assert_array_equal(edge, outline | (diagonal & ~np.isin(np.arange(8), [0, 7])))

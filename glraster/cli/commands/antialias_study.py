@@ -1,4 +1,4 @@
-"""`glraster antialias-study`: 1 sample, SSAA, MSAA and the analytic antialias op against the exact area.
+"""`glraster antialias-study`: 1 sample, SSAA, MSAA and analytic AA against the exact image.
 
 Render four scenes (a fan of wedges with edges at 36 angles, thin slivers, a receding
 near-clipped floor of dark squares, the same floor as a two-colour checkerboard mesh) with
