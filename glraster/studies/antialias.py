@@ -415,7 +415,7 @@ def write_figures(result: dict, out_dir) -> list[str]:
             ax.set_xscale("log")
             ax.set_yscale("log")
             ax.set_xlabel("time per frame (ms, median)")
-            ax.set_ylabel(f"{label} (pixel area)")
+            ax.set_ylabel(f"{label} (1 = a whole pixel of value 1)")
             ax.grid(True, which="both")
         from matplotlib.lines import Line2D
 
@@ -427,7 +427,7 @@ def write_figures(result: dict, out_dir) -> list[str]:
         axes[1].legend(handles=method_handles + scene_handles, loc="center left",
                        bbox_to_anchor=(1.02, 0.5), title="method (by error) / scene")
         h, w = result["resolution"]
-        fig.suptitle(f"Antialiasing against the exact area coverage ({w}x{h}, "
+        fig.suptitle(f"Antialiasing against the exact box-filtered image ({w}x{h}, "
                      f"{result['renderer']})")
     files.append(str(p))
 
