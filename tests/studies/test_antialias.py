@@ -131,3 +131,17 @@ def test_edge_pixels_are_where_more_than_one_value_shows():
     np.testing.assert_array_equal(edge, outline | (diagonal & ~np.isin(np.arange(8), [0, 7])))
     assert image[3, 3] == pytest.approx(0.75, abs=1e-15)      # half 1, half 0.5
     assert image[2, 4] == pytest.approx(1.0, abs=1e-15)       # below the diagonal: value 1
+
+
+def test_cli_without_a_backend_exits_3_and_writes_nothing(tmp_path):
+    # EGL with no vendor library finds no device: the backend is unavailable (exit code 3)
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "__EGL_VENDOR_LIBRARY_FILENAMES": "/nonexistent"}
+    run = subprocess.run([sys.executable, "-m", "glraster.cli", "antialias-study", "--out",
+                          str(tmp_path / "aa"), "--backend", "egl"], capture_output=True,
+                         text=True, env=env, timeout=300)
+    assert run.returncode == 3, run.stderr
+    assert not list(tmp_path.iterdir())
