@@ -145,3 +145,55 @@ def test_cli_without_a_backend_exits_3_and_writes_nothing(tmp_path):
                          text=True, env=env, timeout=300)
     assert run.returncode == 3, run.stderr
     assert not list(tmp_path.iterdir())
+
+
+def _doc_table(path, header_start):
+    """{method: [cells]} of the Markdown table whose header row starts with header_start."""
+    from pathlib import Path
+
+    lines = (Path(__file__).resolve().parents[2] / path).read_text().splitlines()
+    first = next(i for i, line in enumerate(lines) if line.startswith(header_start))
+    rows = {}
+    for line in lines[first + 2:]:
+        if not line.startswith("|"):
+            break
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        rows[cells[0]] = cells[1:]
+    return rows
+
+
+def _assert_as_written(written: str, value: float, where) -> None:
+    """``written`` ("0.0931") is ``value`` rounded to as many decimals as it shows."""
+    decimals = len(written.split(".")[1]) if "." in written else 0
+    assert round(float(value), decimals) == pytest.approx(float(written), abs=1e-12), (
+        where, written, value)
+
+
+def test_the_errors_quoted_in_the_docs_are_what_the_study_computes(ctx):
+    # docs/antialiasing.md's table (256x256, llvmpipe): every RMSE / max cell and the mean
+    # RMSE, to the digits written there, and README's mean RMSE column. The errors do not depend on timing, so one run of
+    # each method suffices; they depend on the driver's sample positions and fill rule.
+    if "llvmpipe" not in ctx.renderer:
+        pytest.skip(f"the quoted figures are llvmpipe's, this is {ctx.renderer}")
+    table = _doc_table("docs/antialiasing.md", "| method (by error) | samples | fan |")
+    readme = _doc_table("README.md", "| method (by error) | mean edge RMSE |")
+    res = (256, 256)
+    scenes = study.builtin_scenes(res)
+    names = [s.name for s in scenes]
+    assert names == ["fan", "thin", "floor", "checker"]
+    exact = {s.name: study.exact_image(s, res) for s in scenes}
+    for m in study.methods(ctx):
+        assert m.name in table, f"docs/antialiasing.md has no row for {m.name}"
+        cells = table[m.name]
+        rmses = []
+        for scene, cell in zip(scenes, cells[1:5]):
+            image = m.prepare(scene, res, ctx)()
+            truth, edge = exact[scene.name]
+            err = np.abs(image - truth)[edge]
+            rmse, worst = np.sqrt(np.mean(err ** 2)), err.max()
+            rmses.append(rmse)
+            quoted_rmse, quoted_max = cell.split(" / ")
+            _assert_as_written(quoted_rmse, rmse, (m.name, scene.name, "rmse"))
+            _assert_as_written(quoted_max, worst, (m.name, scene.name, "max"))
+        _assert_as_written(cells[5], np.mean(rmses), (m.name, "mean rmse"))
+        _assert_as_written(readme[m.name][0], np.mean(rmses), ("README", m.name))
