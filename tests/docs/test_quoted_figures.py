@@ -107,11 +107,13 @@ def test_probe_count_quoted_for_the_drivers_is_what_check_prints(tmp_path):
     out = glraster_command("check", "--scenes", "tiny_viewport", "--no-golden", cwd=tmp_path)
     printed = re.search(r"probes \((\d+/\d+ ok)\)", out)
     assert printed, out
-    assert_quoted("docs/drivers.md", f'"probes ({printed.group(1)})", six PASS and '
-                                     "`noperspective_clip`")
+    assert_quoted("docs/drivers.md", f'"probes ({printed.group(1)})", nine PASS and '
+                                     "`noperspective_clip`, `sample_perspective` and "
+                                     "`centroid` KNOWN")
     statuses = dict(re.findall(r"^  (\w+) +(PASS|KNOWN|FAIL|SKIPPED) ", out, re.MULTILINE))
-    assert statuses.pop("noperspective_clip") == "KNOWN", out
-    assert list(statuses.values()) == ["PASS"] * 6, statuses
+    for known in ("noperspective_clip", "sample_perspective", "centroid"):
+        assert statuses.pop(known) == "KNOWN", out
+    assert list(statuses.values()) == ["PASS"] * 9, statuses
 
 
 @pytest.mark.gl
@@ -178,9 +180,9 @@ def test_golden_size_and_exit_codes_match_the_readme():
     from glraster.cli import exit_codes
 
     size = sum(p.stat().st_size for p in (mb.REPO / "golden").rglob("*.exr")) / 2**20
-    assert_quoted("README.md", "the goldens take 12.6 MiB")
-    assert_same_figure("12.6", size, "README.md (golden size, MiB)")
-    assert_quoted("docs/conformance.md", "in 12.6 MiB (budget: 20 MiB)")
+    assert_quoted("README.md", "the goldens take 13.9 MiB")
+    assert_same_figure("13.9", size, "README.md (golden size, MiB)")
+    assert_quoted("docs/conformance.md", "in 13.9 MiB (budget: 20 MiB)")
     assert size <= 20
     codes = (exit_codes.OK, exit_codes.FAIL, exit_codes.USAGE, exit_codes.NO_BACKEND)
     assert_quoted("README.md", "Exit codes: {} pass, {} fail, {} bad input, {} no GL "
