@@ -18,7 +18,7 @@ from pathlib import Path
 import moderngl
 import numpy as np
 
-from glraster.errors import GLVersionError, ShaderCompileError
+from glraster.errors import BadEnvironment, GLVersionError, ShaderCompileError
 from glraster.gpu.backends import create_backend
 from glraster.gpu.backends.current import MIN_GL, version_text
 from glraster.gpu.shaders import compile_program, describe_compile_error, with_defines
@@ -99,7 +99,11 @@ class Context:
 
     def __init__(self, backend: str | None = "auto", *, max_gl=None):
         if max_gl is None and os.environ.get("GLRASTER_MAX_GL"):
-            cap = parse_gl_version(os.environ["GLRASTER_MAX_GL"], "GLRASTER_MAX_GL")
+            try:
+                cap = parse_gl_version(os.environ["GLRASTER_MAX_GL"], "GLRASTER_MAX_GL")
+            except ValueError as exc:
+                raise BadEnvironment(f"{exc}: unset it or correct it",
+                                     "GLRASTER_MAX_GL") from None
         else:
             cap = None if max_gl is None else parse_gl_version(max_gl)
         self._backend, self.mgl = create_backend(backend)
