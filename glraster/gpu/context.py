@@ -73,7 +73,9 @@ class Context:
     Parameters
     ----------
     backend : {"auto", "egl", "osmesa"} or None
-        "auto" tries EGL, then OSMesa. None reads ``$GLRASTER_BACKEND`` (default "auto").
+        "auto" tries EGL, then OSMesa. None (the default) reads ``$GLRASTER_BACKEND``
+        ("auto" where it is unset; a bad value raises :class:`~glraster.errors.BadEnvironment`
+        naming it).
     max_gl : int or str, optional
         Use no OpenGL feature above this version (33 or "3.3": the GL 3.3 draw path of
         method "hw" even on a 4.5 driver, to test it). None reads ``$GLRASTER_MAX_GL``
@@ -95,9 +97,13 @@ class Context:
     ``with ctx:`` (and every call: rasterize, gl_error, release_targets, release ...) makes
     this context current and afterwards makes current again whatever context was current
     on the thread before, as does construction: a caller's own GL context keeps working.
+
+    Raises :class:`~glraster.errors.BackendUnavailable` (or a subclass: ``LibraryMissing``,
+    ``DriverTooOld``, ``BackendCrashed``, ``BadEnvironment``) when no context can be made;
+    its message names the library or the environment variable at fault and what to do.
     """
 
-    def __init__(self, backend: str | None = "auto", *, max_gl=None):
+    def __init__(self, backend: str | None = None, *, max_gl=None):
         if max_gl is None and os.environ.get("GLRASTER_MAX_GL"):
             try:
                 cap = parse_gl_version(os.environ["GLRASTER_MAX_GL"], "GLRASTER_MAX_GL")

@@ -49,8 +49,8 @@ def environment_key(environ=None) -> tuple:
     """The (name, value) pairs of every variable that can change which driver a context
     gets, sorted: what a probe verdict is cached under (with the library files)."""
     environ = os.environ if environ is None else environ
-    return tuple(sorted((k, v) for k, v in environ.items()
-                        if k in VARIABLES or k in OTHER_KEYS or k.startswith(PREFIXES)))
+    names = [k for k in environ if k in VARIABLES or k in OTHER_KEYS or k.startswith(PREFIXES)]
+    return tuple(sorted((k, environ[k]) for k in names))
 
 
 def set_variables(environ=None) -> dict:
