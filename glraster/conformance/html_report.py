@@ -21,13 +21,12 @@ table. Nothing is loaded from the network; the page works from ``file://``.
 from __future__ import annotations
 
 import html
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from glraster.io import figures
+from glraster.io.atomic import write_text
 from glraster.io.png import EMPTY_RGB, bary_rgb, write_png
 
 MAX_IMAGE_PX = 384
@@ -252,13 +251,7 @@ Coverage: <span style="background:#6e6e6e"></span>both
         for s in result.scenes:
             parts.append(self._scene_html(s))
         parts.append("</body></html>\n")
-        path = self.dir / "index.html"
-        fd, tmp = tempfile.mkstemp(prefix=".index.", suffix=".html", dir=self.dir)
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write("\n".join(parts))
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-        return path
+        return write_text(self.dir / "index.html", "\n".join(parts))
 
     def _scene_html(self, s) -> str:
         e = html.escape

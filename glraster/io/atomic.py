@@ -23,9 +23,15 @@ def atomic_write(path, suffix: str | None = None, mode: int = 0o644):
     target's) matters to writers that choose a format from the file name.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix,
-                               dir=path.parent)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix,
+                                   dir=path.parent)
+    except OSError as exc:  # name the target, not the temporary file
+        blocking = next((p for p in path.parents if p.exists() and not p.is_dir()), None)
+        reason = f"{blocking} is a file, not a folder" if blocking else exc.strerror
+        raise type(exc)(exc.errno, f"cannot create a file there ({reason})",
+                        str(path)) from None
     os.close(fd)
     try:
         yield tmp
@@ -34,6 +40,14 @@ def atomic_write(path, suffix: str | None = None, mode: int = 0o644):
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def write_text(path, text: str) -> Path:
+    """Write ``text`` (UTF-8) to ``path`` atomically (the parent folder is created)."""
+    path = Path(path)
+    with atomic_write(path) as tmp:
+        Path(tmp).write_text(text, encoding="utf-8")
+    return path
 
 
 def write_image(path, spec, pixels, suffix: str) -> Path:

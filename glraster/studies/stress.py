@@ -367,5 +367,6 @@ def plot(result: dict, path: str, columns: int = 5) -> None:
 
 
 def write_json(result: dict, path: str) -> None:
-    with open(path, "w") as f:
-        json.dump(result, f, indent=1)
+    from glraster.io.atomic import write_text
+
+    write_text(path, json.dumps(result, indent=1))
