@@ -211,7 +211,7 @@ Coverage: <span style="background:#6e6e6e"></span>both
         if fig:
             parts.append(f'<img src="img/{fig}" alt="worst error/tolerance per scene" '
                          f'style="max-width:100%">')
-        parts.append("<h2>Scenes</h2><table><tr><th class=l>scene</th><th>size</th>"
+        parts.append("<h2>Scenes</h2><table><tr><th class=l>scene</th><th>HxW</th>"
                      "<th>triangles</th><th>covered</th><th>coverage mismatches</th>"
                      "<th>id mismatches</th><th>persp err/tol</th><th>screen err/tol</th>"
                      "<th>depth err/tol</th><th>golden</th><th>s</th><th>status</th></tr>")
@@ -226,7 +226,7 @@ Coverage: <span style="background:#6e6e6e"></span>both
                                          if s.waived else "")
             parts.append(
                 f'<tr class="{"" if s.ok else "fail"}"><td class=l><a href="#{e(s.name)}">'
-                f'{e(s.name)}</a></td><td>{w}x{h}</td><td>{s.triangles}</td>'
+                f'{e(s.name)}</a></td><td>{h}x{w}</td><td>{s.triangles}</td>'
                 f'<td>{rep.covered_gpu if rep else "-"}</td>'
                 f'<td>{rep.coverage_mismatch if rep else "-"}</td>'
                 f'<td>{rep.tri_id_mismatch if rep else "-"}</td><td>{r("persp")}</td>'
@@ -258,7 +258,7 @@ Coverage: <span style="background:#6e6e6e"></span>both
         h, w = s.resolution
         out = [f'<section class="scene" id="{e(s.name)}"><h3>{e(s.name)} '
                f'<span class="verdict {s.status.upper()}">{s.status.upper()}</span></h3>',
-               f"<p>{e(s.description)} &mdash; {w}x{h}, {s.triangles} "
+               f"<p>{e(s.description)} &mdash; {h}x{w} (HxW), {s.triangles} "
                f"triangle{'' if s.triangles == 1 else 's'}</p>"]
         info = self.images.get(s.name)
         if info:

@@ -95,7 +95,7 @@ def to_xml(result) -> ET.ElementTree:
             summary += f"\nnot judged (documented driver deviation, see ErrorModel): {s.waived}"
         h, w = s.resolution
         tris = f"{s.triangles} triangle" + ("" if s.triangles == 1 else "s")
-        summary = f"{s.description}\n{w}x{h}, {tris}\n{summary}"
+        summary = f"{s.description}\n{h}x{w} (HxW), {tris}\n{summary}"
         for probe, diagnosis in getattr(s, "explained_by", ()):
             summary += f"\nexplained by probe {probe}: {diagnosis}"
         if s.status == "error":

@@ -408,7 +408,7 @@ def write_comparison(out_dir="out/distortion", resolution=(360, 480), supersampl
             for ax in row:
                 ax.set_axis_off()
         fig.suptitle("Affine distortion against perspective-correct interpolation (glraster, "
-                     f"{resolution[1]}x{resolution[0]}, {supersample}x{supersample} "
+                     f"{resolution[0]}x{resolution[1]} (HxW), {supersample}x{supersample} "
                      "supersampled)", fontsize=14)
     files.append(p)
 

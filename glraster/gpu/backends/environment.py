@@ -82,9 +82,10 @@ def _about(name: str, value: str) -> str:
             return (f"{shown}, and Mesa has no Gallium driver {value!r}{hint}: unset it or "
                     f"set one of its software drivers, {' or '.join(SOFTWARE_DRIVERS)}")
         if low not in SOFTWARE_DRIVERS:
-            return (f"{shown}; {value!r} needs its GPU or host (this machine has "
-                    f"{'no /dev/dri' if not dri_devices() else '/dev/dri/' + ', '.join(dri_devices())}"
-                    f"): unset it or set {' or '.join(SOFTWARE_DRIVERS)}")
+            devices = dri_devices()
+            seen = f"/dev/dri holds {', '.join(devices)}" if devices else "no /dev/dri"
+            return (f"{shown}; {value!r} needs its GPU or host (this machine has {seen}): "
+                    f"unset it or set {' or '.join(SOFTWARE_DRIVERS)}")
         return f"{shown}: unset it to let Mesa choose"
     if name == "MESA_GL_VERSION_OVERRIDE":
         match = re.match(r"\s*(\d+)\.(\d+)", value)
