@@ -25,7 +25,13 @@ from __future__ import annotations
 
 import os
 
-from glraster.errors import BackendUnavailable, BadEnvironment, DriverTooOld, LibraryMissing
+from glraster.errors import (
+    BackendCrashed,
+    BackendUnavailable,
+    BadEnvironment,
+    DriverTooOld,
+    LibraryMissing,
+)
 from glraster.gpu.backends import probe
 from glraster.gpu.backends.egl import EGLBackend
 from glraster.gpu.backends.environment import advice
@@ -93,6 +99,9 @@ def combined_error(failures: list[str], errors: list) -> BackendUnavailable:
     too_old = [e for e in errors if isinstance(e, DriverTooOld)]
     if too_old and len(too_old) == len(errors):
         return DriverTooOld(message, too_old[0].offered, too_old[0].needed)
+    crashed = [e for e in errors if isinstance(e, BackendCrashed)]
+    if crashed and len(crashed) == len(errors):
+        return BackendCrashed(message, crashed[0].backend, crashed[0].signal)
     return BackendUnavailable(message)
 
 

@@ -100,7 +100,7 @@ def _about(name: str, value: str) -> str:
         devices = dri_devices()
         where = ("this machine has no /dev/dri, so EGL finds only Mesa's software device, "
                  "index 0" if not devices else f"/dev/dri holds {', '.join(devices)}")
-        return f"{shown} ({where}): unset it or pick a device EGL lists"
+        return f"{shown}; {where}: unset it or pick a device EGL lists"
     if name in ("LD_LIBRARY_PATH", "LD_PRELOAD"):
         return f"{shown}: check the libEGL / libOSMesa / Mesa drivers it brings"
     return f"{shown}: unset it to see whether it is the cause"
