@@ -150,3 +150,12 @@ def test_the_probe_child_skips_the_package_init():
     out = subprocess.run([sys.executable, "-c", code, package], capture_output=True,
                          text=True, timeout=120)
     assert out.stdout.strip() == "False", out.stderr
+
+
+def test_an_embedded_interpreter_is_not_probed(monkeypatch):
+    """Python inside another program: sys.executable would start that program, not a
+    probe; the context is then made in-process (the behaviour before probes)."""
+    monkeypatch.setattr(probe.sys, "executable", "/usr/bin/blender")
+    found = probe.verdict("osmesa")
+    assert found["ok"] and "not a Python interpreter" in found["unprobed"]
+    assert not probe.cache_folder().exists(), "an unprobed verdict is not stored"

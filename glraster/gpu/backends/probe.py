@@ -136,7 +136,7 @@ def verdict(backend: str) -> dict:
             found = _read_disk(name)
             if found is None:
                 found = run_probe(backend)
-                if found["ok"]:
+                if found["ok"] and "unprobed" not in found:
                     _write_disk(name, found)
             _verdicts[key] = found
         return found
@@ -174,7 +174,15 @@ def _mesa_lines(stderr: str) -> list[str]:
 
 
 def run_probe(backend: str) -> dict:
-    """Run the child for ``backend`` now (no cache) and return its verdict."""
+    """Run the child for ``backend`` now (no cache) and return its verdict.
+
+    Where ``sys.executable`` is not a Python interpreter (Python embedded in another
+    program) no child can be started: the verdict is ``ok`` with ``unprobed`` saying why,
+    and the context is made in this process as it was before probes existed."""
+    interpreter = os.path.basename(sys.executable or "").lower()
+    if "python" not in interpreter and "pypy" not in interpreter:
+        return {"ok": True, "unprobed": f"sys.executable {sys.executable!r} is not a Python "
+                                        "interpreter"}
     library = {"egl": "libEGL", "osmesa": "libOSMesa"}.get(backend, backend)
     try:
         package = str(Path(__file__).resolve().parents[2])
