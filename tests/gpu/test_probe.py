@@ -159,3 +159,12 @@ def test_an_embedded_interpreter_is_not_probed(monkeypatch):
     found = probe.verdict("osmesa")
     assert found["ok"] and "not a Python interpreter" in found["unprobed"]
     assert not probe.cache_folder().exists(), "an unprobed verdict is not stored"
+
+
+def test_the_disk_keeps_only_the_newest_verdicts(monkeypatch):
+    monkeypatch.setattr(probe, "DISK_VERDICTS", 3)
+    _counting(monkeypatch, {"ok": True, "libraries": []})
+    for k in range(5):
+        monkeypatch.setenv("MESA_DEBUG", str(k))   # five environments, five verdicts
+        probe.verdict("egl")
+    assert len(list(probe.cache_folder().glob("*.json"))) == 3

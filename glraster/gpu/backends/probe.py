@@ -14,13 +14,13 @@ Verdicts are cached per environment: the driver variables
 /dev/dri, the Python interpreter and glraster's backend code.
 
 * In memory, per process: every verdict (a second Context() costs a dictionary look-up).
-* On disk, ``$XDG_CACHE_HOME/glraster/backend-probe/`` (``~/.cache/...``): only verdicts
-  that a context *can* be made, each with the driver library files the child had loaded
+* On disk, ``$XDG_CACHE_HOME/glraster/backend-probe/`` (``~/.cache/...``; the newest 64):
+  verdicts that a context *can* be made, each with the driver library files the child had loaded
   (path, size, modification time); one whose files changed is probed again. A failure is
   never stored on disk, so fixing the environment takes effect at once. Where the folder
   cannot be written, memory alone is used.
 
-Cost, measured with ``python benchmarks/bench_backend_probe.py`` (docs/drivers.md has the
+Cost, measured with ``python benchmarks/backend_probe.py`` (docs/drivers.md has the
 figures): the probe is one Python start plus one context creation, paid by the first
 Context() of an environment on this machine and then read from disk.
 """
@@ -56,6 +56,8 @@ MESA_LINE_CHARS = 160
 # Libraries whose files the child had loaded, recorded with a disk verdict.
 LIBRARY_PATTERN = re.compile(r"(libEGL|libOSMesa|libGLX|libGLdispatch|libglapi|libgallium"
                              r"|_dri\.so|libLLVM|libvulkan|libGL\.so)")
+# Verdicts kept on disk (the newest).
+DISK_VERDICTS = 64
 ERRORS = {cls.__name__: cls for cls in (BackendUnavailable, LibraryMissing, DriverTooOld)}
 
 _verdicts: dict = {}
@@ -113,13 +115,19 @@ def _read_disk(key: str) -> dict | None:
 
 
 def _write_disk(key: str, verdict: dict) -> None:
+    """Store a working verdict; the oldest beyond :data:`DISK_VERDICTS` are removed (every
+    change of environment or of glraster's backend code adds one)."""
     from glraster.io.atomic import atomic_write
 
+    folder = cache_folder()
     try:
-        with atomic_write(cache_folder() / f"{key}.json") as tmp:
+        with atomic_write(folder / f"{key}.json") as tmp:
             Path(tmp).write_text(json.dumps(verdict))
+        stored = sorted(folder.glob("*.json"), key=lambda f: f.stat().st_mtime_ns)
+        for old in stored[:-DISK_VERDICTS]:
+            old.unlink(missing_ok=True)
     except OSError:
-        pass  # a read-only home: the verdict stays in memory
+        pass  # a read-only home (the verdict stays in memory), or a race with another process
 
 
 def verdict(backend: str) -> dict:
