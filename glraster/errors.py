@@ -9,6 +9,33 @@ class LibraryMissing(BackendUnavailable):
     """The backend's library (libEGL, libOSMesa) is not installed: an install hint helps."""
 
 
+class BadEnvironment(BackendUnavailable, ValueError):
+    """An environment variable that glraster reads has a value it cannot use.
+
+    ``variable`` names it (``GLRASTER_BACKEND``, ``GLRASTER_MAX_GL``); the message says the
+    value and the accepted ones. Both a :class:`BackendUnavailable` (no context can be made
+    in this environment: ``glraster`` exits 3) and a ValueError (a bad value).
+    """
+
+    def __init__(self, message: str, variable: str):
+        super().__init__(message)
+        self.variable = variable
+
+
+class BackendCrashed(BackendUnavailable):
+    """Creating a context killed the probe process (a signal inside the driver library).
+
+    glraster creates each backend's first context of an environment in a subprocess
+    (:mod:`glraster.gpu.backends.probe`), so a driver that crashes takes down that process
+    only. ``signal`` is the signal's name ("SIGSEGV"), ``backend`` the backend's.
+    """
+
+    def __init__(self, message: str, backend: str, signal: str):
+        super().__init__(message)
+        self.backend = backend
+        self.signal = signal
+
+
 class DriverTooOld(BackendUnavailable):
     """The driver makes OpenGL contexts, but none of the version glraster needs.
 

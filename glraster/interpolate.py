@@ -55,6 +55,11 @@ def interpolate(attr, raster, tri, space: str = "persp", *, normalize: bool = Tr
         raise ValueError(f"raster barycentrics must be (H, W, 3) with tri_id (H, W), got "
                          f"{bary.shape} and {tri_id.shape}")
 
+    if attr is None:
+        raise ValueError(
+            "attr is None: there are no per-vertex values to interpolate. A Mesh whose file "
+            "has no texture coordinates has uv None (and one without normals normals None); "
+            "check `mesh.uv is not None` or pass another (V, C) array")
     try:
         a = np.asarray(attr)
     except (TypeError, ValueError):

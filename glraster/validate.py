@@ -29,8 +29,9 @@ def positions(pos) -> np.ndarray:
     return out
 
 
-def triangles(tri, num_vertices: int) -> np.ndarray:
-    """``tri`` as a C-contiguous (T, 3) int32 array of indices in [0, num_vertices)."""
+def triangles(tri, num_vertices: int, of: str = "pos") -> np.ndarray:
+    """``tri`` as a C-contiguous (T, 3) int32 array of indices in [0, num_vertices), the
+    rows of the array named ``of`` ("pos", or "attr" where tri indexes attributes)."""
     arr = np.asarray(tri)
     if arr.size == 0 and arr.ndim <= 2 and (arr.ndim < 2 or arr.shape[-1] in (0, 3)):
         return np.zeros((0, 3), np.int32)
@@ -42,7 +43,8 @@ def triangles(tri, num_vertices: int) -> np.ndarray:
     if low < 0:
         raise ValueError(f"tri must hold indices >= 0, got {low}")
     if high >= num_vertices:
-        raise ValueError(f"tri index {high} is out of range for pos with {num_vertices} vertices")
+        raise ValueError(f"tri index {high} is out of range for {of} with {num_vertices} "
+                         f"{'vertices' if of == 'pos' else 'rows (vertices)'}")
     return np.ascontiguousarray(arr, dtype=np.int32)
 
 

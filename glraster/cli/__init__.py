@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import pkgutil
 import sys
 
@@ -35,17 +36,45 @@ OPTIONAL_EXTRAS = {"torch": "torch", "starlette": "service", "uvicorn": "service
 
 
 def main(argv=None) -> int:
+    """Run one command; every error is one line on stderr and an exit code of
+    :mod:`glraster.cli.exit_codes` (a traceback only for a bug in glraster)."""
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:
+        # Every file glraster writes goes through glraster.io.atomic: an interrupted write
+        # leaves the previous file (or none) and no temporary file.
+        _quiet_stdout()
+        print("glraster: interrupted", file=sys.stderr)
+        return exit_codes.INTERRUPTED
+    except BrokenPipeError:
+        _quiet_stdout()
+        return exit_codes.BROKEN_PIPE
+
+
+def _quiet_stdout() -> None:
+    """Point stdout at /dev/null, so that the interpreter's last flush of what is still
+    buffered (to a pipe that is closed, or mid-interrupt) cannot fail a second time."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError, AttributeError):
+        pass  # stdout is no file (captured in-process): nothing is flushed to a pipe
+
+
+def _main(argv) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
         return exit_codes.USAGE
     try:
-        return int(args.func(args) or exit_codes.OK)
+        code = int(args.func(args) or exit_codes.OK)
+        sys.stdout.flush()  # a closed pipe shows up here, not at interpreter exit
+        return code
     except BackendUnavailable as exc:
         print(f"glraster {args.command}: error: {exc}", file=sys.stderr)
         return exit_codes.NO_BACKEND
-    except (ValueError, FileNotFoundError, ShaderCompileError) as exc:
+    except (ValueError, ShaderCompileError) as exc:
         print(f"glraster {args.command}: error: {exc}", file=sys.stderr)
         return exit_codes.USAGE
     except ModuleNotFoundError as exc:
@@ -55,3 +84,15 @@ def main(argv=None) -> int:
         print(f"glraster {args.command}: error: this command needs {exc.name}: "
               f"pip install 'glraster[{extra}]'", file=sys.stderr)
         return exit_codes.USAGE
+    except BrokenPipeError:
+        raise
+    except OSError as exc:  # a file that cannot be read or written, a full disk
+        print(f"glraster {args.command}: error: {describe_os_error(exc)}", file=sys.stderr)
+        return exit_codes.USAGE
+
+
+def describe_os_error(exc: OSError) -> str:
+    """"cannot write out.exr: Permission denied" style text of an OSError."""
+    if exc.strerror and exc.filename is not None:
+        return f"{exc.filename}: {exc.strerror}"
+    return str(exc)

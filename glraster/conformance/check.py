@@ -654,7 +654,7 @@ def format_table(result: CheckResult) -> str:
     if result.probes:
         lines[-1:-1] = [f"probes ({sum(p.ok for p in result.probes)}/{len(result.probes)} ok):"] \
             + [f"  {line}" for p in result.probes for line in p.line().split("\n")]
-    hdr = (f"{'scene':<28}{'size':>11}{'samples':>15}{'tris':>8}{'covered':>9}{'cov!':>6}{'id!':>5}"
+    hdr = (f"{'scene':<28}{'HxW':>11}{'samples':>15}{'tris':>8}{'covered':>9}{'cov!':>6}{'id!':>5}"
            f"{'persp e/tol':>12}{'screen e/tol':>13}{'depth e/tol':>12}{'golden':>8}"
            f"{'secs':>7}  status")
     lines.append(hdr)
@@ -671,7 +671,7 @@ def format_table(result: CheckResult) -> str:
         if s.waived:
             status += f" (waived {sum(s.waived.values())} px)"
         lines.append(
-            f"{s.name:<28}{f'{w}x{h}':>11}{s.sampling:>15}{s.triangles:>8}"
+            f"{s.name:<28}{f'{h}x{w}':>11}{s.sampling:>15}{s.triangles:>8}"
             f"{(rep.covered_gpu if rep else 0):>9}{(rep.coverage_mismatch if rep else 0):>6}"
             f"{(rep.tri_id_mismatch if rep else 0):>5}{ratio('persp'):>12}{ratio('screen'):>13}"
             f"{ratio('depth'):>12}{gold:>8}{s.seconds:>7.2f}  {status}")

@@ -17,7 +17,6 @@ repeated on the S columns of their pixel. The metadata records ``samples``,
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -25,24 +24,12 @@ import numpy as np
 
 from glraster.io import exr
 from glraster import reference as _reference
+from glraster.conformance.golden_folder import golden_dir
 from glraster.conformance.scenes import Scene, list_scenes, load_scene
 from glraster.geometry.samples import standard_positions
 
 PRODUCER = "glraster.reference.rasterize (float64, fill rule llvmpipe), rounded to float32"
 FILL_RULE = "llvmpipe"
-
-
-def golden_dir(directory=None) -> Path:
-    """The golden folder: ``directory``, else ``$GLRASTER_GOLDEN_DIR``, else ``golden/`` at
-    the top of the source tree, else the copy the wheel ships as ``glraster/golden``."""
-    if directory is not None:
-        return Path(directory)
-    env = os.environ.get("GLRASTER_GOLDEN_DIR")
-    if env:
-        return Path(env)
-    package = Path(__file__).resolve().parent.parent  # glraster/
-    source_tree = package.parent / "golden"
-    return source_tree if source_tree.is_dir() else package / "golden"
 
 
 def golden_available(directory=None) -> bool:

@@ -21,14 +21,12 @@ table. Nothing is loaded from the network; the page works from ``file://``.
 from __future__ import annotations
 
 import html
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from glraster.io import figures
-from glraster.io.atomic import atomic_write
+from glraster.io.atomic import atomic_write, write_text
 from glraster.io.png import EMPTY_RGB, bary_rgb, write_png
 
 MAX_IMAGE_PX = 384
@@ -244,7 +242,7 @@ Coverage: <span style="background:#6e6e6e"></span>both
         if fig:
             parts.append(f'<img src="img/{fig}" alt="worst error/tolerance per scene" '
                          f'style="max-width:100%">')
-        parts.append("<h2>Scenes</h2><table><tr><th class=l>scene</th><th>size</th>"
+        parts.append("<h2>Scenes</h2><table><tr><th class=l>scene</th><th>HxW</th>"
                      "<th>samples</th><th>triangles</th><th>covered</th>"
                      "<th>coverage mismatches</th>"
                      "<th>id mismatches</th><th>persp err/tol</th><th>screen err/tol</th>"
@@ -260,7 +258,7 @@ Coverage: <span style="background:#6e6e6e"></span>both
                                          if s.waived else "")
             parts.append(
                 f'<tr class="{"" if s.ok else "fail"}"><td class=l><a href="#{e(s.name)}">'
-                f'{e(s.name)}</a></td><td>{w}x{h}</td><td>{e(s.sampling)}</td>'
+                f'{e(s.name)}</a></td><td>{h}x{w}</td><td>{e(s.sampling)}</td>'
                 f'<td>{s.triangles}</td>'
                 f'<td>{rep.covered_gpu if rep else "-"}</td>'
                 f'<td>{rep.coverage_mismatch if rep else "-"}</td>'
@@ -286,20 +284,14 @@ Coverage: <span style="background:#6e6e6e"></span>both
         for s in result.scenes:
             parts.append(self._scene_html(s))
         parts.append("</body></html>\n")
-        path = self.dir / "index.html"
-        fd, tmp = tempfile.mkstemp(prefix=".index.", suffix=".html", dir=self.dir)
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write("\n".join(parts))
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-        return path
+        return write_text(self.dir / "index.html", "\n".join(parts))
 
     def _scene_html(self, s) -> str:
         e = html.escape
         h, w = s.resolution
         out = [f'<section class="scene" id="{e(s.name)}"><h3>{e(s.name)} '
                f'<span class="verdict {s.status.upper()}">{s.status.upper()}</span></h3>',
-               f"<p>{e(s.description)} &mdash; {w}x{h}, {s.triangles} "
+               f"<p>{e(s.description)} &mdash; {h}x{w} (HxW), {s.triangles} "
                f"triangle{'' if s.triangles == 1 else 's'}, samples {e(s.sampling)}</p>"]
         info = self.images.get(s.name)
         if info:
@@ -433,6 +425,5 @@ td a {{ color: inherit; }}
         parts.append("</table>")
     parts.append("</body></html>\n")
     path = directory / "index.html"
-    with atomic_write(path) as tmp:
-        Path(tmp).write_text("\n".join(parts), encoding="utf-8")
+    write_text(path, "\n".join(parts))
     return path

@@ -112,7 +112,7 @@ def to_xml(result) -> ET.ElementTree:
         sampling = getattr(s, "sampling", "1")
         sampling = "1 sample" if sampling == "1" else \
             f"{s.samples} samples, interpolation {s.interpolation}"
-        summary = f"{s.description}\n{w}x{h}, {tris}, {sampling}\n{summary}"
+        summary = f"{s.description}\n{h}x{w} (HxW), {tris}, {sampling}\n{summary}"
         for probe, diagnosis in getattr(s, "explained_by", ()):
             summary += f"\nexplained by probe {probe}: {diagnosis}"
         props = {"samples": getattr(s, "samples", 1),

@@ -74,7 +74,7 @@ def forward(attr, rast, tri, rast_db=None, diff_attrs=None, *, ctx: Context | No
     ctx = ctx or default_context()
     rast = layout.image("rast", rast, dtype=np.float32)
     attr3, batched = _gpu.check_vertices("attr", attr, None, rast.shape[0])
-    tri = layout.triangles(tri, attr3.shape[1])
+    tri = layout.triangles(tri, attr3.shape[1], "attr")
     diff_index = layout.diff_attrs(diff_attrs, attr3.shape[2]) or ()
     if rast_db is not None:
         rast_db = layout.image("rast_db", rast_db, rast.shape, np.float32)

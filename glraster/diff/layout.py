@@ -136,9 +136,10 @@ def positions(pos, dtype=np.float64) -> np.ndarray:
     return _finite("pos", arr, out)
 
 
-def triangles(tri, num_vertices: int) -> np.ndarray:
-    """``tri`` (T, 3) as int32 indices in [0, num_vertices) (see :func:`validate.triangles`)."""
-    return validate.triangles(tri, num_vertices)
+def triangles(tri, num_vertices: int, of: str = "pos") -> np.ndarray:
+    """``tri`` (T, 3) as int32 indices in [0, num_vertices), rows of ``of`` ("pos" or
+    "attr"; see :func:`validate.triangles`)."""
+    return validate.triangles(tri, num_vertices, of)
 
 
 def resolution(res) -> tuple[int, int]:

@@ -375,7 +375,7 @@ def interpolate_forward(attr, rast, tri, rast_db=None, diff_attrs=None):
     rast = layout.image("rast", rast)
     batch = rast.shape[0]
     attr = layout.attributes(attr, batch)
-    tri = layout.triangles(tri, attr.shape[-2])
+    tri = layout.triangles(tri, attr.shape[-2], "attr")
     tri_id = layout.rast_ids(rast, len(tri))
     chosen = layout.diff_attrs(diff_attrs, attr.shape[-1])
     if rast_db is not None:

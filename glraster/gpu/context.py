@@ -19,7 +19,7 @@ from pathlib import Path
 import moderngl
 import numpy as np
 
-from glraster.errors import GLVersionError, ShaderCompileError
+from glraster.errors import BadEnvironment, GLVersionError, ShaderCompileError
 from glraster.gpu.backends import create_backend
 from glraster.gpu.backends.current import MIN_GL, version_text
 from glraster.gpu.shaders import compile_program, describe_compile_error, with_defines
@@ -86,7 +86,9 @@ class Context:
     Parameters
     ----------
     backend : {"auto", "egl", "osmesa"} or None
-        "auto" tries EGL, then OSMesa. None reads ``$GLRASTER_BACKEND`` (default "auto").
+        "auto" tries EGL, then OSMesa. None (the default) reads ``$GLRASTER_BACKEND``
+        ("auto" where it is unset; a bad value raises :class:`~glraster.errors.BadEnvironment`
+        naming it).
     max_gl : int or str, optional
         Use no OpenGL feature above this version (33 or "3.3": the GL 3.3 draw path of
         method "hw" even on a 4.5 driver, to test it). None reads ``$GLRASTER_MAX_GL``
@@ -108,11 +110,19 @@ class Context:
     ``with ctx:`` (and every call: rasterize, gl_error, release_targets, release ...) makes
     this context current and afterwards makes current again whatever context was current
     on the thread before, as does construction: a caller's own GL context keeps working.
+
+    Raises :class:`~glraster.errors.BackendUnavailable` (or a subclass: ``LibraryMissing``,
+    ``DriverTooOld``, ``BackendCrashed``, ``BadEnvironment``) when no context can be made;
+    its message names the library or the environment variable at fault and what to do.
     """
 
-    def __init__(self, backend: str | None = "auto", *, max_gl=None):
+    def __init__(self, backend: str | None = None, *, max_gl=None):
         if max_gl is None and os.environ.get("GLRASTER_MAX_GL"):
-            cap = parse_gl_version(os.environ["GLRASTER_MAX_GL"], "GLRASTER_MAX_GL")
+            try:
+                cap = parse_gl_version(os.environ["GLRASTER_MAX_GL"], "GLRASTER_MAX_GL")
+            except ValueError as exc:
+                raise BadEnvironment(f"{exc}: unset it or correct it",
+                                     "GLRASTER_MAX_GL") from None
         else:
             cap = None if max_gl is None else parse_gl_version(max_gl)
         self._backend, self.mgl = create_backend(backend)

@@ -8,9 +8,54 @@ interrupt) leaves the previous file, or none, and no temporary file.
 from __future__ import annotations
 
 import os
+import signal
 import tempfile
+import threading
 from contextlib import contextmanager
 from pathlib import Path
+
+
+def _hold_interrupts():
+    """Defer Ctrl-C: SIGINT's handler is replaced by one that only records it. Returns
+    what :func:`_release` needs (None off the main thread, where no KeyboardInterrupt is
+    ever raised and handlers cannot be set). A signal mask would not do: SIGINT goes to any
+    thread that does not block it (driver and OpenImageIO threads), and Python raises it in
+    the main thread anyway."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    caught = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(frame))
+    return previous, caught
+
+
+def _release(held) -> None:
+    """Put SIGINT's handler back; a Ctrl-C that came meanwhile is handed to it now (the
+    default handler raises KeyboardInterrupt here)."""
+    if held is None:
+        return
+    previous, caught = held
+    signal.signal(signal.SIGINT, previous)
+    if caught:
+        if callable(previous):
+            previous(signal.SIGINT, caught[0])
+        elif previous == signal.SIG_DFL:
+            signal.raise_signal(signal.SIGINT)
+
+
+def _temporary_beside(path: Path, suffix: str | None) -> str:
+    """Create an empty temporary file in ``path``'s folder (made if missing); an OSError
+    names ``path``, not the temporary file."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix,
+                                   dir=path.parent)
+    except OSError as exc:
+        blocking = next((p for p in path.parents if p.exists() and not p.is_dir()), None)
+        reason = f"{blocking} is a file, not a folder" if blocking else exc.strerror
+        raise type(exc)(exc.errno, f"cannot create a file there ({reason})",
+                        str(path)) from None
+    os.close(fd)
+    return tmp
 
 
 @contextmanager
@@ -21,19 +66,34 @@ def atomic_write(path, suffix: str | None = None, mode: int = 0o644):
     are shared) and replaces ``path`` in one rename; on any exception it is removed and
     the exception propagates. The parent folder is created. ``suffix`` (default: the
     target's) matters to writers that choose a format from the file name.
+
+    Ctrl-C is held back from creating the temporary file until the code that removes it
+    is in place (a KeyboardInterrupt between the two would leave it behind).
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix,
-                               dir=path.parent)
-    os.close(fd)
+    tmp = None
+    held = _hold_interrupts()
     try:
+        tmp = _temporary_beside(path, suffix)
+        held, holding = None, held
+        _release(holding)
         yield tmp
         os.chmod(tmp, mode)
         os.replace(tmp, path)
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        if tmp is not None:
+            Path(tmp).unlink(missing_ok=True)
         raise
+    finally:
+        _release(held)
+
+
+def write_text(path, text: str) -> Path:
+    """Write ``text`` (UTF-8) to ``path`` atomically (the parent folder is created)."""
+    path = Path(path)
+    with atomic_write(path) as tmp:
+        Path(tmp).write_text(text, encoding="utf-8")
+    return path
 
 
 def write_image(path, spec, pixels, suffix: str) -> Path:

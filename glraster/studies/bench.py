@@ -362,7 +362,7 @@ def headline(*, backend="egl", repeats=9, resolution=(1024, 1024), count=20000) 
     peer = pyrender_time(scene, resolution, repeats)
     pixels = resolution[0] * resolution[1]
     return {
-        "scene": f"terrain {len(scene.faces)} triangles at {resolution[1]}x{resolution[0]}",
+        "scene": f"terrain {len(scene.faces)} triangles at {resolution[0]}x{resolution[1]} (HxW)",
         "hw_ms": float(np.median(t_hw)) * 1e3, "fill_ms": float(np.median(t_fill)) * 1e3,
         "hw_out_ms": float(np.median(t_out)) * 1e3, "lean_ms": float(np.median(t_lean)) * 1e3,
         "hw_over_fill": _ratio_stats(t_hw, t_fill),
@@ -546,7 +546,7 @@ def pareto_plot(result: dict, path: str) -> None:
                 ax.set_ylim(lo, hi)
                 ax.grid(True, which="major", alpha=0.3)
                 h, w = size
-                res = f"{w}²" if w == h else f"{w}x{h}"
+                res = f"{w}²" if w == h else f"{h}x{w} (HxW)"
                 ax.set_title(f"{scene}, {res}" + (f" ({nonfinite} non-finite, at top)"
                                                    if nonfinite else ""))
                 if row == nrows - 1:

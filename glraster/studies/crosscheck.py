@@ -198,7 +198,8 @@ class CrosscheckReport:
     def summary(self) -> str:
         lines = [
             f"pyrender ({self.pyrender.get('renderer', '?')}) vs glraster, "
-            f"{self.resolution[1]}x{self.resolution[0]}, near {self.near:g}, far {self.far:g}",
+            f"{self.resolution[0]}x{self.resolution[1]} (HxW), near {self.near:g}, "
+            f"far {self.far:g}",
             f"  glraster sampled at: {self.sample}",
             f"  covered in both: {self.covered_both}, in one only: {self.coverage_mismatch}, "
             f"compared away from silhouettes: {self.compared}",

@@ -30,7 +30,7 @@ from fractions import Fraction
 import numpy as np
 
 from glraster import validate
-from glraster.io.atomic import write_image
+from glraster.io.atomic import write_image, write_text
 from glraster.geometry import camera as cam
 from glraster.interpolate import interpolate
 
@@ -408,7 +408,7 @@ def write_comparison(out_dir="out/distortion", resolution=(360, 480), supersampl
             for ax in row:
                 ax.set_axis_off()
         fig.suptitle("Affine distortion against perspective-correct interpolation (glraster, "
-                     f"{resolution[1]}x{resolution[0]}, {supersample}x{supersample} "
+                     f"{resolution[0]}x{resolution[1]} (HxW), {supersample}x{supersample} "
                      "supersampled)", fontsize=14)
     files.append(p)
 
@@ -423,16 +423,14 @@ def write_comparison(out_dir="out/distortion", resolution=(360, 480), supersampl
         f"affine depth {gpu['affine_depth']:.7f}, perspective-correct depth "
         f"{gpu['correct_depth']:.7f}"]
     p = os.path.join(out_dir, "segment_example.txt")
-    with open(p, "w") as fh:
-        fh.write("\n".join(text) + "\n")
+    write_text(p, "\n".join(text) + "\n")
     files.append(p)
     summary = {"scenes": {r.scene.name: r.stats for r in results},
                "segment_example": {"affine_depth": str(ex.affine_depth),
                                    "correct_depth": str(ex.correct_depth), "gpu": gpu},
                "resolution": list(resolution), "supersample": supersample}
     p = os.path.join(out_dir, "summary.json")
-    with open(p, "w") as fh:
-        json.dump(summary, fh, indent=2)
+    write_text(p, json.dumps(summary, indent=2))
     files.append(p)
     summary["files"] = files
     summary["text"] = text

@@ -42,7 +42,7 @@ import numpy as np
 
 from glraster.geometry.window import window_to_clip
 from glraster.gpu.rasterize import METHODS, rasterize
-from glraster.io.atomic import atomic_write
+from glraster.io.atomic import atomic_write, write_text
 
 EPS32 = float(np.finfo(np.float32).eps)
 STRIP = (64, 16384)
@@ -369,5 +369,4 @@ def plot(result: dict, path: str, columns: int = 5) -> None:
 
 def write_json(result: dict, path: str) -> None:
     """Write ``result`` as JSON to ``path``, creating its folder; nothing partial is left."""
-    with atomic_write(path) as tmp, open(tmp, "w") as f:
-        json.dump(result, f, indent=1)
+    write_text(path, json.dumps(result, indent=1))

@@ -310,7 +310,7 @@ def interpolate(attr, rast, tri, rast_db=None, diff_attrs=None, *, glctx=None):
     rast_np = layout.image("rast", _checks.numpy(rast), dtype=dtype)
     attr_np = layout.attributes(_checks.numpy(attr), rast_np.shape[0], dtype=dtype)
     _checks.tensor("tri", tri, _checks.INT_DTYPES)
-    tri_np = layout.triangles(_checks.numpy(tri), attr_np.shape[-2])
+    tri_np = layout.triangles(_checks.numpy(tri), attr_np.shape[-2], "attr")
     layout.rast_ids(rast_np, len(tri_np))
     selected = layout.diff_attrs(diff_attrs, attr_np.shape[-1])
     if selected is not None and len(selected) == 0:

@@ -150,17 +150,44 @@ def benchmark(sizes=(512, 1024), repeat: int = 5, boundary_mode: str = "wrap"):
     return rows
 
 
-def main():  # pragma: no cover - a measurement, not a test
+def build_parser():
+    import argparse
+
+    parser = argparse.ArgumentParser(
+        prog="python -m glraster.torch.texture_baseline",
+        description="Time glraster.torch.texture against the same filters in plain PyTorch "
+                    "(grid_sample + autograd): forward + backward for every filter mode, "
+                    "one square image and texture per size, 4 channels. Prints a Markdown "
+                    "table (docs/differentiable.md, 'Speed').")
+    parser.add_argument("--sizes", type=int, nargs="+", default=[512, 1024], metavar="N",
+                        help="image and texture sizes, powers of two (default: 512 1024)")
+    parser.add_argument("--repeat", type=int, default=5, metavar="K",
+                        help="timed calls per cell, the median is shown (default 5)")
+    parser.add_argument("--boundary", default="wrap", choices=("wrap", "clamp", "zero"),
+                        help="boundary_mode (default wrap)")
+    return parser
+
+
+def main(argv=None) -> int:  # pragma: no cover - a measurement, not a test
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    for size in args.sizes:
+        if size < 2 or size & (size - 1):
+            parser.error(f"--sizes must be powers of two >= 2, got {size}")
+    if args.repeat < 1:
+        parser.error(f"--repeat must be >= 1, got {args.repeat}")
     torch.set_num_threads(max(1, torch.get_num_threads()))
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads; forward + backward, "
-          "median of 5, texture = image size, 4 channels, wrap")
+          f"median of {args.repeat}, texture = image size, 4 channels, {args.boundary}")
     print("| image and texture | filter_mode | glraster.torch (GL) ms | plain PyTorch ms | "
           "ratio | max / p99.9 |out difference| |")
     print("|---|---|---|---|---|---|")
-    for size, mode, gl, pt, dmax, d999 in benchmark():
+    for size, mode, gl, pt, dmax, d999 in benchmark(tuple(args.sizes), args.repeat,
+                                                    args.boundary):
         print(f"| {size}² | {mode} | {gl:.0f} | {pt:.0f} | {pt / gl:.2f} | "
               f"{dmax:.1e} / {d999:.1e} |")
+    return 0
 
 
 if __name__ == "__main__":  # pragma: no cover
-    main()
+    raise SystemExit(main())

@@ -118,7 +118,7 @@ class Report:
         """A short table for people."""
         h, w = self.resolution
         lines = [
-            f"{w}x{h}: covered gpu {self.covered_gpu}, reference {self.covered_ref}; "
+            f"{h}x{w} (HxW): covered gpu {self.covered_gpu}, reference {self.covered_ref}; "
             f"coverage mismatches {self.coverage_mismatch} "
             f"(+{self.coverage_mismatch_in_band} accepted in edge band / depth ties); "
             f"triangle id mismatches {self.tri_id_mismatch}",

@@ -152,3 +152,19 @@ def test_scene_without_camera_needs_view_and_proj():
         scene_geometry(scene)
     with pytest.raises(ValueError, match="resolution"):
         scene_geometry(scene, (0, 4), view=np.eye(4), proj=np.eye(4))
+
+
+def test_interpolating_the_uv_of_a_mesh_without_uv_says_so(tmp_path):
+    """A file without texture coordinates gives uv None; interpolating it names attr and
+    the missing UVs (it said "attr must be numeric, got dtype object")."""
+    import glraster as gr
+    from glraster.types import Raster
+
+    p = tmp_path / "tri.obj"
+    p.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    m = load_mesh(p)
+    raster = Raster((2, 2), np.zeros((2, 2), bool), persp=np.zeros((2, 2, 3), np.float32),
+                    tri_id=np.full((2, 2), -1, np.int32))
+    with pytest.raises(ValueError, match=r"^attr is None: .* no texture coordinates has uv "
+                                         r"None"):
+        gr.interpolate(m.uv, raster, m.faces)

@@ -14,6 +14,7 @@ import sys
 
 from glraster.cli import exit_codes
 from glraster.cli.commands import add_command
+from glraster.io.atomic import write_text
 
 
 def register(subparsers) -> None:
@@ -101,8 +102,7 @@ def run_diff(args) -> int:
             print(f"  {call} {phases['total']:.1f}: {parts}")
     print(f"\n{result['seconds']:.0f} s")
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump(result, f, indent=1, default=float)
+        write_text(args.json, json.dumps(result, indent=1, default=float))
         print(f"wrote {args.json}")
     return exit_codes.OK
 
@@ -160,8 +160,7 @@ def run(args) -> int:
     for label, v in result["skips"].items():
         print(f"  {label:<58}{v['on_ms']:>9.2f}{v['off_ms']:>9.2f}")
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump(result, f, indent=1, default=float)
+        write_text(args.json, json.dumps(result, indent=1, default=float))
         print(f"wrote {args.json}")
     if args.plot:
         bench.pareto_plot(result, args.plot)

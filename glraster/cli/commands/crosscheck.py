@@ -46,8 +46,9 @@ def _pyrender(args) -> int:
                               sample=args.sample, margin=args.margin)
     print(rep.summary())
     if args.json:
-        with open(args.json, "w") as fh:
-            json.dump(rep.to_dict(), fh, indent=2)
+        from glraster.io.atomic import write_text
+
+        write_text(args.json, json.dumps(rep.to_dict(), indent=2))
     ok = rep.median_rel <= args.max_median
     print(f"  median {'<=' if ok else '>'} {args.max_median:g}: {'PASS' if ok else 'FAIL'}")
     return exit_codes.OK if ok else exit_codes.FAIL

@@ -19,13 +19,21 @@ def register(subparsers) -> None:
     p = add_command(subparsers, "golden", __doc__)
     sub = p.add_subparsers(dest="golden_command", metavar="{update,check}")
     sub.required = True
+    from glraster.conformance.golden_folder import golden_dir
+
+    default = golden_dir()
+    where = (f"golden folder (default: $GLRASTER_GOLDEN_DIR, else the golden/ beside the "
+             f"glraster package Python imports, else the copy inside that package; here: "
+             f"{default})")
     for name, helptext in (("update", "regenerate golden EXRs from the reference"),
                            ("check", "verify that the reference reproduces every golden bit")):
         q = sub.add_parser(name, help=helptext, description=helptext)
         q.add_argument("names", nargs="*", metavar="NAME",
                        help="scene names or fnmatch patterns (default: all scenes)")
-        q.add_argument("--dir", default=None, metavar="DIR",
-                       help="golden folder (default: $GLRASTER_GOLDEN_DIR or golden/)")
+        q.add_argument("--dir", default=None, metavar="DIR", help=where + (
+            ". Without --dir or $GLRASTER_GOLDEN_DIR, update writes only to the golden/ of "
+            "the source tree the current directory is in: never into an installed package, "
+            "nor another checkout" if name == "update" else ""))
         if name == "update":
             q.add_argument("--force", action="store_true",
                            help="rewrite even goldens the reference still reproduces")
@@ -48,7 +56,14 @@ def _names(patterns):
 def _update(args) -> int:
     from glraster.conformance import golden
 
+    from glraster.conformance.golden_folder import unsafe_default
+
     names = _names(args.names)          # a ValueError is a usage error (exit 2) in main
+    unsafe = unsafe_default(args.dir)
+    if unsafe:
+        target = golden.golden_dir(args.dir)
+        raise ValueError(f"not writing goldens to {target}: it is {unsafe}; pass --dir "
+                         f"{target} to write there anyway, or --dir DIR for another folder")
     t0 = time.perf_counter()
     written = 0
     for name in names:

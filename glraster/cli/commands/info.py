@@ -31,6 +31,7 @@ def gather(backend=None) -> dict:
     from glraster.errors import GLVersionError
     from glraster.gpu import methods
     from glraster.gpu.backends import available_backends
+    from glraster.gpu.backends.environment import set_variables
     from glraster.gpu.backends.current import version_text
     from glraster.gpu.context import Context
 
@@ -66,6 +67,7 @@ def gather(backend=None) -> dict:
     finally:
         ctx.release()
     facts["available_backends"] = available_backends()
+    facts["driver_variables"] = set_variables()
     return facts
 
 
@@ -86,6 +88,11 @@ def unavailable_lines(facts: dict) -> list[str]:
             for (needs, what), names in groups.items()]
 
 
+def version_number(text: str) -> tuple:
+    """"3.3" -> (3, 3)."""
+    return tuple(int(part) for part in text.split(".")[:2])
+
+
 def run(args) -> int:
     from glraster.errors import BackendUnavailable, DriverTooOld, LibraryMissing
 
@@ -99,8 +106,10 @@ def run(args) -> int:
     try:
         facts = gather(args.backend)
     except DriverTooOld as exc:
-        print(f"glraster info: driver offers GL {exc.offered or 'unknown'}; glraster needs "
-              f"{exc.needed} core for drawing (4.5 for every method)\n  {exc}", file=sys.stderr)
+        below = exc.offered is None or version_number(exc.offered) < version_number(exc.needed)
+        lead = (f"driver offers GL {exc.offered or 'unknown'}; glraster needs {exc.needed} core "
+                "for drawing (4.5 for every method): " if below else "")
+        print(f"glraster info: {lead}{exc}", file=sys.stderr)
         return exit_codes.NO_BACKEND
     except LibraryMissing as exc:
         print(f"glraster info: no OpenGL library: {exc}", file=sys.stderr)
@@ -118,13 +127,16 @@ def run(args) -> int:
               "subpixel_bits": "subpixel bits", "max_texture_size": "max render size",
               "max_samples": "max MSAA samples",
               "fill_rule_modeled": "fill rule modeled exactly",
-              "available_backends": "working backends"}
+              "available_backends": "working backends",
+              "driver_variables": "driver variables set"}
     for key, label in labels.items():
         value = facts[key]
         if key == "unavailable_methods":  # one line each
             value = ("\n" + " " * 27).join(value) or "none"
         elif isinstance(value, list):
             value = ", ".join(value) or "none"
+        elif isinstance(value, dict):
+            value = ", ".join(f"{k}={v}" for k, v in value.items()) or "none"
         elif isinstance(value, bool):
             value = "yes (llvmpipe)" if value else "no (edge band used)"
         print(f"{label + ':':<27}{value}")

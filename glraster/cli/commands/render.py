@@ -96,7 +96,7 @@ def run(args) -> int:
                                       "producer": producer})
     h, w = scene.resolution
     tris = f"{len(scene.tri)} triangle" + ("" if len(scene.tri) == 1 else "s")
-    print(f"{scene.name}: {w}x{h}, {tris}, {int(raster.mask.sum())} "
+    print(f"{scene.name}: {h}x{w} (HxW), {tris}, {int(raster.mask.sum())} "
           f"pixels covered, {seconds:.3f} s -> {path} ({', '.join(outputs)})")
     if args.png:
         from pathlib import Path

@@ -117,10 +117,43 @@ def run(args) -> int:
     config = _config(args)   # ValueError -> exit 2 through main
     from glraster.service.app import serve
 
-    if not config.loopback and not config.tokens:
-        print(f"glraster serve: warning: listening on {config.host} without --token-file: "
-              "anyone who can reach this address can use the service", file=sys.stderr)
-    return serve(config, announce=lambda line: print(line, flush=True))
+    started = []
+
+    def announce(line):  # called once the socket is bound, before the server runs
+        started.append(line)
+        if not config.loopback and not config.tokens:
+            print(f"glraster serve: warning: listening on {config.host} without "
+                  "--token-file: anyone who can reach this address can use the service",
+                  file=sys.stderr)
+        print(line, flush=True)
+
+    try:
+        return serve(config, announce=announce)
+    except OSError as exc:
+        if started:
+            raise
+        print(f"glraster serve: {bind_error(args.host, args.port, exc)}", file=sys.stderr)
+        return exit_codes.USAGE
+
+
+def bind_error(host: str, port: int, exc: OSError) -> str:
+    """One line saying why ``host``:``port`` cannot be listened on, and what to do."""
+    import errno
+    import socket
+
+    where = f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
+    if isinstance(exc, socket.gaierror):
+        return (f"cannot listen on {where}: --host {host!r} does not resolve "
+                f"({exc.strerror or exc}); give an IP address or a name this machine knows")
+    reasons = {
+        errno.EADDRINUSE: "the port is in use by another process; pick another --port "
+                          "(--port 0: any free one)",
+        errno.EACCES: "permission denied (ports below 1024 need privileges); pick a "
+                      "--port of 1024 or more",
+        errno.EADDRNOTAVAIL: "the address is not one of this machine's; pick another --host "
+                             "(127.0.0.1, 0.0.0.0)",
+    }
+    return f"cannot listen on {where}: " + reasons.get(exc.errno, exc.strerror or str(exc))
 
 
 def run_bench(args) -> int:

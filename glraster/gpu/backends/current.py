@@ -173,9 +173,14 @@ def driver_too_old(version: str, renderer: str):
     match = re.match(r"\s*(?:OpenGL )?(\d+)\.(\d+)", version)
     offered = f"{match.group(1)}.{match.group(2)}" if match else None
     needed = version_text(MIN_GL)
+    driver = f"the driver ({renderer or 'unknown renderer'})"
+    if match and (int(match.group(1)), int(match.group(2))) >= divmod(MIN_GL // 10, 10):
+        # e.g. MESA_GLSL_VERSION_OVERRIDE=110: a 4.5 compatibility context, no core one
+        return DriverTooOld(f"{driver} makes OpenGL {offered} contexts without a profile but "
+                            f"no OpenGL {needed} core context", offered, needed)
     return DriverTooOld(
-        f"the driver ({renderer or 'unknown renderer'}) offers OpenGL "
-        f"{offered or repr(version)}; glraster needs OpenGL {needed} core", offered, needed)
+        f"{driver} offers OpenGL {offered or repr(version)}; glraster needs OpenGL "
+        f"{needed} core", offered, needed)
 
 
 def wrap_loader(moderngl, loader, require: int):

@@ -20,8 +20,9 @@ from glraster.gpu.backends.current import (
     wrap_loader,
 )
 
-# Below 3.2 there are no profiles: the context made to read what a too old driver offers.
-PROBE_GL = 300
+# The context made to read what a too old driver offers: version 1.0 has no profile, so
+# the driver returns its best, whatever it is (MESA_GL_VERSION_OVERRIDE=2.1 gives 2.1).
+PROBE_GL = 100
 
 EGL_DRAW = 0x3059
 EGL_READ = 0x305A
@@ -66,10 +67,17 @@ class EGLApi:
         if cls._instance is None:
             lib = loaded_library(LIBRARY_NAMES)
             if lib is None and load:
-                lib = ctypes.CDLL(ctypes.util.find_library("EGL") or LIBRARY_NAMES[0])
+                name = ctypes.util.find_library("EGL") or LIBRARY_NAMES[0]
+                try:
+                    lib = ctypes.CDLL(name)
+                except OSError as exc:
+                    raise BackendUnavailable(f"{name} does not load: {exc}") from None
             if lib is None:
                 return None
-            cls._instance = cls(lib)
+            try:
+                cls._instance = cls(lib)
+            except AttributeError as exc:  # a library of that name without EGL's calls
+                raise BackendUnavailable(f"{lib._name} is not a usable libEGL: {exc}") from None
         return cls._instance
 
     def context(self) -> int | None:

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
-import os
 from typing import NamedTuple
 
 from glraster.errors import BackendUnavailable, LibraryMissing
@@ -48,12 +47,20 @@ def _load_library():
     found = ctypes.util.find_library("OSMesa")
     if found:
         names.insert(0, found)
+    broken = []
     for name in names:
         try:
             lib = ctypes.CDLL(name)
-        except OSError:
+        except OSError as exc:
+            if "No such file" not in str(exc) and "cannot open shared object" not in str(exc):
+                broken.append(f"{name}: {exc}")
             continue
-        return _declare(lib)
+        try:
+            return _declare(lib)
+        except AttributeError as exc:  # a library of that name without OSMesa's calls
+            broken.append(f"{name} is not a usable libOSMesa: {exc}")
+    if broken:
+        raise BackendUnavailable("libOSMesa does not load (" + "; ".join(broken) + ")")
     raise LibraryMissing("libOSMesa not found (Debian package libosmesa6)")
 
 
@@ -221,13 +228,6 @@ class OSMesaBackend:
     def create(self):
         import moderngl
 
-        if os.environ.get("GALLIUM_DRIVER", "").strip().lower() == "zink":
-            # measured on Mesa 22.3: a segfault in OSMesaCreateContextAttribs, which would
-            # take the process down (available_backends() and "auto" try OSMesa too)
-            raise BackendUnavailable(
-                "OSMesa cannot run zink (GALLIUM_DRIVER=zink crashes OSMesaCreateContextAttribs "
-                "in Mesa 22.3); use the EGL backend, or MESA_LOADER_DRIVER_OVERRIDE=zink, "
-                "which EGL honours and OSMesa ignores")
         api = OSMesaApi.get(load=True)
         for version in GL_VERSIONS:
             attribs = (ctypes.c_int * 11)(
