@@ -42,7 +42,7 @@ import numpy as np
 
 from glraster.geometry.window import window_to_clip
 from glraster.gpu.rasterize import METHODS, rasterize
-from glraster.io.atomic import atomic_write, write_text
+from glraster.io.atomic import write_text
 
 EPS32 = float(np.finfo(np.float32).eps)
 STRIP = (64, 16384)
