@@ -151,6 +151,25 @@ def _center_one_over_w(ref, positions) -> np.ndarray:
     return out
 
 
+def _unwaived_model(ctx) -> ErrorModel:
+    """The driver's error model with no output waived: a probe measures the defects that
+    a check waives."""
+    model = ErrorModel.for_context(ctx)
+    return ErrorModel(model.ulp_factor, model.position_error_px, waived_outputs=())
+
+
+def _render_perspective(render, samples: int, interpolation: str):
+    """The perspective probe scene at ``samples`` with ``interpolation``: (GPU raster,
+    reference raster at the sample positions the GPU reports)."""
+    pos, tri, res = _perspective_scene()
+    outputs = ("persp", "screen", "tri_id")
+    gpu = render(pos, tri, res, outputs, samples=samples, interpolation=interpolation)
+    ref = _reference.rasterize(pos, tri, res, outputs=outputs, samples=samples,
+                               sample_positions=gpu.sample_positions,
+                               interpolation=interpolation)
+    return gpu, ref
+
+
 def probe_sample_perspective(render, ctx) -> ProbeResult:
     p = ProbeResult("sample_perspective", SPEC_SAMPLE,
                     "per-sample (interpolation='sample') persp and screen equal the "
@@ -159,16 +178,10 @@ def probe_sample_perspective(render, ctx) -> ProbeResult:
     counts = _counts(ctx)
     if not counts:
         return _skipped(p, ctx)
-    model = ErrorModel.for_context(ctx)
-    model = ErrorModel(model.ulp_factor, model.position_error_px, waived_outputs=())
+    model = _unwaived_model(ctx)
     problems, details, known = [], [], []
     for samples in counts:
-        pos, tri, res = _perspective_scene()
-        gpu = render(pos, tri, res, ("persp", "screen", "tri_id"), samples=samples,
-                     interpolation="sample")
-        ref = _reference.rasterize(pos, tri, res, outputs=("persp", "screen", "tri_id"),
-                                   samples=samples, sample_positions=gpu.sample_positions,
-                                   interpolation="sample")
+        gpu, ref = _render_perspective(render, samples, "sample")
         rep = compare(gpu, ref, model=model)
         sp, sc = rep.values["persp"], rep.values["screen"]
         details.append(f"{samples}x: persp max error {sp.max:.3g} ({sp.over_tolerance} "
@@ -211,16 +224,10 @@ def probe_centroid(render, ctx) -> ProbeResult:
     counts = _counts(ctx)
     if not counts:
         return _skipped(p, ctx)
-    model = ErrorModel.for_context(ctx)
-    model = ErrorModel(model.ulp_factor, model.position_error_px, waived_outputs=())
+    model = _unwaived_model(ctx)
     problems, details, known = [], [], []
     for samples in counts:
-        pos, tri, res = _perspective_scene()
-        gpu = render(pos, tri, res, ("persp", "screen", "tri_id"), samples=samples,
-                     interpolation="centroid")
-        ref = _reference.rasterize(pos, tri, res, outputs=("persp", "screen", "tri_id"),
-                                   samples=samples, sample_positions=gpu.sample_positions,
-                                   interpolation="centroid")
+        gpu, ref = _render_perspective(render, samples, "centroid")
         point = compare(gpu, ref, model=model).point
         partial = gpu.mask.any(axis=2) & ~gpu.mask.all(axis=2)
         details.append(f"{samples}x: {point.pixels} pixels judged ({int(partial.sum())} "
