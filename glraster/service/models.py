@@ -60,6 +60,9 @@ CROSS_FIELD_RULES = (
     "an option is given in the JSON body or as a query parameter, not both",
     "reference excludes cull_backfaces and a method other than hw (they choose how the GPU "
     "renders)",
+    "samples is 1 or a count the server's driver offers (GET /v1/info, driver.sample_counts)",
+    "interpolation other than center needs method hw or divw",
+    "samples above 1 has no EXR form (406)",
 )
 CHECK_RULES = (
     "scenes match at least one catalog scene",

@@ -252,7 +252,8 @@ def worker_main(sock, backend, limits, shared_cells=None) -> None:
             "pid": os.getpid(), "backend": ctx.backend, "renderer": ctx.renderer,
             "gl_version": ctx.gl_version, "vendor": ctx.vendor,
             "max_texture_size": ctx.max_texture_size, "subpixel_bits": ctx.subpixel_bits,
-            "fill_rule_modeled": ctx.is_llvmpipe, "glraster": gr.__version__,
+            "fill_rule_modeled": ctx.is_llvmpipe, "sample_counts": list(ctx.sample_counts),
+            "glraster": gr.__version__,
         }))
     except BaseException as exc:  # noqa: BLE001 - reported to the server, which retries
         try:

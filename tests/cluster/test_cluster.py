@@ -27,6 +27,7 @@ import pytest
 ray = pytest.importorskip("ray", reason="glraster.cluster needs the ray extra (make test installs it)")
 
 from glraster.cluster import dataset, fleet  # noqa: E402
+from glraster.conformance.probes import all_probes  # noqa: E402
 
 pytestmark = pytest.mark.gl
 
@@ -87,8 +88,8 @@ def test_fleet_check_gives_each_driver_its_sequential_verdicts(tmp_path, gl_back
         expected = _verdicts(tmp_path / f"{driver}.xml", "glraster.conformance.")
         got = _verdicts(tmp_path / "out.xml", "glraster.conformance.", driver)
         assert got == expected, (driver, got, expected)
-        # the scenes (3 match "basic_*", 2 "fan_*") and the 7 probes
-        assert len(got) == len(SCENES.split(",")) + 3 + 7
+        # the scenes (3 match "basic_*", 2 "fan_*") and every probe
+        assert len(got) == len(SCENES.split(",")) + 3 + len(all_probes())
     index = (tmp_path / "html" / "index.html").read_text()
     for driver in ("llvmpipe", "softpipe"):  # the matrix links every cell to its details
         assert f'href="{driver}/index.html#basic_triangle"' in index

@@ -17,7 +17,15 @@ import io
 import numpy as np
 import schemathesis
 
-OPTIONS = ("outputs", "method", "reference", "compare", "cull_backfaces", "crop")
+import json
+import os
+
+from glraster.service.models import OPTION_FIELDS as OPTIONS
+
+# the sample counts the server's driver offers (the test reads them from GET /v1/info)
+SAMPLE_COUNTS = json.loads(os.environ.get("GLRASTER_TEST_SAMPLE_COUNTS", "[1]"))
+# the methods that offer every interpolation (glraster.gpu.methods: the others center only)
+ALL_INTERPOLATIONS = ("hw", "divw")
 CHEAP_SCENE = "tiny_viewport"     # 0.13 s with its golden comparison
 CHEAP_MUTANT = "z_for_w"          # one mutant instead of all eleven (1.7 s)
 
@@ -45,6 +53,21 @@ def _rasterize(case) -> None:
         for key in OPTIONS:
             if key in body:
                 query.pop(key, None)
+    # samples is a count the driver offers; interpolation other than center needs hw or
+    # divw; samples above 1 has no EXR form
+    samples = 1
+    for where, as_text in ((body, False), (query, True)):   # query values are text
+        if where is not None and "samples" in where:
+            given = int(float(where["samples"]))
+            samples = given if given in SAMPLE_COUNTS else 1
+            where["samples"] = str(samples) if as_text else samples
+    method = (body or {}).get("method") or query.get("method") or "hw"
+    if method not in ALL_INTERPOLATIONS:
+        for where in (body, query):
+            if where is not None and "interpolation" in where:
+                where["interpolation"] = "center"
+    if samples > 1 and case.headers and "exr" in case.headers.get("Accept", ""):
+        case.headers["Accept"] = "application/x-npz"
     # reference excludes cull_backfaces and a method other than hw
     reference = (body or {}).get("reference") is True or query.get("reference") == "true"
     if reference:

@@ -15,6 +15,7 @@ takes about 15 s (30 s on a busy machine).
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import subprocess
@@ -49,7 +50,9 @@ def _schemathesis(server: Server, examples: int, token: str | None, tmp_path,
            "--request-timeout", "120", "--phases", phases]
     if token:
         cmd += ["--header", f"Authorization: Bearer {token}"]
+    counts = server.info()["driver"]["sample_counts"]
     env = {**os.environ, "SCHEMATHESIS_HOOKS": "tests.service.schemathesis_hooks",
+           "GLRASTER_TEST_SAMPLE_COUNTS": json.dumps(counts),
            "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
     run = subprocess.run(cmd, capture_output=True, text=True, cwd=tmp_path, env=env,
                          timeout=600)
