@@ -319,7 +319,9 @@ class Service:
         return await self._handle("metrics", request, work)
 
     async def openapi_json(self, request: Request) -> Response:
-        return Response(self._schema, media_type="application/json")
+        async def work():
+            return Response(self._schema, media_type="application/json")
+        return await self._handle("openapi", request, work)
 
 
 def _expire_queued(job: Job, deadline: float) -> None:

@@ -60,6 +60,7 @@ def test_metrics_count_known_requests(server):
         with pytest.raises(ServiceError) as err:
             c.request("GET", "/no/such/path")
         assert err.value.status == 404
+        c.request("GET", "/openapi.json")
         after = scrape(c)
 
     def delta(name, **labels):
@@ -69,6 +70,7 @@ def test_metrics_count_known_requests(server):
     assert delta("glraster_requests_total", endpoint="rasterize", status="400") == 1
     assert delta("glraster_requests_total", endpoint="other", status="404") == 1
     assert delta("glraster_requests_total", endpoint="metrics", status="200") == 1  # `before`
+    assert delta("glraster_requests_total", endpoint="openapi", status="200") == 1
     assert delta("glraster_errors_total", endpoint="rasterize", kind="client") == 1
     assert delta("glraster_errors_total", endpoint="other", kind="client") == 1
     assert delta("glraster_errors_total", endpoint="rasterize", kind="server") == 0
