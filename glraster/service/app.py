@@ -26,7 +26,7 @@ from starlette.routing import Route
 from glraster._version import __version__
 from glraster.service import models, openapi, protocol
 from glraster.service.config import ServiceConfig
-from glraster.service.metrics import Metrics
+from glraster.service.metrics import CONTENT_TYPE, Metrics
 from glraster.service.pool import Job, Outcome, QueueFull, Unavailable, WorkerPool
 
 _ACCEPT_RASTER = {"application/json": "json", "application/x-npz": "npz",
@@ -84,6 +84,7 @@ class Service:
         self.config = config
         self.metrics = Metrics()
         self.pool = WorkerPool(config, self.metrics)
+        self.metrics.watch(self.pool)
         self.draining = False
         self.started = time.time()
         self._digests = tuple(_token_digest(t) for t in config.tokens)
@@ -314,11 +315,13 @@ class Service:
     async def metrics_text(self, request: Request) -> Response:
         async def work():
             self._authorize(request)
-            return Response(self.metrics.render(self.pool), media_type="text/plain; version=0.0.4")
+            return Response(self.metrics.render(), media_type=CONTENT_TYPE)
         return await self._handle("metrics", request, work)
 
     async def openapi_json(self, request: Request) -> Response:
-        return Response(self._schema, media_type="application/json")
+        async def work():
+            return Response(self._schema, media_type="application/json")
+        return await self._handle("openapi", request, work)
 
 
 def _expire_queued(job: Job, deadline: float) -> None:

@@ -319,14 +319,15 @@ class StartedServer:
 
 def memory(client) -> dict:
     """Resident MiB of the server and each worker, from /metrics."""
-    text = client.metrics()
+    from prometheus_client.parser import text_string_to_metric_families
+
     out = {}
-    for line in text.splitlines():
-        if line.startswith("process_resident_memory_bytes "):
-            out["server"] = float(line.split()[1]) / 2**20
-        elif line.startswith("glraster_worker_resident_bytes"):
-            w = re.search(r'worker="(\d+)"', line).group(1)
-            out[f"worker{w}"] = float(line.split()[-1]) / 2**20
+    for family in text_string_to_metric_families(client.metrics()):
+        for s in family.samples:
+            if s.name == "process_resident_memory_bytes":
+                out["server"] = s.value / 2**20
+            elif s.name == "glraster_worker_resident_bytes":
+                out[f"worker{s.labels['worker']}"] = s.value / 2**20
     return out
 
 

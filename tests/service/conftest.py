@@ -159,3 +159,22 @@ SHARED_ARGS = ("--workers", "1", "--queue", "8", "--max-resolution", "1024",
 def server(gl_backend, servers) -> Server:
     """The module's shared server for this backend (1 worker, limits of SHARED_ARGS)."""
     return servers.get(gl_backend, *SHARED_ARGS)
+
+
+def scrape(client) -> dict:
+    """``GET /metrics`` parsed by prometheus_client's own parser: {(sample name, sorted
+    label pairs): value}; a sample twice in one exposition fails the test."""
+    from prometheus_client.parser import text_string_to_metric_families
+
+    samples = {}
+    for family in text_string_to_metric_families(client.metrics()):
+        for s in family.samples:
+            key = (s.name, tuple(sorted(s.labels.items())))
+            assert key not in samples, f"{key} exposed twice"
+            samples[key] = s.value
+    return samples
+
+
+def sample(samples: dict, name: str, **labels) -> float | None:
+    """The value of one sample of :func:`scrape`'s dict (None if absent)."""
+    return samples.get((name, tuple(sorted(labels.items()))))

@@ -15,6 +15,9 @@ import glraster as gr
 from glraster.client import ServiceError, encode_scene
 from glraster.conformance.scenes import list_scenes, load_scene
 from glraster.io import exr
+from glraster.service.metrics import BUCKETS
+
+from tests.service.conftest import sample, scrape
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -28,7 +31,7 @@ def _same_bits(a: np.ndarray, b: np.ndarray) -> bool:
     return a.shape == b.shape and a.dtype == b.dtype and a.tobytes() == b.tobytes()
 
 
-def test_healthz_readyz_info_metrics_openapi(server):
+def test_healthz_readyz_info_openapi(server):
     with server.client() as c:
         status, _, body = c.request("GET", "/healthz")
         assert status == 200 and json.loads(body)["status"] == "alive"
@@ -39,16 +42,57 @@ def test_healthz_readyz_info_metrics_openapi(server):
         assert info["limits"]["max_resolution"] == 1024   # min(configured, driver's)
         assert info["limits"]["driver_max_resolution"] >= 1024
         assert [w["state"] for w in info["workers"]] == ["ready"]
-        c.rasterize(*_tiny(), result="json")
-        text = c.metrics()
-        for name in ("glraster_requests_total", "glraster_request_duration_seconds_bucket",
-                     "glraster_queue_depth", "glraster_errors_total",
-                     "glraster_worker_restarts_total", "glraster_worker_resident_bytes",
-                     "process_resident_memory_bytes"):
-            assert name in text, name
-        assert 'glraster_requests_total{endpoint="rasterize",status="200"}' in text
         status, _, body = c.request("GET", "/openapi.json")
         assert json.loads(body)["openapi"].startswith("3.")
+
+
+def test_metrics_count_known_requests(server):
+    """/metrics, parsed by prometheus_client: the counters move by exactly the requests made
+    between two scrapes (the shared server has served other tests before: deltas), the
+    gauges state an idle pool of one ready worker."""
+    with server.client() as c:
+        before = scrape(c)
+        c.rasterize(*_tiny(), result="json")
+        c.rasterize(*_tiny(), result="json")
+        with pytest.raises(ServiceError) as err:
+            c.request("POST", "/v1/rasterize", b"{not json", content_type="application/json")
+        assert err.value.status == 400
+        with pytest.raises(ServiceError) as err:
+            c.request("GET", "/no/such/path")
+        assert err.value.status == 404
+        c.request("GET", "/openapi.json")
+        after = scrape(c)
+
+    def delta(name, **labels):
+        return (sample(after, name, **labels) or 0.0) - (sample(before, name, **labels) or 0.0)
+
+    assert delta("glraster_requests_total", endpoint="rasterize", status="200") == 2
+    assert delta("glraster_requests_total", endpoint="rasterize", status="400") == 1
+    assert delta("glraster_requests_total", endpoint="other", status="404") == 1
+    assert delta("glraster_requests_total", endpoint="metrics", status="200") == 1  # `before`
+    assert delta("glraster_requests_total", endpoint="openapi", status="200") == 1
+    assert delta("glraster_errors_total", endpoint="rasterize", kind="client") == 1
+    assert delta("glraster_errors_total", endpoint="other", kind="client") == 1
+    assert delta("glraster_errors_total", endpoint="rasterize", kind="server") == 0
+    # the histogram counts each rasterize answer once, in cumulative buckets up to +Inf
+    assert delta("glraster_request_duration_seconds_count", endpoint="rasterize") == 3
+    assert delta("glraster_request_duration_seconds_bucket", endpoint="rasterize",
+                 le="+Inf") == 3
+    buckets = [v for (name, labels), v in after.items()
+               if name == "glraster_request_duration_seconds_bucket"
+               and ("endpoint", "rasterize") in labels]
+    assert buckets == sorted(buckets) and len(buckets) == len(BUCKETS) + 1
+    assert delta("glraster_request_duration_seconds_sum", endpoint="rasterize") > 0
+    for reason in ("crash", "deadline", "error", "startup"):
+        assert delta("glraster_worker_restarts_total", reason=reason) == 0
+    assert sample(after, "glraster_queue_depth") == 0
+    assert sample(after, "glraster_queue_capacity") == 8              # SHARED_ARGS --queue
+    assert sample(after, "glraster_inflight_requests") == 0
+    assert {state: sample(after, "glraster_workers", state=state)
+            for state in ("starting", "ready", "busy", "failed", "stopped")} == {
+        "starting": 0, "ready": 1, "busy": 0, "failed": 0, "stopped": 0}
+    assert sample(after, "glraster_worker_resident_bytes", worker="0") > 2**20
+    assert sample(after, "process_resident_memory_bytes") > 2**20
 
 
 def test_openapi_schema_is_checked_in():

@@ -19,7 +19,7 @@ import pytest
 import glraster as gr
 from glraster.client import ServiceError, ServiceUnavailable, decode_raster, encode_scene
 
-from tests.service.conftest import Server, resume
+from tests.service.conftest import Server, resume, sample, scrape
 
 TRIANGLE = {"pos": [[-0.9, -0.9, 0.1, 1], [0.9, -0.8, 0.5, 2], [0, 0.9, 0.9, 1]],
             "tri": [[0, 1, 2]], "resolution": [32, 48]}
@@ -456,7 +456,9 @@ def test_worker_killed_mid_request_is_replaced_and_the_request_retried(lone_work
     worker = s.wait_worker("ready")
     assert worker["pid"] != old and worker["restarts"] == 1
     with s.client() as c:
-        assert 'glraster_worker_restarts_total{reason="crash"} 1' in c.metrics()
+        samples = scrape(c)
+        assert sample(samples, "glraster_worker_restarts_total", reason="crash") == 1
+        assert sample(samples, "glraster_worker_restarts_total", reason="deadline") == 0
         assert c.rasterize(pos, tri, (32, 48), result="json")["covered"] > 0
 
 
@@ -554,7 +556,13 @@ def test_hung_worker_is_cancelled_at_the_deadline_and_replaced(lone_worker):
     with s.client() as c:
         assert c.rasterize(np.array(TRIANGLE["pos"]), np.array(TRIANGLE["tri"]), (32, 48),
                            result="json")["covered"] > 0
-        assert 'glraster_worker_restarts_total{reason="deadline"} 1' in c.metrics()
+        samples = scrape(c)
+        assert sample(samples, "glraster_worker_restarts_total", reason="deadline") == 1
+        assert sample(samples, "glraster_worker_restarts_total", reason="crash") == 0
+        assert sample(samples, "glraster_errors_total", endpoint="rasterize",
+                      kind="deadline") == 1
+        assert sample(samples, "glraster_requests_total", endpoint="rasterize",
+                      status="504") == 1
 
 
 def test_full_queue_is_429_with_retry_after(lone_worker):
@@ -572,6 +580,11 @@ def test_full_queue_is_429_with_retry_after(lone_worker):
     queued = _in_thread(lambda: s.client(retries=0).rasterize(pos, tri, (32, 48), result="json"))
     while s.info()["queue_depth"] < 1 and time.monotonic() < end:
         time.sleep(0.01)
+    with s.client() as c:                  # the event loop answers while the worker is stopped
+        held_now = scrape(c)
+    assert sample(held_now, "glraster_queue_depth") == 1
+    assert sample(held_now, "glraster_inflight_requests") == 2
+    assert sample(held_now, "glraster_workers", state="busy") == 1
     status, headers, doc = _post(s, _scene())
     assert (status, doc["field"]) == (429, "queue")
     assert int(headers["retry-after"]) >= 1
@@ -580,7 +593,11 @@ def test_full_queue_is_429_with_retry_after(lone_worker):
         t.join(60)
         assert box["result"]["covered"] > 0, box
     with s.client() as c:
-        assert 'glraster_errors_total{endpoint="rasterize",kind="rejected"} 1' in c.metrics()
+        samples = scrape(c)
+    assert sample(samples, "glraster_errors_total", endpoint="rasterize", kind="rejected") == 1
+    assert sample(samples, "glraster_requests_total", endpoint="rasterize", status="429") == 1
+    assert sample(samples, "glraster_requests_total", endpoint="rasterize", status="200") == 3
+    assert sample(samples, "glraster_queue_depth") == 0
 
 
 # -- slow clients -----------------------------------------------------------------------------
