@@ -176,3 +176,12 @@ def test_float32_mip_on_opengl_matches_no_mip_bit_for_bit(ctx):
 def test_bad_input_raises_value_error_naming_the_argument(call, message):
     with pytest.raises(ValueError, match=message):
         call(torch.rand(1, 4, 4, 2, dtype=torch.float64))
+
+
+def test_the_reuse_benchmark_runs_its_short_form(ctx, capsys):
+    # docs/differentiable.md quotes the long form (minutes); this is its 16² single round
+    from benchmarks import texture_mip_reuse
+
+    assert texture_mip_reuse.main(["--sizes", "16", "--rounds", "1", "--calls", "1"]) == 0
+    rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| 16²")]
+    assert len(rows) == 2 and all(len(row.split("|")) == 8 for row in rows)
