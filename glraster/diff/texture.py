@@ -148,7 +148,9 @@ def forward(tex, uv, uv_da=None, mip_level_bias=None, mip=None, filter_mode="aut
             (B, H, W, 6) (dx/dX, dx/dY, dy/dX, dy/dY, dz/dX, dz/dY). Sets the level.
         mip_level_bias: None or (B, H, W), added to the level.
         mip: None (build the pyramid) or a list of levels 1, 2, ... each (Bt, Ht_k, Wt_k, C)
-            with Ht_k = max(1, Ht_{k-1} // 2) (same for Wt).
+            with Ht_k = max(1, Ht_{k-1} // 2) (same for Wt), each getting its own gradient;
+            or tex's own pyramid built earlier (:class:`~glraster.diff.texture_reference.
+            OwnMips`: uploaded instead of built, its gradients pulled back into tex).
         filter_mode: "nearest", "linear", "linear-mipmap-nearest", "linear-mipmap-linear" or
             "auto" (linear-mipmap-linear with uv_da or mip_level_bias, else linear).
         boundary_mode: "wrap", "clamp", "zero" or "cube".
@@ -275,16 +277,16 @@ def backward(saved: TextureSaved, grad_out, *, deterministic: bool = False,
                                                 minlength=total)
         if mode == "per_pixel":
             flat = totals.astype(np.float32)
-            if args.levels > 1 and args.mip is None:
+            if args.levels > 1 and (args.mip is None or args.own_mips):
                 grad = ctx.storage_buffer("texture.grad_tex", flat)
-        if args.levels > 1 and args.mip is None:
+        if args.levels > 1 and (args.mip is None or args.own_mips):
             _pyramid_backward(ctx, grad, args, firsts, images)
             flat = _read(grad, firsts[1] * channels).reshape(-1, channels)
         elif mode != "per_pixel":
             flat = _read(grad, total * channels).reshape(-1, channels)
     grad_tex = np.array(flat[:firsts[1] if args.levels > 1 else total].reshape(args.tex.shape))
     grad_mip = None
-    if args.mip is not None:
+    if args.mip is not None and not args.own_mips:
         grad_mip = []
         for k, m in enumerate(args.mip):
             if k + 1 < args.levels:

@@ -41,7 +41,7 @@ import numpy as np
 from glraster.diff import layout
 
 __all__ = [
-    "BOUNDARY_MODES", "FILTER_MODES", "TextureArgs", "TextureSaved", "backward",
+    "BOUNDARY_MODES", "FILTER_MODES", "OwnMips", "TextureArgs", "TextureSaved", "backward",
     "build_mips", "check_arguments", "forward", "level_shapes", "lookup_geometry",
     "mips_backward", "texel_sums",
 ]
@@ -74,10 +74,12 @@ LN2 = math.log(2.0)
 class TextureArgs:
     """Checked arguments of a texture call (arrays C-contiguous, of one float dtype).
 
-    ``shapes`` lists (H_k, W_k) of every level used (base first); ``mip`` the user's levels
+    ``shapes`` lists (H_k, W_k) of every level used (base first); ``mip`` the given levels
     1 .. (all given, checked; the first ``levels - 1`` are used; None when the pyramid is
-    built or the mode has no mipmaps); ``filter_mode`` is resolved ('auto'
-    replaced); ``levels`` = len(shapes)."""
+    built or the mode has no mipmaps); ``own_mips``: ``mip`` is tex's own pyramid built
+    earlier (:class:`OwnMips`), whose level gradients the backward pulls back into the base
+    as for a pyramid built in the call; ``filter_mode`` is resolved ('auto' replaced);
+    ``levels`` = len(shapes)."""
 
     tex: np.ndarray
     uv: np.ndarray
@@ -87,6 +89,7 @@ class TextureArgs:
     filter_mode: str
     boundary_mode: str
     shapes: tuple
+    own_mips: bool = False
 
     @property
     def cube(self) -> bool:
@@ -103,6 +106,17 @@ class TextureArgs:
     @property
     def channels(self) -> int:
         return self.tex.shape[-1]
+
+
+@dataclass(frozen=True)
+class OwnMips:
+    """Levels 1, 2, ... of tex's own pyramid, built earlier by :func:`build_mips` (or the
+    GPU's :func:`glraster.diff.texture.build_mips`), passed as ``mip`` to skip building
+    them again. Unlike a user's mip stack (a list), they get no gradient of their own: their
+    gradients are pulled back into tex through the box filter, as for a pyramid built in
+    the call, so tex's gradient is the same as with ``mip=None``."""
+
+    levels: tuple
 
 
 def level_shapes(height: int, width: int, max_mip_level=None) -> list[tuple[int, int]]:
@@ -195,6 +209,9 @@ def check_arguments(tex, uv, uv_da=None, mip_level_bias=None, mip=None, filter_m
         shapes = tuple(level_shapes(height, width, max_mip_level))
         mip_ = None
     else:
+        own = isinstance(mip, OwnMips)
+        if own:
+            mip = mip.levels
         if isinstance(mip, np.ndarray) or not isinstance(mip, (list, tuple)):
             raise ValueError(f"mip must be None or a list of mip levels 1, 2, ... (arrays), "
                              f"got {type(mip).__name__}")
@@ -215,6 +232,7 @@ def check_arguments(tex, uv, uv_da=None, mip_level_bias=None, mip=None, filter_m
             levels.append(_finite(name, arr, level))
         shapes = tuple(full[:used + 1])
         mip_ = tuple(levels)
+        return TextureArgs(tex_, uv_, da, bias, mip_, filter_mode, boundary_mode, shapes, own)
     return TextureArgs(tex_, uv_, da, bias, mip_, filter_mode, boundary_mode, shapes)
 
 
@@ -663,7 +681,7 @@ def texel_sums(saved: TextureSaved, values) -> np.ndarray:
     args = saved.args
     values = np.asarray(values, np.float64).reshape(args.uv.shape[:3] + (args.channels,))
     _, (grad_levels, *_rest) = _evaluate(args, saved.levels, values, touch=True)
-    if args.levels > 1 and args.mip is None:
+    if args.levels > 1 and (args.mip is None or args.own_mips):
         return mips_backward(grad_levels, args.shapes)
     return grad_levels[0]
 
@@ -695,14 +713,15 @@ def backward(saved: TextureSaved, grad_out):
     through its box filter; summed over the batch where tex broadcast); grad_uv of uv's;
     grad_uv_da / grad_mip_level_bias of theirs, or None when not given (zeros unless the
     mode is linear-mipmap-linear: the other modes are piecewise constant in the level);
-    grad_mip a list of the user's mip levels' gradients, or None without ``mip``.
+    grad_mip a list of the user's mip levels' gradients, or None without ``mip`` (or with
+    :class:`OwnMips`, whose gradients go into grad_tex).
     """
     args = saved.args
     want = args.uv.shape[:3] + (args.channels,)
     grad_out = layout.image("grad_out", grad_out, shape=want)
     _, (grad_levels, grad_uv, grad_da, grad_bias) = _evaluate(args, saved.levels, grad_out)
     grad_mip = None
-    if args.mip is not None:
+    if args.mip is not None and not args.own_mips:
         grad_tex = grad_levels[0]
         grad_mip = list(grad_levels[1:]) + [np.zeros(m.shape) for m in args.mip[args.levels - 1:]]
     elif args.levels == 1:

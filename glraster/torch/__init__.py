@@ -16,8 +16,10 @@ Layouts and gradients: :mod:`glraster.torch.ops`; docs/differentiable.md, "PyTor
 
 from glraster.torch.antialias import antialias, antialias_construct_topology_hash
 from glraster.torch.context import RasterizeCudaContext, RasterizeGLContext
+from glraster.torch.log import get_log_level, set_log_level
 from glraster.torch.ops import DepthPeeler, interpolate, rasterize
-from glraster.torch.texture import texture
+from glraster.torch.texture import TextureMip, texture, texture_construct_mip
 
-__all__ = ["DepthPeeler", "RasterizeCudaContext", "RasterizeGLContext", "antialias",
-           "antialias_construct_topology_hash", "interpolate", "rasterize", "texture"]
+__all__ = ["DepthPeeler", "RasterizeCudaContext", "RasterizeGLContext", "TextureMip",
+           "antialias", "antialias_construct_topology_hash", "get_log_level", "interpolate",
+           "rasterize", "set_log_level", "texture", "texture_construct_mip"]

@@ -13,9 +13,12 @@ costs nothing until then. Every tensor lives on the CPU (``device`` must be None
 
 from __future__ import annotations
 
+import logging
 import threading
 
 import torch
+
+_log = logging.getLogger(__name__)
 
 MODES = ("automatic", "manual")
 
@@ -90,6 +93,8 @@ class RasterizeGLContext:
                     from glraster.gpu.context import Context
 
                     self._context = Context(backend=self.backend)
+                    _log.info("%s: made an OpenGL context: %r", type(self).__name__,
+                              self._context)
         return self._context
 
     def set_context(self):

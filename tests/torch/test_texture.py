@@ -103,7 +103,7 @@ def test_float32_runs_on_opengl_and_matches_float64(ctx):
     (lambda t, u: dr.texture(t, u, uv_da=u), "uv_da must have shape (2, 3, 3, 4)"),
     (lambda t, u: dr.texture(t, u, mip_level_bias=u), "mip_level_bias must have shape (2, 3, 3)"),
     (lambda t, u: dr.texture(t, u, mip=t, filter_mode="linear-mipmap-linear"),
-     "mip must be None or a list"),
+     "mip must be None, a TextureMip (texture_construct_mip) or a list"),
     (lambda t, u: dr.texture(t, u, mip=[t], filter_mode="linear-mipmap-linear"),
      "mip[0] (mip level 1) must have shape (1, 2, 2, 3)"),
     (lambda t, u: dr.texture(t, u, filter_mode="bilinear"), "filter_mode must be one of"),
