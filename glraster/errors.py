@@ -72,3 +72,13 @@ class GLError(RuntimeError):
         super().__init__(f"OpenGL reported {error} while {during}")
         self.error = error
         self.during = during
+
+
+class ArgumentError(ValueError):
+    """Bad user input: ``.argument`` names the argument (or request field) that was wrong,
+    and the message says what was wrong with it. Front ends, the service and the CLI read
+    ``.argument``, never the message's wording."""
+
+    def __init__(self, argument: str, message: str):
+        super().__init__(message)
+        self.argument = argument

@@ -1,0 +1,143 @@
+"""The differentiable ops as :class:`glraster.diff.op.Op` records: rasterize, interpolate,
+texture and antialias (depth peeling is rasterize's core driven layer by layer, see
+:class:`glraster.diff.rasterize.DepthPeeler`).
+
+The front ends (:mod:`glraster.torch`, :mod:`glraster.jax`) bridge these records and nothing
+else of :mod:`glraster.diff`. Signatures, per op (B batch, H x W image):
+
+============  ==========================================  =============================
+op            inputs (differentiable)                      outputs
+============  ==========================================  =============================
+rasterize     pos                                          rast, rast_db
+interpolate   attr, rast, rast_db                          out, out_da
+texture       tex, uv, uv_da, mip_level_bias, *mip         out
+antialias     color, rast, pos                             out
+============  ==========================================  =============================
+
+Parameters (keyword): rasterize ``tri, resolution, ranges, grad_db, space, ctx``;
+interpolate ``tri, diff_attrs, ctx``; texture ``filter_mode, boundary_mode, max_mip_level,
+own_mips, ctx``; antialias ``tri, topology_hash, pos_gradient_boost, convex, ctx``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from glraster.diff import layout
+from glraster.diff.op import Op
+
+
+def float_dtype(*values) -> np.dtype:
+    """float64 when the first array among ``values`` is float64, else float32: the dtype
+    that selects the core."""
+    for value in values:
+        if value is not None and not isinstance(value, (list, tuple)):
+            arr = np.asarray(value)
+            return np.dtype(np.float64 if arr.dtype == np.float64 else np.float32)
+    return np.dtype(np.float32)
+
+
+# --------------------------------------------------------------------------- rasterize
+
+
+def _rasterize_check(pos, *, tri, resolution, ranges=None, grad_db=True, space="persp",
+                     ctx=None):
+    pos = layout.positions(pos, dtype=float_dtype(pos))
+    tri = layout.triangles(tri, pos.shape[-2])
+    params = dict(tri=tri, resolution=layout.resolution(resolution),
+                  ranges=layout.ranges(ranges, len(tri), pos.ndim) if pos.ndim == 2 else None,
+                  grad_db=bool(grad_db), space=layout.space(space), ctx=ctx)
+    return (pos,), params
+
+
+def _rasterize_shapes(pos, *, tri, resolution, ranges=None, grad_db=True, **_):
+    batch = layout.batch_size(pos, ranges)
+    shape = (batch, *resolution, 4)
+    return shape, (shape if grad_db else (batch, *resolution, 0))
+
+
+RASTERIZE = Op("rasterize", ("pos",), ("rast", "rast_db"), _rasterize_check, _rasterize_shapes,
+               gpu="glraster.diff._adapters:RASTERIZE_GPU",
+               reference="glraster.diff._adapters:RASTERIZE_REFERENCE")
+
+
+# --------------------------------------------------------------------------- interpolate
+
+
+def _interpolate_check(attr, rast, rast_db=None, *, tri, diff_attrs=None, ctx=None):
+    dtype = float_dtype(attr)
+    rast = layout.image("rast", rast, dtype=dtype)
+    attr = layout.attributes(attr, rast.shape[0], dtype=dtype)
+    tri = layout.triangles(tri, attr.shape[-2], "attr")
+    diff = layout.diff_attrs(diff_attrs, attr.shape[-1])
+    if rast_db is not None:
+        rast_db = layout.image("rast_db", rast_db, rast.shape, dtype)
+    elif diff:
+        raise ValueError("diff_attrs needs rast_db (the raster's screen derivatives)")
+    return (attr, rast, rast_db), dict(tri=tri, diff_attrs=diff, ctx=ctx)
+
+
+def _interpolate_shapes(attr, rast, rast_db=None, *, diff_attrs=None, **_):
+    lead = rast.shape[:3]
+    return lead + (attr.shape[-1],), lead + (2 * len(diff_attrs or ()),)
+
+
+INTERPOLATE = Op("interpolate", ("attr", "rast", "rast_db"), ("out", "out_da"),
+                 _interpolate_check, _interpolate_shapes,
+                 gpu="glraster.diff._adapters:INTERPOLATE_GPU",
+                 reference="glraster.diff._adapters:INTERPOLATE_REFERENCE")
+
+
+# --------------------------------------------------------------------------- texture
+
+
+def _texture_check(tex, uv, uv_da=None, mip_level_bias=None, *mip, filter_mode="auto",
+                   boundary_mode="wrap", max_mip_level=None, own_mips=False, ctx=None):
+    from glraster.diff import texture_reference as ref
+
+    dtype = float_dtype(tex)
+    levels = list(mip) if mip else None
+    if levels is not None and own_mips:
+        levels = ref.OwnMips(levels)
+    args = ref.check_arguments(tex, uv, uv_da, mip_level_bias, levels, filter_mode,
+                               boundary_mode, max_mip_level, dtype=dtype)
+    arrays = (args.tex, args.uv, args.uv_da, args.bias, *(args.mip or ()))
+    return arrays, dict(filter_mode=args.filter_mode, boundary_mode=boundary_mode,
+                        max_mip_level=max_mip_level, own_mips=bool(own_mips), ctx=ctx)
+
+
+def _texture_shapes(tex, uv, *_, **__):
+    return (uv.shape[:3] + (tex.shape[-1],),)
+
+
+TEXTURE = Op("texture", ("tex", "uv", "uv_da", "mip_level_bias", "*mip"), ("out",),
+             _texture_check, _texture_shapes,
+             gpu="glraster.diff._adapters:TEXTURE_GPU",
+             reference="glraster.diff._adapters:TEXTURE_REFERENCE")
+
+
+# --------------------------------------------------------------------------- antialias
+
+
+def _antialias_check(color, rast, pos, *, tri, topology_hash=None, pos_gradient_boost=1.0,
+                     convex=True, ctx=None):
+    from glraster.diff import antialias_reference as ref
+
+    color, rast, pos, tri, th, boost, convex = ref.check_inputs(
+        color, rast, pos, tri, topology_hash, pos_gradient_boost, convex,
+        dtype=float_dtype(color))
+    return (color, rast, pos), dict(tri=tri, topology_hash=th, pos_gradient_boost=boost,
+                                    convex=convex, ctx=ctx)
+
+
+def _antialias_shapes(color, *_, **__):
+    return (color.shape,)
+
+
+ANTIALIAS = Op("antialias", ("color", "rast", "pos"), ("out",), _antialias_check,
+               _antialias_shapes,
+               gpu="glraster.diff._adapters:ANTIALIAS_GPU",
+               reference="glraster.diff._adapters:ANTIALIAS_REFERENCE")
+
+
+OPS = {op.name: op for op in (RASTERIZE, INTERPOLATE, TEXTURE, ANTIALIAS)}
