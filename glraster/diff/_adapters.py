@@ -172,3 +172,44 @@ TEXTURE_GPU = _Texture(gpu=True)
 TEXTURE_REFERENCE = _Texture(gpu=False)
 ANTIALIAS_GPU = _Antialias(gpu=True)
 ANTIALIAS_REFERENCE = _Antialias(gpu=False)
+
+
+class _GPUPeeler:
+    def __init__(self, pos, *, tri, resolution, ranges=None, grad_db=True, space="persp",
+                 ctx=None):
+        from glraster.diff import rasterize
+
+        self._peeler = rasterize.DepthPeeler(pos, tri, resolution, ctx=ctx, ranges=ranges,
+                                             grad_db=grad_db, space=space)
+
+    def rasterize_next_layer(self):
+        rast, rast_db, saved = self._peeler.rasterize_next_layer()
+        return (rast, _empty_db(rast) if rast_db is None else rast_db), saved
+
+    def release(self):
+        self._peeler.release()
+
+
+class _ReferencePeeler:
+    def __init__(self, pos, *, tri, resolution, ranges=None, grad_db=True, space="persp",
+                 ctx=None):
+        self.pos, self.tri, self.resolution = pos, tri, resolution
+        self.ranges, self.grad_db, self.space = ranges, grad_db, space
+        self.layer = 0
+
+    def rasterize_next_layer(self):
+        from glraster.diff import reference
+
+        self.layer += 1
+        rast, rast_db = reference.depth_peel(self.pos, self.tri, self.resolution, self.layer,
+                                             self.ranges, space=self.space)[-1]
+        saved = reference.RasterizeSaved.from_rast(self.pos, self.tri, rast, space=self.space,
+                                                   ranges=self.ranges)
+        return (rast, rast_db if self.grad_db else _empty_db(rast)), saved
+
+    def release(self):
+        pass
+
+
+def depth_peeler(pos, **params):
+    return (_ReferencePeeler if pos.dtype == np.float64 else _GPUPeeler)(pos, **params)

@@ -141,3 +141,16 @@ ANTIALIAS = Op("antialias", ("color", "rast", "pos"), ("out",), _antialias_check
 
 
 OPS = {op.name: op for op in (RASTERIZE, INTERPOLATE, TEXTURE, ANTIALIAS)}
+
+
+# --------------------------------------------------------------------------- depth peeling
+
+
+def depth_peeler(pos, **params):
+    """A depth peeler on rasterize's core for ``pos``'s dtype, from checked rasterize
+    arguments (:meth:`RASTERIZE.check <glraster.diff.op.Op.check>`): an object whose
+    ``rasterize_next_layer()`` returns ``((rast, rast_db), saved)``, ``saved`` for
+    ``RASTERIZE.core(pos.dtype).backward``, and whose ``release()`` frees what it holds."""
+    from glraster.diff import _adapters
+
+    return _adapters.depth_peeler(pos, **params)
