@@ -15,12 +15,12 @@ drivers and methods) into one report, and refuses an incomplete or overlapping s
 
 from __future__ import annotations
 
-import os
 import socket
-import tempfile
 import xml.etree.ElementTree as ET
 from datetime import datetime, timezone
 from pathlib import Path
+
+from glraster.io.atomic import atomic_write
 
 
 def _set_counts(element, tests, failures, errors, seconds, skipped=0) -> None:
@@ -261,32 +261,14 @@ def merge(sources) -> ET.ElementTree:
 
 
 def write_tree(tree: ET.ElementTree, path) -> Path:
-    """Write a JUnit ElementTree to ``path`` atomically; returns the path."""
+    """Write a JUnit ElementTree to ``path`` atomically (the parent folder is created);
+    returns the path."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            tree.write(fh, encoding="utf-8", xml_declaration=True)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_write(path) as tmp:
+        tree.write(tmp, encoding="utf-8", xml_declaration=True)
     return path
 
 
 def write(result, path) -> Path:
     """Write the JUnit XML of ``result`` to ``path`` atomically; returns the path."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            to_xml(result).write(fh, encoding="utf-8", xml_declaration=True)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return write_tree(to_xml(result), path)

@@ -18,6 +18,8 @@ triangle (:func:`glraster.verify.interpolation.check_point`).
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from glraster import reference as _reference
@@ -55,6 +57,36 @@ def _skipped(p: ProbeResult, ctx) -> ProbeResult:
     return p
 
 
+def _per_count(p: ProbeResult, ctx, check, explains, known_note: str = "") -> ProbeResult:
+    """Run ``check(samples, found)`` at every sample count the driver offers (skipped where
+    it offers none) and give ``p`` its verdict: "fail" on any problem, "known" when only
+    known defects were found, else "pass"; ``explains(scene, failure)`` then tells which
+    scene failures the probe accounts for."""
+    counts = _counts(ctx)
+    if not counts:
+        return _skipped(p, ctx)
+    found = _Found([], [], [])
+    for samples in counts:
+        check(samples, found)
+    p.detail = "; ".join(found.details)
+    if found.problems:
+        p.status, p.diagnosis = "fail", "; ".join(found.problems + found.known)
+    elif found.known:
+        p.status, p.diagnosis = "known", "; ".join(found.known) + known_note
+    if p.failed:
+        p._explains = lambda self, scene, f: explains(scene, f)
+    return p
+
+
+class _Found(NamedTuple):
+    """What a probe's check found at each count: lines of detail, problems, and known
+    driver defects (waived, named in the diagnosis)."""
+
+    details: list
+    problems: list
+    known: list
+
+
 def reported_positions(render, samples: int) -> np.ndarray:
     """(S, 2) the positions the driver reports (Raster.sample_positions)."""
     return render(FULL, np.array([[0, 1, 2]], np.int32), (1, 1), ("tri_id",),
@@ -89,11 +121,9 @@ def probe_sample_positions(render, ctx) -> ProbeResult:
     p = ProbeResult("sample_positions", SPEC_POSITIONS,
                     "coverage is sampled at the positions GL_SAMPLE_POSITION reports "
                     "(measured to 1/128 px), each inside the pixel")
-    counts = _counts(ctx)
-    if not counts:
-        return _skipped(p, ctx)
-    problems, details = [], []
-    for samples in counts:
+
+    def check(samples, found):
+        details, problems, _ = found
         reported = reported_positions(render, samples)
         measured = measured_positions(render, samples)
         details.append(f"{samples}x reported {reported.tolist()}, measured "
@@ -113,12 +143,8 @@ def probe_sample_positions(render, ctx) -> ProbeResult:
                                 f"{reported[k].tolist()} but used at "
                                 f"{np.round(measured[k], 4).tolist()} ({int(off.sum())} of "
                                 f"{samples} samples differ)")
-    p.detail = "; ".join(details)
-    if problems:
-        p.status = "fail"
-        p.diagnosis = "; ".join(problems)
-        p._explains = lambda self, scene, f: scene.samples > 1
-    return p
+
+    return _per_count(p, ctx, check, lambda scene, f: scene.samples > 1)
 
 
 def _perspective_scene(res=(16, 16)):
@@ -175,12 +201,10 @@ def probe_sample_perspective(render, ctx) -> ProbeResult:
                     "per-sample (interpolation='sample') persp and screen equal the "
                     "reference at each reported sample position, on a perspective and a "
                     "screen-space triangle")
-    counts = _counts(ctx)
-    if not counts:
-        return _skipped(p, ctx)
     model = _unwaived_model(ctx)
-    problems, details, known = [], [], []
-    for samples in counts:
+
+    def check(samples, found):
+        details, problems, known = found
         gpu, ref = _render_perspective(render, samples, "sample")
         rep = compare(gpu, ref, model=model)
         sp, sc = rep.values["persp"], rep.values["screen"]
@@ -205,28 +229,23 @@ def probe_sample_perspective(render, ctx) -> ProbeResult:
                 problems.append(f"{samples}x: per-sample persp is not perspective-correct at "
                                 f"the sample ({sp.over_tolerance} samples, max error "
                                 f"{sp.max:.3g})")
-    p.detail = "; ".join(details)
-    if problems:
-        p.status, p.diagnosis = "fail", "; ".join(problems + known)
-    elif known:
-        p.status = "known"
-        p.diagnosis = "; ".join(known) + " (docs/drivers.md; ErrorModel.center_one_over_w)"
-    if p.failed:
-        p._explains = lambda self, scene, f: (scene.samples > 1 and scene.interpolation
-                                              != "center" and _mentions(f, "persp", "point"))
-    return p
+
+    def explains(scene, f):
+        return (scene.samples > 1 and scene.interpolation != "center"
+                and _mentions(f, "persp", "point"))
+
+    return _per_count(p, ctx, check, explains,
+                      " (docs/drivers.md; ErrorModel.center_one_over_w)")
 
 
 def probe_centroid(render, ctx) -> ProbeResult:
     p = ProbeResult("centroid", SPEC_CENTROID,
                     "centroid values are those of a point inside both the pixel and the "
                     "triangle, persp perspective-correct at that point")
-    counts = _counts(ctx)
-    if not counts:
-        return _skipped(p, ctx)
     model = _unwaived_model(ctx)
-    problems, details, known = [], [], []
-    for samples in counts:
+
+    def check(samples, found):
+        details, problems, known = found
         gpu, ref = _render_perspective(render, samples, "centroid")
         point = compare(gpu, ref, model=model).point
         partial = gpu.mask.any(axis=2) & ~gpu.mask.all(axis=2)
@@ -258,16 +277,11 @@ def probe_centroid(render, ctx) -> ProbeResult:
             else:
                 problems.append(f"{samples}x: centroid persp is not perspective-correct at "
                                 f"its own point ({point.persp_inconsistent} pixels)")
-    p.detail = "; ".join(details)
-    if problems:
-        p.status, p.diagnosis = "fail", "; ".join(problems + known)
-    elif known:
-        p.status = "known"
-        p.diagnosis = "; ".join(known) + " (the defect of sample_perspective)"
-    if p.failed:
-        p._explains = lambda self, scene, f: (scene.interpolation == "centroid"
-                                              and _mentions(f, "point", "persp"))
-    return p
+
+    def explains(scene, f):
+        return scene.interpolation == "centroid" and _mentions(f, "point", "persp")
+
+    return _per_count(p, ctx, check, explains, " (the defect of sample_perspective)")
 
 
 def probe_sample_depth(render, ctx) -> ProbeResult:
@@ -275,13 +289,11 @@ def probe_sample_depth(render, ctx) -> ProbeResult:
                     "depth is evaluated at each sample and tested per sample: a sloped "
                     "plane within the error model at every sample, two interpenetrating "
                     "triangles owning the samples the reference gives them")
-    counts = _counts(ctx)
-    if not counts:
-        return _skipped(p, ctx)
     model = ErrorModel.for_context(ctx)
-    problems, details = [], []
     res = (16, 16)
-    for samples in counts:
+
+    def check(samples, found):
+        details, problems, _ = found
         slope = _clip([(0.5, 0.5), (15.5, 0.5), (0.5, 15.5)], res, z=[-0.9, 0.9, 0.0])
         gpu = render(slope, np.array([[0, 1, 2]], np.int32), res, ("depth", "tri_id"),
                      samples=samples)
@@ -312,11 +324,9 @@ def probe_sample_depth(render, ctx) -> ProbeResult:
         if wrong:
             problems.append(f"{samples}x: the depth test per sample keeps the wrong triangle "
                             f"on {wrong} samples of two interpenetrating triangles")
-    p.detail = "; ".join(details)
-    if problems:
-        p.status, p.diagnosis = "fail", "; ".join(problems)
-        p._explains = lambda self, scene, f: scene.samples > 1 and _mentions(f, "depth", "id")
-    return p
+
+    return _per_count(p, ctx, check,
+                      lambda scene, f: scene.samples > 1 and _mentions(f, "depth", "id"))
 
 
 def probe_resolve(render, ctx) -> ProbeResult:
@@ -324,13 +334,11 @@ def probe_resolve(render, ctx) -> ProbeResult:
                     "every sample reads back its own fragment exactly: triangle ids above "
                     "2^16 unchanged, pixels on a shared edge hold one id per sample, never a "
                     "blend, and the barycentrics of each sample sum to 1")
-    counts = _counts(ctx)
-    if not counts:
-        return _skipped(p, ctx)
     res = (8, 8)
     offset = (1 << 16) + 3
-    problems, details = [], []
-    for samples in counts:
+
+    def check(samples, found):
+        details, problems, _ = found
         quad = _clip([(0.2, 0.3), (7.9, 0.1), (0.3, 7.8), (7.7, 7.9)], res)
         pos = np.concatenate([quad, _clip([(0.5, 0.5)], res)])
         tri = np.full((offset + 2, 3), 4, np.int32)      # zero-area triangles, numbered
@@ -352,11 +360,8 @@ def probe_resolve(render, ctx) -> ProbeResult:
         elif np.abs(sums - 1).max() > 1e-5:
             problems.append(f"{samples}x: per-sample barycentrics do not sum to 1 (down to "
                             f"{sums.min():.3g}): samples of different fragments are mixed")
-    p.detail = "; ".join(details)
-    if problems:
-        p.status, p.diagnosis = "fail", "; ".join(problems)
-        p._explains = lambda self, scene, f: scene.samples > 1
-    return p
+
+    return _per_count(p, ctx, check, lambda scene, f: scene.samples > 1)
 
 
 PROBES = (("sample_positions", probe_sample_positions),
