@@ -25,6 +25,7 @@ import numpy as np
 
 from glraster.diff import layout
 from glraster.diff.op import Op
+from glraster.errors import ArgumentError
 
 
 def float_dtype(*values) -> np.dtype:
@@ -44,6 +45,9 @@ def _rasterize_check(pos, *, tri, resolution, ranges=None, grad_db=True, space="
                      ctx=None):
     pos = layout.positions(pos, dtype=float_dtype(pos))
     tri = layout.triangles(tri, pos.shape[-2])
+    if not isinstance(grad_db, (bool, np.bool_)):
+        raise ArgumentError("grad_db", f"grad_db must be True or False, got {grad_db!r}")
+    # ranges are ignored in instanced mode (3-D pos), as nvdiffrast does
     params = dict(tri=tri, resolution=layout.resolution(resolution),
                   ranges=layout.ranges(ranges, len(tri), pos.ndim) if pos.ndim == 2 else None,
                   grad_db=bool(grad_db), space=layout.space(space), ctx=ctx)
