@@ -47,6 +47,12 @@ from glraster.torch.context import RasterizeGLContext
 # --------------------------------------------------------------------------- the cores
 
 
+def _gl(glctx, dtype):
+    """The GL context of ``glctx`` for the GPU core (float32); None for the float64
+    reference, which needs none (a context is made on first use)."""
+    return None if glctx is None or dtype == np.float64 else glctx.context
+
+
 class _RasterOp:
     """One rasterization (a call of :func:`rasterize` or one peeled layer): ``forward(pos)``
     gives (rast, rast_db, state), ``backward(state, grad_rast, grad_db)`` the gradient of
@@ -67,7 +73,7 @@ class _RasterOp:
         else:
             (rast, rast_db), saved = RASTERIZE.core(pos.dtype).forward(
                 pos, tri=self.tri, resolution=self.resolution, ranges=self.ranges,
-                grad_db=self.output_db, ctx=self.glctx.context)
+                grad_db=self.output_db, ctx=_gl(self.glctx, pos.dtype))
         return rast, rast_db, (pos, rast, saved)
 
     def backward(self, state, grad_rast: np.ndarray, grad_db):
@@ -118,10 +124,9 @@ class _InterpolateOp:
         self.diff_attrs = None if diff_attrs is None else tuple(diff_attrs)
 
     def forward(self, attr, rast, rast_db):
-        ctx = None if self.glctx is None else self.glctx.context
         (out, out_da), saved = INTERPOLATE.core(attr.dtype).forward(
             attr, rast, rast_db if self.diff_attrs else None, tri=self.tri,
-            diff_attrs=self.diff_attrs, ctx=ctx)
+            diff_attrs=self.diff_attrs, ctx=_gl(self.glctx, attr.dtype))
         return out, out_da, saved
 
     def backward(self, saved, dtype, grad_out, grad_out_da):
@@ -336,7 +341,7 @@ class DepthPeeler:
         pos_np = _checks.numpy(self.pos)
         self._peeler = depth_peeler(pos_np, tri=tri_np, resolution=res, ranges=ranges_np,
                                     grad_db=self.raster_ctx.output_db,
-                                    ctx=self.raster_ctx.context)
+                                    ctx=_gl(self.raster_ctx, pos_np.dtype))
         self.raster_ctx.active_depth_peeler = self
         return self
 
