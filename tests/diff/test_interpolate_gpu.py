@@ -4,10 +4,10 @@ once, then the core float32 selects) against float64.
 The float64 closed forms are evaluated here in the running-error arithmetic of
 test_rasterize_backward_gpu (:class:`Err`: value and a first-order bound m on the float32
 evaluation of the same expression, |float32 - exact| <= u m) and checked against central
-differences and against glraster.diff.interpolate_reference. Per-pixel outputs (out, out_da, grad_rast,
-grad_rast_db) must lie within K u m of float64; grad_attr within the sum of its pixels'
-bounds plus the float32 summation bound. The inputs (attr, rast, rast_db, upstream
-gradients) are float32 numbers and exact.
+differences and against glraster.diff.interpolate_reference. Per-pixel outputs (out,
+out_da, grad_rast, grad_rast_db) must lie within K u m of float64; grad_attr within the sum
+of its pixels' bounds plus the float32 summation bound. The inputs (attr, rast, rast_db,
+upstream gradients) are float32 numbers and exact.
 """
 
 from __future__ import annotations

@@ -1,11 +1,11 @@
 """The differentiable rasterize on the GPU (glraster.diff.rasterize) against float64.
 
 rast (u, v, z/w, id) and rast_db (du/dx, du/dy, dv/dx, dv/dy) are compared per pixel with
-the float64 reference (glraster.diff.rasterize_reference) at the pixel centre, within per-pixel bounds
-derived from the float32 error model (see :func:`bounds`); pixels whose triangle ids differ
-are masked and counted, and must lie where the reference rasterizer says the winner is
-ambiguous (edge band, depth tie). Batches equal separate calls bit for bit; depth peeling's
-layers 2 and 3 equal the reference's depth_peel layers.
+the float64 reference (glraster.diff.rasterize_reference) at the pixel centre, within
+per-pixel bounds derived from the float32 error model (see :func:`bounds`); pixels whose
+triangle ids differ are masked and counted, and must lie where the reference rasterizer
+says the winner is ambiguous (edge band, depth tie). Batches equal separate calls bit for
+bit; depth peeling's layers 2 and 3 equal the float64 peeler's layers.
 """
 
 from __future__ import annotations

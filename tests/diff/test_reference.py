@@ -24,6 +24,7 @@ import pytest
 from glraster import reference as gref
 from glraster.diff import interpolate_reference, layout, rasterize_reference
 from glraster.diff.ops import INTERPOLATE, RASTERIZE, depth_peeler
+from glraster.diff.rasterize_reference import rasterize_values
 
 RES = (24, 32)                       # (H, W): small, every test well under a second
 TOL = 1e-6                           # relative error bound of the brief (see module doc)
@@ -223,7 +224,7 @@ def test_rast_db_matches_differences_in_the_pixel_position(batch, space):
     for axis, (cu, cv) in ((0, (0, 2)), (1, (1, 3))):
         def at(t, axis=axis):
             offset = (t, 0.0) if axis == 0 else (0.0, t)
-            return rasterize_reference.rasterize_values(pos, tri, saved.tri_id, space=space, offset=offset)[0]
+            return rasterize_values(pos, tri, saved.tri_id, space=space, offset=offset)[0]
         numeric = four_point(at, H_PIXEL)
         for channel, uv in ((cu, 0), (cv, 1)):
             err = rel_error(db[..., channel][m], numeric[..., uv][m])
@@ -247,7 +248,7 @@ def test_rasterize_backward_matches_differences(batch, space, second_order):
     assert grad_pos.shape == np.shape(pos) and grad_pos.dtype == np.float64
 
     def loss(p):
-        r, d = rasterize_reference.rasterize_values(p, tri, saved.tri_id, space=space)
+        r, d = rasterize_values(p, tri, saved.tri_id, space=space)
         value = (r[..., :2] * grad_rast[..., :2]).sum()
         return value + ((d * grad_db).sum() if second_order else 0.0)
 
@@ -322,7 +323,7 @@ def test_out_da_matches_differences_in_the_pixel_position(space):
     for axis in (0, 1):
         def at(t, axis=axis):
             offset = (t, 0.0) if axis == 0 else (0.0, t)
-            r, _ = rasterize_reference.rasterize_values(pos, tri, saved.tri_id, space=space, offset=offset)
+            r, _ = rasterize_values(pos, tri, saved.tri_id, space=space, offset=offset)
             return interpolate(attr, r, tri)[0]
         numeric = four_point(at, H_PIXEL)
         for slot, k in enumerate(chosen):
@@ -397,7 +398,7 @@ def test_rasterize_then_interpolate_chain_matches_differences(batch, space):
     g_pos = rasterize_backward(r_saved, g_rast, g_db)
 
     def loss(p, a):
-        r, d = rasterize_reference.rasterize_values(p, tri, r_saved.tri_id, space=space)
+        r, d = rasterize_values(p, tri, r_saved.tri_id, space=space)
         o, oda, _ = interpolate(a, r, tri, d, chosen)
         return (o * g_out).sum() + (oda * g_da).sum()
 
@@ -439,12 +440,12 @@ def test_depth_peeling_layer_backward_matches_differences():
     pos, tri, ranges = BATCHES["ranges"]
     rast, db, saved = peel(pos, tri, RES, 2, ranges, space="persp")[1]
     assert covered(rast).sum() > 30
-    np.testing.assert_array_equal(rasterize_reference.rasterize_values(pos, tri, saved.tri_id)[0], rast)
+    np.testing.assert_array_equal(rasterize_values(pos, tri, saved.tri_id)[0], rast)
     grad_rast, grad_db = rng.normal(size=rast.shape), rng.normal(size=db.shape)
     grad_pos = rasterize_backward(saved, grad_rast, grad_db)
 
     def loss(p):
-        r, d = rasterize_reference.rasterize_values(p, tri, saved.tri_id)
+        r, d = rasterize_values(p, tri, saved.tri_id)
         return (r[..., :2] * grad_rast[..., :2]).sum() + (d * grad_db).sum()
 
     numeric = gradient(loss, pos.copy(), H_POS)
@@ -503,8 +504,7 @@ def _bad_cases():
          "ranges row 1 must have first >= 0"),
         (lambda: rasterize(P, T, RES, ranges=[[0, 1, 2]]), "ranges must have shape"),
         (lambda: rasterize(P, T, RES, ranges=[[0.0, 1.0]]), "ranges must have an integer dtype"),
-        (lambda: rasterize_reference.rasterize_values(P, T, saved.tri_id + 5),
-         "tri_id must hold -1 or indices"),
+        (lambda: rasterize_values(P, T, saved.tri_id + 5), "tri_id must hold -1 or indices"),
         (lambda: interpolate(attr[None, None], rast, T), "attr must have shape"),
         (lambda: interpolate(np.ones((3, len(P), 2)), rast, T), "attr has a batch"),
         (lambda: interpolate(attr, rast, T, None, "all"), "diff_attrs needs rast_db"),
