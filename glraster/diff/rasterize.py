@@ -52,7 +52,7 @@ import functools
 import numpy as np
 
 from glraster import validate
-from glraster.diff import compute
+from glraster.diff import compute, layout
 from glraster.diff.saved import RasterizeSaved
 from glraster.gpu import cull as _cull
 from glraster.gpu import homogeneous as _homogeneous
@@ -109,7 +109,7 @@ class _Forward:
             raise ValueError(f"pos takes {item_bytes} bytes per batch item, above the driver's "
                              "shader storage block limit of "
                              f"{self.ctx.max_storage_block_size} bytes")
-        self.batch = pos.shape[0] if pos.ndim == 3 else (1 if ranges is None else len(ranges))
+        self.batch = layout.batch_size(pos, ranges)
         self.colors = {"rast": (4, "f4")}
         if grad_db:
             self.colors["rast_db"] = (4, "f4")

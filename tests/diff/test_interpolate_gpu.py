@@ -2,7 +2,7 @@
 once, then the core float32 selects) against float64.
 
 The float64 closed forms are evaluated here in the running-error arithmetic of
-test_rasterize_backward_gpu (:class:`Err`: value and a first-order bound m on the float32
+test_rasterize_backward (:class:`Err`: value and a first-order bound m on the float32
 evaluation of the same expression, |float32 - exact| <= u m) and checked against central
 differences and against glraster.diff.interpolate_reference. Per-pixel outputs (out,
 out_da, grad_rast, grad_rast_db) must lie within K u m of float64; grad_attr within the sum
@@ -18,7 +18,7 @@ import pytest
 from glraster.diff import compute, interpolate_reference, layout
 from glraster.diff import interpolate as ip
 from glraster.diff.ops import INTERPOLATE, RASTERIZE
-from tests.diff.test_rasterize_backward_gpu import U32, Err, covered, random_soup
+from tests.diff.test_rasterize_backward import U32, Err, covered, random_soup
 
 # every operation of Err counts one rounding; K leaves a margin for fma contraction
 K = 2.0
