@@ -14,9 +14,9 @@ pytest.importorskip("torch")
 
 import glraster as gr  # noqa: E402
 import glraster.torch as dr  # noqa: E402
-from glraster.diff import backward_gpu  # noqa: E402
 from glraster.diff import interpolate as core_interpolate  # noqa: E402
 from glraster.diff import rasterize as core_rasterize  # noqa: E402
+from glraster.diff.ops import INTERPOLATE, RASTERIZE  # noqa: E402
 from glraster.studies.bench import make_bench_scene  # noqa: E402
 from glraster.torch import baseline  # noqa: E402
 
@@ -34,10 +34,13 @@ def ctx():
 @pytest.fixture(scope="module")
 def inputs(ctx):
     scene = make_bench_scene("terrain", 20000)
-    rast, rast_db, _ = core_rasterize.forward(scene.pos, scene.faces, RESOLUTION, ctx=ctx)
+    (pos,), params = RASTERIZE.check(scene.pos, tri=scene.faces, resolution=RESOLUTION,
+                                     ctx=ctx)
+    (rast, rast_db), saved = core_rasterize.forward(pos, **params)
     rng = np.random.default_rng(0)
     normal = lambda *shape: rng.standard_normal(shape).astype(np.float32)  # noqa: E731
-    return {"pos": scene.pos, "tri": scene.faces, "rast": rast, "rast_db": rast_db,
+    return {"pos": pos, "params": params, "saved": saved, "tri": params["tri"],
+            "rast": rast, "rast_db": rast_db,
             "grad_rast": normal(*rast.shape), "grad_db": normal(*rast.shape),
             "attr": normal(len(scene.pos), ATTRIBUTES),
             "grad_out": normal(*rast.shape[:3], ATTRIBUTES),
@@ -46,20 +49,19 @@ def inputs(ctx):
 
 @pytest.mark.parametrize("grad_db", [False, True], ids=["rast", "rast+db"])
 def test_rasterize_forward(benchmark, ctx, inputs, grad_db):
-    benchmark(core_rasterize.forward, inputs["pos"], inputs["tri"], RESOLUTION, ctx=ctx,
-              grad_db=grad_db)
+    benchmark(core_rasterize.forward, inputs["pos"], **dict(inputs["params"], grad_db=grad_db))
 
 
 @pytest.mark.parametrize("deterministic", [False, True], ids=["atomic", "deterministic"])
 def test_rasterize_backward(benchmark, ctx, inputs, deterministic):
-    benchmark(backward_gpu.rasterize_backward, inputs["pos"], inputs["tri"], inputs["rast"],
-              inputs["grad_rast"], inputs["grad_db"], ctx=ctx, deterministic=deterministic)
+    benchmark(core_rasterize.backward, inputs["saved"], inputs["grad_rast"], inputs["grad_db"],
+              deterministic=deterministic)
 
 
 @pytest.mark.parametrize("deterministic", [False, True], ids=["atomic", "deterministic"])
 def test_interpolate_backward(benchmark, ctx, inputs, deterministic):
-    _, _, saved = core_interpolate.forward(inputs["attr"], inputs["rast"], inputs["tri"],
-                                           inputs["rast_db"], "all", ctx=ctx)
+    _, saved = INTERPOLATE.forward(inputs["attr"], inputs["rast"], inputs["rast_db"],
+                                   tri=inputs["tri"], diff_attrs="all", ctx=ctx)
     benchmark(core_interpolate.backward, saved, inputs["grad_out"], inputs["grad_out_da"],
               deterministic=deterministic)
 

@@ -18,7 +18,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import glraster as gr
 from glraster.conformance.scenes import list_scenes, load_scene
-from glraster.diff import rasterize as dr
+from glraster.diff.ops import RASTERIZE
 from glraster.studies.bench import make_bench_scene
 from tests.diff.test_rasterize_gpu import compare, float64_forward
 
@@ -32,7 +32,8 @@ def accuracy(ctx, names):
     for name in names:
         s = load_scene(name)
         t0 = time.perf_counter()
-        rast, db, _ = dr.forward(s.pos, s.tri, s.resolution, ctx=ctx)
+        (rast, db), _ = RASTERIZE.forward(np.float32(s.pos), tri=s.tri,
+                                          resolution=s.resolution, ctx=ctx)
         got = compare(rast[0], db[0], float64_forward(s.pos, s.tri, s.resolution, ctx=ctx))
         for k in total:
             total[k].append(got[k])
@@ -76,8 +77,9 @@ def timing(ctx, repeat):
             # process CPU time includes llvmpipe's rasterizer threads and is less disturbed
             # by other processes on shared cores than wall time
             a, b, ca, cb = [], [], [], []
-            nodb = lambda: dr.forward(pos, tri, res, ctx=ctx, grad_db=False)
-            db = lambda: dr.forward(pos, tri, res, ctx=ctx)
+            nodb = lambda: RASTERIZE.forward(np.float32(pos), tri=tri, resolution=res, ctx=ctx,
+                                             grad_db=False)
+            db = lambda: RASTERIZE.forward(np.float32(pos), tri=tri, resolution=res, ctx=ctx)
             for _ in range(repeat):
                 a.append(_median_time(nodb, 1))
                 b.append(_median_time(db, 1))
@@ -121,9 +123,11 @@ def batches(ctx, repeat):
             apos, atri = _atlas(batch, tri, size)
             a, b = [], []
             for _ in range(repeat):
-                a.append(_median_time(lambda: dr.forward(batch, tri, (size, size), ctx=ctx), 1))
+                a.append(_median_time(lambda: RASTERIZE.forward(
+                    np.float32(batch), tri=tri, resolution=(size, size), ctx=ctx), 1))
                 b.append(_median_time(
-                    lambda: dr.forward(apos, atri, (B * size, size), ctx=ctx), 1))
+                    lambda: RASTERIZE.forward(np.float32(apos), tri=atri,
+                                              resolution=(B * size, size), ctx=ctx), 1))
             ta, tb = np.min(a), np.min(b)  # minima: the machine's cores are shared
             print(f"{size:6d} {len(tri):6d} {B:3d} {1e3 * ta:11.1f} {1e3 * tb:11.1f} "
                   f"{ta / tb:19.2f}")

@@ -1,7 +1,9 @@
-"""Differentiable rasterization (seed 003), framework-free: NumPy arrays in and out.
+"""Differentiable rasterization, framework-free: NumPy arrays in and out.
 
-Each op has a ``forward`` returning its outputs and what its backward needs, a
-``backward(saved, grads) -> grads of the inputs``, and a float64 reference of both
-(:mod:`glraster.diff.reference`). Layouts follow nvdiffrast's documented API so that the
-adapters (:mod:`glraster.torch`) stay thin; see docs/differentiable.md.
+Each op (:mod:`glraster.diff.ops`) has two cores with one signature,
+``forward(*inputs, **params) -> (outputs, saved)`` and
+``backward(saved, *grads, needs=None) -> grads of the inputs`` (:mod:`glraster.diff.op`):
+the GPU core (float32, e.g. :mod:`glraster.diff.rasterize`) and its float64 reference
+(e.g. :mod:`glraster.diff.rasterize_reference`). Layouts follow nvdiffrast's documented API
+so that the adapters (:mod:`glraster.torch`) stay thin; see docs/differentiable.md.
 """

@@ -20,7 +20,7 @@ the pair records (one invocation per candidate pair), the blend (one per listed 
 gather over its four incident pairs: deterministic), and the
 backward (colour gradients by gather, position gradients summed per vertex by float
 atomics, a compare-and-swap loop, or with ``deterministic=True`` per pair in float64 on the
-host, as :mod:`glraster.diff.backward_gpu`).
+host, as :mod:`glraster.diff.compute`).
 
 Layouts (rows [y, x] with row 0 at the bottom): color (B, H, W, C); rast (B, H, W, 4) from
 the rasterizer (u, v, z/w, id); pos (V, 4) shared by the B images or (B, V, 4) one per
@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from glraster.diff import antialias_reference as _ref
-from glraster.diff import backward_gpu as _gpu
+from glraster.diff import compute as _gpu
 from glraster.gpu.context import Context, default_context
 from glraster.gpu.shaders import shader_path
 
@@ -117,17 +117,17 @@ class _Passes:
         n = count * self.hw
         rast = self.rast.reshape(-1, 4)[first * self.hw:(first + count) * self.hw]
         ctx.storage_buffer("antialias.rast", rast).bind_to_storage_buffer(2)
-        records = _gpu._zeroed(ctx, "antialias.records", n * 32)
+        records = _gpu.zeroed(ctx, "antialias.records", n * 32)
         records.bind_to_storage_buffer(6)
         ctx.storage_buffer("antialias.pair_list", codes).bind_to_storage_buffer(7)
-        _gpu._set(program, "n_pairs", len(codes))
-        _gpu._set(program, "first_image", first)
-        _gpu._set(program, "size", (self.width, self.height))
-        _gpu._set(program, "vertex_stride", self.stride)
-        _gpu._set(program, "n_tri", len(self.tri))
-        _gpu._set(program, "table_mask", len(table) - 1)
+        _gpu.set_uniform(program, "n_pairs", len(codes))
+        _gpu.set_uniform(program, "first_image", first)
+        _gpu.set_uniform(program, "size", (self.width, self.height))
+        _gpu.set_uniform(program, "vertex_stride", self.stride)
+        _gpu.set_uniform(program, "n_tri", len(self.tri))
+        _gpu.set_uniform(program, "table_mask", len(table) - 1)
         if len(codes):
-            _gpu._run(ctx, program, len(codes))
+            _gpu.run(ctx, program, len(codes))
         return records
 
     def run_blend(self, first: int, count: int, records, pixels: np.ndarray, convex: bool,
@@ -150,11 +150,11 @@ class _Passes:
         scale = ctx.scratch_buffer("antialias.scale", n * 4)
         scale.bind_to_storage_buffer(3)
         ctx.storage_buffer("antialias.pixel_list", pixels).bind_to_storage_buffer(4)
-        _gpu._set(program, "n_list", len(pixels))
-        _gpu._set(program, "size", (self.width, self.height))
-        _gpu._set(program, "n_channels", self.channels)
+        _gpu.set_uniform(program, "n_list", len(pixels))
+        _gpu.set_uniform(program, "size", (self.width, self.height))
+        _gpu.set_uniform(program, "n_channels", self.channels)
         if len(pixels):
-            _gpu._run(ctx, program, len(pixels))
+            _gpu.run(ctx, program, len(pixels))
         return out, scale
 
 
@@ -194,7 +194,7 @@ def antialias(color, rast, pos, tri, topology_hash=None, pos_gradient_boost=1.0,
             codes, pixels = passes.lists(first, count)
             records = passes.run_pairs(first, count, codes)
             values, _ = passes.run_blend(first, count, records, pixels, convex, True)
-            flat_out[first * passes.hw + pixels.astype(np.int64)] = _gpu._read(
+            flat_out[first * passes.hw + pixels.astype(np.int64)] = _gpu.read(
                 values, len(pixels) * passes.channels).reshape(len(pixels), passes.channels)
     saved = AntialiasSaved(color, rast, pos, tri, th, boost, convex, ctx, ids)
     return out, saved
@@ -214,7 +214,7 @@ def pair_records(color, rast, pos, tri, topology_hash=None, *, ctx: Context | No
             codes, _ = passes.lists(first, count)
             records = passes.run_pairs(first, count, codes)
             n = count * passes.hw
-            out[first * passes.hw:first * passes.hw + n] = _gpu._read(
+            out[first * passes.hw:first * passes.hw + n] = _gpu.read(
                 records, n * 8, np.uint32).reshape(n, 2, 4)
     out[..., 0] &= 3
     return out.reshape(passes.batch, passes.height, passes.width, 2, 4)
@@ -229,7 +229,7 @@ def backward(saved: AntialiasSaved, grad_out, *, deterministic: bool = False,
         grad_out: (B, H, W, C) dL/d out.
         deterministic: bit-identical grad_pos from run to run (per-pair contributions
             summed per vertex in pixel order, in float64 on the host).
-        accumulate: force one of :data:`glraster.diff.backward_gpu.ACCUMULATIONS`.
+        accumulate: force one of :data:`glraster.diff.compute.ACCUMULATIONS`.
 
     Returns:
         ``(grad_color, grad_pos)``: grad_color (B, H, W, C) float32; grad_pos float32 of
@@ -248,14 +248,14 @@ def backward(saved: AntialiasSaved, grad_out, *, deterministic: bool = False,
     grad_color = grad_out.copy()
     flat_gc = grad_color.reshape(-1, channels)
     flat_g = grad_out.reshape(-1, channels)
-    defines = {_gpu._DEFINES[mode]: None}
+    defines = {_gpu.DEFINES[mode]: None}
     if saved.convex:
         defines["CONVEX"] = None
     with ctx:
         if mode == "per_pixel":
             total = np.zeros((total_rows, 4))
         else:
-            grad = _gpu._zeroed(ctx, "antialias.grad_pos", total_rows * 16)
+            grad = _gpu.zeroed(ctx, "antialias.grad_pos", total_rows * 16)
         for first, count in passes.chunks(48 + 12 * channels):
             codes, pixels = passes.lists(first, count)
             if len(pixels) == 0:
@@ -272,27 +272,27 @@ def backward(saved: AntialiasSaved, grad_out, *, deterministic: bool = False,
             ctx.storage_buffer("antialias.pos", passes.pos3.reshape(-1, 4)
                                ).bind_to_storage_buffer(5)
             if mode == "per_pixel":
-                contrib = _gpu._zeroed(ctx, "antialias.contrib", len(codes) * 32)
+                contrib = _gpu.zeroed(ctx, "antialias.contrib", len(codes) * 32)
                 contrib.bind_to_storage_buffer(6)
             else:
                 grad.bind_to_storage_buffer(6)
             ctx.storage_buffer("antialias.pixel_list", pixels).bind_to_storage_buffer(7)
-            _gpu._set(program, "n_list", len(pixels))
-            _gpu._set(program, "size", (passes.width, passes.height))
-            _gpu._set(program, "n_channels", channels)
-            _gpu._set(program, "boost", saved.pos_gradient_boost)
-            _gpu._run(ctx, program, len(pixels))
-            flat_gc[first * hw + pixels.astype(np.int64)] = _gpu._read(
+            _gpu.set_uniform(program, "n_list", len(pixels))
+            _gpu.set_uniform(program, "size", (passes.width, passes.height))
+            _gpu.set_uniform(program, "n_channels", channels)
+            _gpu.set_uniform(program, "boost", saved.pos_gradient_boost)
+            _gpu.run(ctx, program, len(pixels))
+            flat_gc[first * hw + pixels.astype(np.int64)] = _gpu.read(
                 out_gc, len(pixels) * channels).reshape(len(pixels), channels)
             if mode == "per_pixel":
-                terms = _gpu._read(contrib, len(codes) * 8, np.uint32).reshape(-1, 4)
+                terms = _gpu.read(contrib, len(codes) * 8, np.uint32).reshape(-1, 4)
                 rows = terms[:, 2].astype(np.int64) - 1
                 live = rows >= 0
                 values = terms.view(np.float32)[live].astype(np.float64)
                 values[:, 2] = 0.0
-                _gpu._reduce(total, rows[live][:, None], values[:, None, :], (0, 1, 3))
+                _gpu.reduce_rows(total, rows[live][:, None], values[:, None, :], (0, 1, 3))
         if mode != "per_pixel":
-            total = _gpu._read(grad, total_rows * 4).reshape(-1, 4)
+            total = _gpu.read(grad, total_rows * 4).reshape(-1, 4)
     grad_pos = total.reshape(passes.pos3.shape)
     if saved.pos.ndim == 2:
         grad_pos = grad_pos[0]

@@ -1,4 +1,8 @@
-"""Attribute interpolation over a differentiable raster: forward and backward (NumPy API).
+"""The interpolate op's GPU core: attribute interpolation over a raster, forward and backward.
+
+The core of :data:`glraster.diff.ops.INTERPOLATE` for float32 (the float64 one is
+:mod:`glraster.diff.interpolate_reference`, with the same signatures); inputs arrive
+checked by :meth:`INTERPOLATE.check <glraster.diff.op.Op.check>`.
 
 For a covered pixel of triangle ``t`` with ``rast = (u, v, z/w, t + 1)``::
 
@@ -9,39 +13,24 @@ rule through ``rast_db = (du/dx, du/dy, dv/dx, dv/dy)``::
 
     dA/dx = (a0 - a2) du/dx + (a1 - a2) dv/dx,   dA/dy = (a0 - a2) du/dy + (a1 - a2) dv/dy
 
-Both passes run on the GPU (:mod:`glraster.diff.backward_gpu`); the float64 reference of
-both is :mod:`glraster.diff.reference`.
+Both passes are compute shaders (shaders/diff/interpolate.comp,
+shaders/diff/backward_interpolate.comp), one invocation per pixel, dispatched in chunks by
+:mod:`glraster.diff.compute`; dL/d attr is summed per vertex by one of its accumulations.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-from glraster.diff import backward_gpu as _gpu
-from glraster.diff import layout
+from glraster.diff import compute
+from glraster.diff.saved import InterpolateSaved
 from glraster.gpu.context import Context, default_context
+from glraster.gpu.shaders import shader_path
 
 __all__ = ["InterpolateSaved", "backward", "forward"]
 
-
-@dataclass(frozen=True)
-class InterpolateSaved:
-    """What :func:`backward` needs from :func:`forward` (checked, float32 / int32 arrays).
-
-    ``attr`` is (B or 1, V, A) with ``batched`` telling which the caller passed;
-    ``diff_index`` the chosen attribute indices (empty: no derivatives);
-    ``rast_db`` None when the forward had none.
-    """
-
-    attr: np.ndarray
-    batched: bool
-    rast: np.ndarray
-    tri: np.ndarray
-    rast_db: np.ndarray | None
-    diff_index: tuple
-    ctx: Context
+FORWARD = "diff/interpolate.comp"
+BACKWARD = "diff/backward_interpolate.comp"
 
 
 def _columns(diff_index: tuple) -> tuple[tuple, list]:
@@ -51,89 +40,233 @@ def _columns(diff_index: tuple) -> tuple[tuple, list]:
     return unique, [unique.index(k) for k in diff_index]
 
 
-def forward(attr, rast, tri, rast_db=None, diff_attrs=None, *, ctx: Context | None = None):
+class _Pass:
+    """What both passes bind: attributes (binding 0) and triangles (1) on ``ctx``, and the
+    uniforms of the flattened (B, H, W) pixel grid."""
+
+    def __init__(self, attr: np.ndarray, rast: np.ndarray, tri: np.ndarray, ctx: Context):
+        self.attr3 = attr if attr.ndim == 3 else attr[None]
+        # a batch of one attribute set broadcasts: every image reads vertex rows 0 .. V-1
+        self.stride = self.attr3.shape[1] if self.attr3.shape[0] > 1 else 0
+        self.rast, self.tri, self.ctx = rast, tri, ctx
+        self.batch, self.height, self.width, _ = rast.shape
+        self.pixels = self.batch * self.height * self.width
+        self.num_attr = self.attr3.shape[2]
+
+    def bind(self, program) -> None:
+        ctx = self.ctx
+        ctx.storage_buffer("interpolate.attr", self.attr3.reshape(-1)).bind_to_storage_buffer(0)
+        ctx.storage_buffer("interpolate.tri", self.tri).bind_to_storage_buffer(1)
+        compute.set_uniform(program, "pixels_per_image", self.height * self.width)
+        compute.set_uniform(program, "vertex_stride", self.stride)
+        compute.set_uniform(program, "n_tri", len(self.tri))
+        compute.set_uniform(program, "n_attr", self.num_attr)
+
+    def image(self, flat: np.ndarray) -> np.ndarray:
+        return flat.reshape(self.batch, self.height, self.width, -1)
+
+
+def forward(attr, rast, rast_db=None, *, tri, diff_attrs=None, ctx: Context | None = None):
     """Interpolate per-vertex attributes over a raster, on the GPU.
 
-    Args:
-        attr: (V, A) or (B, V, A) per-vertex attributes (float32; other numbers converted).
+    Args (checked by :meth:`INTERPOLATE.check <glraster.diff.op.Op.check>`):
+        attr: (V, A) or (B', V, A) float32 per-vertex attributes (B' = 1 broadcasts).
         rast: (B, H, W, 4) float32 (u, v, z/w, triangle index + 1; 0 = empty), rows [y, x]
             with row 0 at the bottom.
-        tri: (T, 3) integer vertex indices (the rasterized ones).
         rast_db: None or (B, H, W, 4) float32 (du/dx, du/dy, dv/dx, dv/dy) per window pixel;
             needed for ``diff_attrs``.
-        diff_attrs: None, "all" or a list of attribute indices whose screen derivatives to
-            return (in that order; a repeated index repeats its columns).
+        tri: (T, 3) int32 vertex indices (the rasterized ones).
+        diff_attrs: None or a tuple of attribute indices whose screen derivatives to return
+            (in that order; a repeated index repeats its columns).
         ctx: the context (default: the process-wide one).
 
     Returns:
-        ``(out, out_da, saved)``: out (B, H, W, A) float32; out_da (B, H, W, 2 D) float32 with
-        (dA_k/dx, dA_k/dy) for the D chosen attributes in diff_attrs' order, or None when no
-        attribute is chosen; saved an :class:`InterpolateSaved` for :func:`backward`.
-        Empty pixels are 0 in both.
+        ``((out, out_da), saved)``: out (B, H, W, A) float32; out_da (B, H, W, 2 D) float32
+        with (dA_k/dx, dA_k/dy) for the D chosen attributes in diff_attrs' order
+        ((B, H, W, 0) when none is chosen); saved an :class:`InterpolateSaved`. Empty
+        pixels are 0 in both.
     """
     ctx = ctx or default_context()
-    rast = layout.image("rast", rast, dtype=np.float32)
-    attr3, batched = _gpu.check_vertices("attr", attr, None, rast.shape[0])
-    tri = layout.triangles(tri, attr3.shape[1], "attr")
-    diff_index = layout.diff_attrs(diff_attrs, attr3.shape[2]) or ()
-    if rast_db is not None:
-        rast_db = layout.image("rast_db", rast_db, rast.shape, np.float32)
-    elif diff_index:
-        raise ValueError("diff_attrs needs rast_db (the raster's screen derivatives)")
+    diff_index = tuple(diff_attrs or ())
+    if not diff_index:
+        rast_db = None
+    job = _Pass(attr, rast, tri, ctx)
     unique, place = _columns(diff_index)
-    out, out_da = _gpu.interpolate_forward(attr3, batched, rast, tri, rast_db, unique, ctx=ctx)
-    if out_da is not None and len(unique) != len(diff_index):
+    out, out_da = _forward(job, rast_db, unique)
+    if len(unique) != len(diff_index):
         pairs = out_da.reshape(out_da.shape[:3] + (len(unique), 2))
         out_da = np.ascontiguousarray(pairs[..., place, :].reshape(out.shape[:3] + (-1,)))
-    saved = InterpolateSaved(attr3, batched, rast, tri, rast_db, diff_index, ctx)
-    return out, out_da, saved
+    return (out, out_da), InterpolateSaved(attr, rast, tri, rast_db, diff_index, ctx)
 
 
-def backward(saved: InterpolateSaved, grad_out, grad_out_da=None, *, deterministic: bool = False,
-             accumulate: str | None = None):
+def _forward(job: _Pass, rast_db, diff_index: tuple):
+    """out (B, H, W, A) and out_da (B, H, W, 2 D) of the distinct chosen attributes."""
+    ctx, num_attr = job.ctx, job.num_attr
+    n_diff = len(diff_index)
+    out = np.empty((job.pixels, num_attr), np.float32)
+    out_da = np.empty((job.pixels, 2 * n_diff), np.float32)
+    flat_rast = job.rast.reshape(-1, 4)
+    flat_db = rast_db.reshape(-1, 4) if n_diff else None
+    with ctx:
+        program = ctx.compute_program(shader_path(FORWARD), {"N_DIFF": n_diff})
+        job.bind(program)
+        if n_diff:
+            ctx.storage_buffer("interpolate.diff_index",
+                               np.asarray(diff_index, np.int32)).bind_to_storage_buffer(5)
+        for first, count in compute.chunks(job.pixels, 4 * (num_attr + 2 * n_diff) + 32):
+            part = slice(first, first + count)
+            ctx.storage_buffer("interpolate.rast", flat_rast[part]).bind_to_storage_buffer(2)
+            values = ctx.scratch_buffer("interpolate.out", count * num_attr * 4)
+            values.bind_to_storage_buffer(3)
+            if n_diff:
+                ctx.storage_buffer("interpolate.rast_db", flat_db[part]).bind_to_storage_buffer(4)
+                derivs = ctx.scratch_buffer("interpolate.out_da", count * 8 * n_diff)
+                derivs.bind_to_storage_buffer(6)
+            compute.set_uniform(program, "n_pixels", count)
+            compute.set_uniform(program, "first_pixel", first)
+            compute.run(ctx, program, count)
+            out[part] = compute.read(values, count * num_attr).reshape(count, num_attr)
+            if n_diff:
+                out_da[part] = compute.read(derivs, count * 2 * n_diff).reshape(count, -1)
+    return job.image(out), job.image(out_da)
+
+
+def backward(saved: InterpolateSaved, grad_out=None, grad_out_da=None, *, needs=None,
+             deterministic: bool = False, accumulate: str | None = None):
     """Gradients of :func:`forward`, on the GPU.
 
     Args:
-        saved: the third value :func:`forward` returned.
-        grad_out: (B, H, W, A) dL/d out.
-        grad_out_da: None or (B, H, W, 2 D) dL/d out_da (ignored when the forward had no
-            chosen attribute; None counts as zero).
+        saved: the forward's :class:`InterpolateSaved`.
+        grad_out: (B, H, W, A) dL/d out, or None (zero).
+        grad_out_da: (B, H, W, 2 D) dL/d out_da, or None / (B, H, W, 0) (zero).
+        needs: None or (want_attr, want_rast, want_rast_db). Nothing is dispatched when
+            none is wanted; an unwanted per-pixel gradient is not read back, an unwanted
+            grad_attr not reduced (the deterministic mode's host sum).
         deterministic: bit-identical grad_attr from run to run (per-pixel contributions
             summed per vertex in pixel order, in float64); otherwise float atomics.
-        accumulate: force one of :data:`glraster.diff.backward_gpu.ACCUMULATIONS`.
+        accumulate: force one of :data:`glraster.diff.compute.ACCUMULATIONS`.
 
     Returns:
-        ``(grad_attr, grad_rast, grad_rast_db)``: grad_attr float32 of attr's shape (with
-        (V, A) attr the batch is summed); grad_rast (B, H, W, 4) float32 (dL/du, dL/dv, 0, 0);
-        grad_rast_db (B, H, W, 4) float32 dL/d(du/dx, du/dy, dv/dx, dv/dy), or None when there
-        is no grad_out_da (or the forward had no chosen attribute), as the reference. Empty
-        pixels are 0.
+        ``(grad_attr, grad_rast, grad_rast_db)``: grad_attr float32 of attr's shape (a
+        broadcast attr gets the sum over the batch); grad_rast (B, H, W, 4) float32
+        (dL/du, dL/dv, 0, 0); grad_rast_db (B, H, W, 4) float32
+        dL/d(du/dx, du/dy, dv/dx, dv/dy), None without derivative terms (no diff_attrs in
+        the forward, or no grad_out_da). Empty pixels are 0; unwanted entries None.
     """
-    rast = saved.rast
-    batch, height, width, _ = rast.shape
-    num_attr = saved.attr.shape[2]
-    grad_out = layout.image("grad_out", grad_out, dtype=np.float32, channels=None)
-    if grad_out.shape != (batch, height, width, num_attr):
-        raise ValueError(f"grad_out must have shape {(batch, height, width, num_attr)} "
-                         f"(that of out), got {grad_out.shape}")
-    n_diff = len(saved.diff_index)
-    if n_diff and grad_out_da is not None:
-        grad_out_da = layout.image("grad_out_da", grad_out_da, dtype=np.float32, channels=None)
-        if grad_out_da.shape != (batch, height, width, 2 * n_diff):
-            raise ValueError(f"grad_out_da must have shape {(batch, height, width, 2 * n_diff)}"
-                             f" (that of out_da), got {grad_out_da.shape}")
-    else:
+    want = (True, True, True) if needs is None else tuple(bool(n) for n in needs)
+    n_diff = len(saved.diff_attrs)
+    if grad_out_da is not None and (grad_out_da.shape[-1] == 0 or not n_diff):
         grad_out_da = None
-    unique, place = _columns(saved.diff_index)
+    want = (want[0], want[1], want[2] and grad_out_da is not None)
+    if not any(want) or (grad_out is None and grad_out_da is None):
+        return tuple(_zeros_if(w, shape) for w, shape in zip(want, _shapes(saved)))
+    job = _Pass(saved.attr, saved.rast, saved.tri, saved.ctx)
+    if grad_out is None:
+        grad_out = np.zeros(saved.rast.shape[:3] + (job.num_attr,), np.float32)
+    unique, place = _columns(saved.diff_attrs)
     if grad_out_da is not None and len(unique) != n_diff:
         pairs = grad_out_da.reshape(grad_out_da.shape[:3] + (n_diff, 2))
         folded = np.zeros(pairs.shape[:3] + (len(unique), 2), np.float32)
         for j, col in enumerate(place):
             folded[..., col, :] += pairs[..., j, :]
         grad_out_da = folded.reshape(pairs.shape[:3] + (-1,))
-    grad_attr, grad_rast, grad_db = _gpu.interpolate_backward(
-        saved.attr, saved.batched, rast, saved.tri, saved.rast_db, unique, grad_out,
-        grad_out_da, ctx=saved.ctx, deterministic=deterministic, accumulate=accumulate)
-    if not saved.batched:
-        grad_attr = grad_attr[0]
+    mode = compute.accumulation(saved.ctx, deterministic, accumulate)
+    grad_attr, grad_rast, grad_db = _Backward(job, saved, unique, mode, want).run(
+        np.ascontiguousarray(grad_out, np.float32),
+        None if grad_out_da is None else np.ascontiguousarray(grad_out_da, np.float32))
+    if grad_attr is not None:
+        grad_attr = grad_attr.reshape(saved.attr.shape)
     return grad_attr, grad_rast, grad_db
+
+
+def _shapes(saved: InterpolateSaved):
+    return saved.attr.shape, saved.rast.shape, saved.rast.shape
+
+
+def _zeros_if(wanted: bool, shape):
+    return np.zeros(shape, np.float32) if wanted else None
+
+
+class _Backward:
+    """One backward dispatch (the shader's bindings: 0 attr, 1 tri, 2 rast, 3 grad_out,
+    4 grad_rast, 5 the accumulated grad_attr or the per-pixel contributions, 6 rast_db,
+    7 the chosen attributes' slots, 8 grad_out_da, 9 grad_rast_db)."""
+
+    def __init__(self, job: _Pass, saved: InterpolateSaved, diff_index: tuple, mode: str,
+                 want: tuple[bool, bool, bool]):
+        self.job, self.saved, self.diff_index = job, saved, diff_index
+        self.mode, self.want = mode, want
+
+    def run(self, grad_out: np.ndarray, grad_out_da: np.ndarray | None):
+        job, mode, ctx = self.job, self.mode, self.job.ctx
+        num_attr = job.num_attr
+        n_diff = len(self.diff_index) if grad_out_da is not None else 0
+        want_attr, want_rast, want_db = self.want
+        flat = (job.rast.reshape(-1, 4), grad_out.reshape(job.pixels, num_attr),
+                self.saved.rast_db.reshape(-1, 4) if n_diff else None,
+                grad_out_da.reshape(job.pixels, 2 * n_diff) if n_diff else None)
+        grad_rast = np.empty((job.pixels, 4), np.float32) if want_rast else None
+        grad_db = np.empty((job.pixels, 4), np.float32) if want_db and n_diff else None
+        per_pixel = 4 * (num_attr + 2 * n_diff) + 48 + (12 * num_attr if mode == "per_pixel"
+                                                          else 0)
+        with ctx:
+            program = ctx.compute_program(shader_path(BACKWARD),
+                                          {compute.DEFINES[mode]: None, "N_DIFF": n_diff})
+            job.bind(program)
+            if n_diff:
+                ctx.storage_buffer("interpolate.diff_slot", self._slots()
+                                   ).bind_to_storage_buffer(7)
+            if mode == "per_pixel":
+                total = np.zeros((job.attr3.shape[0] * job.attr3.shape[1], num_attr))
+            else:
+                grad = compute.zeroed(ctx, "interpolate.grad_attr", job.attr3.size * 4)
+                grad.bind_to_storage_buffer(5)
+            for first, count in compute.chunks(job.pixels, per_pixel):
+                part = slice(first, first + count)
+                out_rast, out_db, contrib = self._chunk(program, flat, first, count, n_diff)
+                if grad_rast is not None:
+                    grad_rast[part] = compute.read(out_rast, count * 4).reshape(count, 4)
+                if grad_db is not None:
+                    grad_db[part] = compute.read(out_db, count * 4).reshape(count, 4)
+                if contrib is not None and want_attr:
+                    live, rows = compute.corner_vertices(flat[0][part, 3], first, job.tri,
+                                                         job.height * job.width, job.stride)
+                    values = compute.read(contrib, count * 3 * num_attr
+                                          ).reshape(count, 3, num_attr)[live]
+                    compute.reduce_rows(total, rows, values, range(num_attr))
+            if mode != "per_pixel" and want_attr:
+                total = compute.read(grad, job.attr3.size)
+        grad_attr = total.astype(np.float32) if want_attr else None
+        return (grad_attr,
+                None if grad_rast is None else job.image(grad_rast),
+                None if grad_db is None else job.image(grad_db))
+
+    def _slots(self) -> np.ndarray:
+        """Per attribute: its place among the chosen ones, or -1."""
+        slots = np.full(max(self.job.num_attr, 1), -1, np.int32)
+        for j, k in enumerate(self.diff_index):
+            slots[k] = j
+        return slots
+
+    def _chunk(self, program, flat, first: int, count: int, n_diff: int):
+        """Run pixels first .. first + count - 1: the buffers holding their grad_rast,
+        grad_rast_db (or None) and per-pixel contributions (or None)."""
+        ctx = self.job.ctx
+        part = slice(first, first + count)
+        ctx.storage_buffer("interpolate.rast", flat[0][part]).bind_to_storage_buffer(2)
+        ctx.storage_buffer("interpolate.grad_out", flat[1][part]).bind_to_storage_buffer(3)
+        out_rast = ctx.scratch_buffer("interpolate.grad_rast", count * 16)
+        out_rast.bind_to_storage_buffer(4)
+        contrib = out_db = None
+        if self.mode == "per_pixel":
+            contrib = ctx.scratch_buffer("interpolate.contrib", count * 12 * self.job.num_attr)
+            contrib.bind_to_storage_buffer(5)
+        if n_diff:
+            ctx.storage_buffer("interpolate.rast_db", flat[2][part]).bind_to_storage_buffer(6)
+            ctx.storage_buffer("interpolate.grad_out_da", flat[3][part]).bind_to_storage_buffer(8)
+            out_db = ctx.scratch_buffer("interpolate.grad_rast_db", count * 16)
+            out_db.bind_to_storage_buffer(9)
+        compute.set_uniform(program, "n_pixels", count)
+        compute.set_uniform(program, "first_pixel", first)
+        compute.run(ctx, program, count)
+        return out_rast, out_db, contrib

@@ -1,6 +1,6 @@
 """The differentiable ops as :class:`glraster.diff.op.Op` records: rasterize, interpolate,
-texture and antialias (depth peeling is rasterize's core driven layer by layer, see
-:class:`glraster.diff.rasterize.DepthPeeler`).
+texture and antialias (depth peeling is rasterize's core driven layer by layer: each core
+module has a ``DepthPeeler``, see :func:`depth_peeler`).
 
 The front ends (:mod:`glraster.torch`, :mod:`glraster.jax`) bridge these records and nothing
 else of :mod:`glraster.diff`. Signatures, per op (B batch, H x W image):
@@ -25,6 +25,7 @@ import numpy as np
 
 from glraster.diff import layout
 from glraster.diff.op import Op
+from glraster.errors import ArgumentError
 
 
 def float_dtype(*values) -> np.dtype:
@@ -44,6 +45,9 @@ def _rasterize_check(pos, *, tri, resolution, ranges=None, grad_db=True, space="
                      ctx=None):
     pos = layout.positions(pos, dtype=float_dtype(pos))
     tri = layout.triangles(tri, pos.shape[-2])
+    if not isinstance(grad_db, (bool, np.bool_)):
+        raise ArgumentError("grad_db", f"grad_db must be True or False, got {grad_db!r}")
+    # ranges are ignored in instanced mode (3-D pos), as nvdiffrast does
     params = dict(tri=tri, resolution=layout.resolution(resolution),
                   ranges=layout.ranges(ranges, len(tri), pos.ndim) if pos.ndim == 2 else None,
                   grad_db=bool(grad_db), space=layout.space(space), ctx=ctx)
@@ -57,8 +61,7 @@ def _rasterize_shapes(pos, *, tri, resolution, ranges=None, grad_db=True, **_):
 
 
 RASTERIZE = Op("rasterize", ("pos",), ("rast", "rast_db"), _rasterize_check, _rasterize_shapes,
-               gpu="glraster.diff._adapters:RASTERIZE_GPU",
-               reference="glraster.diff._adapters:RASTERIZE_REFERENCE")
+               gpu="glraster.diff.rasterize", reference="glraster.diff.rasterize_reference")
 
 
 # --------------------------------------------------------------------------- interpolate
@@ -70,6 +73,7 @@ def _interpolate_check(attr, rast, rast_db=None, *, tri, diff_attrs=None, ctx=No
     attr = layout.attributes(attr, rast.shape[0], dtype=dtype)
     tri = layout.triangles(tri, attr.shape[-2], "attr")
     diff = layout.diff_attrs(diff_attrs, attr.shape[-1])
+    layout.rast_ids(rast, len(tri))         # every id a triangle of tri, or empty
     if rast_db is not None:
         rast_db = layout.image("rast_db", rast_db, rast.shape, dtype)
     elif diff:
@@ -84,8 +88,8 @@ def _interpolate_shapes(attr, rast, rast_db=None, *, diff_attrs=None, **_):
 
 INTERPOLATE = Op("interpolate", ("attr", "rast", "rast_db"), ("out", "out_da"),
                  _interpolate_check, _interpolate_shapes,
-                 gpu="glraster.diff._adapters:INTERPOLATE_GPU",
-                 reference="glraster.diff._adapters:INTERPOLATE_REFERENCE")
+                 gpu="glraster.diff.interpolate",
+                 reference="glraster.diff.interpolate_reference")
 
 
 # --------------------------------------------------------------------------- texture
@@ -150,7 +154,6 @@ def depth_peeler(pos, **params):
     """A depth peeler on rasterize's core for ``pos``'s dtype, from checked rasterize
     arguments (:meth:`RASTERIZE.check <glraster.diff.op.Op.check>`): an object whose
     ``rasterize_next_layer()`` returns ``((rast, rast_db), saved)``, ``saved`` for
-    ``RASTERIZE.core(pos.dtype).backward``, and whose ``release()`` frees what it holds."""
-    from glraster.diff import _adapters
-
-    return _adapters.depth_peeler(pos, **params)
+    ``RASTERIZE.core(pos.dtype).backward``, and whose ``release()`` frees what it holds
+    (also a context manager)."""
+    return RASTERIZE.core(pos.dtype).DepthPeeler(pos, **params)

@@ -1,4 +1,8 @@
-"""The differentiable rasterize on the GPU: forward, instanced and range batches, depth peeling.
+"""The rasterize op's GPU core: forward, backward, instanced and range batches, depth peeling.
+
+The core of :data:`glraster.diff.ops.RASTERIZE` for float32 (the float64 one is
+:mod:`glraster.diff.rasterize_reference`, with the same signatures); inputs arrive checked
+by :meth:`RASTERIZE.check <glraster.diff.op.Op.check>` and are not checked again.
 
 :func:`forward` rasterizes clip-space triangles into nvdiffrast's layouts:
 
@@ -9,7 +13,7 @@
   the triangle index + 1 as a float (:func:`glraster.diff.layout.encode_ids`, exact for
   any index); all four are 0 on empty pixels.
 - ``rast_db`` (B, H, W, 4) float32: (du/dx, du/dy, dv/dx, dv/dy) at the pixel centre, per
-  window pixel, 0 on empty pixels.
+  window pixel, 0 on empty pixels; (B, H, W, 0) with ``grad_db=False``.
 
 Everything is computed in the fragment shader (shaders/diff/rasterize.frag) from a
 per-triangle record set up on the host in float64, the "homogeneous" method's
@@ -31,52 +35,41 @@ row (range mode, ids index the whole ``tri``). Each batch item is one draw into 
 cached framebuffer, read back into its slice of the output (docs/differentiable.md, "GPU",
 says why not a layered array texture).
 
-:class:`DepthPeeler` (and :func:`depth_peel`) gives successive depth layers: each keeps, per
-pixel, the nearest surface strictly behind the previous layer's z/w (the fragment shader
-samples the previous layer's z/w and discards fragments at or in front of it).
+:func:`backward` is the derivative of those closed forms at the fixed pixel centres
+(coverage frozen: point sampling has no visibility gradient), one compute-shader invocation
+per pixel (shaders/diff/backward_rasterize.comp), summed per vertex by one of the
+accumulations of :mod:`glraster.diff.compute`.
+
+:class:`DepthPeeler` gives successive depth layers: each keeps, per pixel, the nearest
+surface strictly behind the previous layer's z/w (the fragment shader samples the previous
+layer's z/w and discards fragments at or in front of it).
 """
 
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
 
 import numpy as np
 
 from glraster import validate
-from glraster.diff import layout
+from glraster.diff import compute, layout
+from glraster.diff.saved import RasterizeSaved
 from glraster.gpu import cull as _cull
 from glraster.gpu import homogeneous as _homogeneous
 from glraster.gpu import pipeline
 from glraster.gpu.context import Context, default_context
 from glraster.gpu.shaders import shader_path
 
+__all__ = ["DepthPeeler", "RasterizeSaved", "backward", "backward_pixels", "forward",
+           "setup_records"]
+
 VERT = "diff/rasterize.vert"
 FRAG = "diff/rasterize.frag"
+BACKWARD = "diff/backward_rasterize.comp"
 RECORD_STRIDE = 28  # floats per triangle record, see shaders/diff/rasterize.frag
 
 # Host-side culling below this many triangles costs more than the setup records it saves.
 CULL_MIN_TRIANGLES = 256
-
-
-@dataclass
-class RasterizeSaved:
-    """What the backward of :func:`forward` needs.
-
-    pos        : (V, 4) or (B, V, 4) float32 clip space, as validated
-    tri        : (T, 3) int32
-    resolution : (height, width)
-    ranges     : (B, 2) int64 [first, count] or None
-    rast       : (B, H, W, 4) float32, the forward's output
-    space      : "persp" or "screen"
-    """
-
-    pos: np.ndarray
-    tri: np.ndarray
-    resolution: tuple
-    ranges: np.ndarray | None
-    rast: np.ndarray
-    space: str = "persp"
 
 
 @functools.lru_cache(maxsize=8)
@@ -98,29 +91,27 @@ def setup_records(clip: np.ndarray, resolution) -> np.ndarray:
     return rec
 
 
-class _Forward:
-    """Validated inputs, per-item triangles (culled) and setup records, and the draws of
-    one forward (the peeler draws the same items once per layer)."""
 
-    def __init__(self, pos, tri, resolution, ctx, ranges, grad_db, space):
+
+class _Forward:
+    """Per-item triangles (culled) and setup records, and the draws of one forward on
+    checked inputs (the peeler draws the same items once per layer)."""
+
+    def __init__(self, pos, tri, resolution, ranges, grad_db, space, ctx):
         self.ctx = ctx if ctx is not None else default_context()
         self.ctx.require_gl(45, "glraster.diff.rasterize", "shader storage buffers, GLSL 4.50")
-        self.pos = layout.positions(pos, np.float32)
-        self.tri = layout.triangles(tri, self.pos.shape[-2])
+        self.pos, self.tri, self.ranges = pos, tri, ranges
+        self.grad_db, self.space = grad_db, space
+        # the driver's limits (the op's check knows no context)
         self.height, self.width = validate.resolution(resolution, self.ctx.max_texture_size)
-        self.space = layout.space(space)
-        if grad_db not in (True, False):
-            raise ValueError(f"grad_db must be True or False, got {grad_db!r}")
-        self.grad_db = bool(grad_db)
-        self.ranges = layout.ranges(ranges, len(self.tri), self.pos.ndim)
-        item_bytes = self.pos[0].nbytes if self.pos.ndim == 3 else self.pos.nbytes
+        item_bytes = pos[0].nbytes if pos.ndim == 3 else pos.nbytes
         if item_bytes > self.ctx.max_storage_block_size:
             raise ValueError(f"pos takes {item_bytes} bytes per batch item, above the driver's "
                              "shader storage block limit of "
                              f"{self.ctx.max_storage_block_size} bytes")
-        self.batch = layout.batch_size(self.pos, self.ranges)
+        self.batch = layout.batch_size(pos, ranges)
         self.colors = {"rast": (4, "f4")}
-        if self.grad_db:
+        if grad_db:
             self.colors["rast_db"] = (4, "f4")
         self._items = [self._item(b) for b in range(self.batch)]
         # the setup records of every item's drawn triangles in one vectorized call
@@ -173,42 +164,42 @@ class _Forward:
     def new_outputs(self):
         shape = (self.batch, self.height, self.width, 4)
         rast = np.empty(shape, np.float32)
-        rast_db = np.empty(shape, np.float32) if self.grad_db else None
+        rast_db = np.empty(shape if self.grad_db else shape[:-1] + (0,), np.float32)
         return rast, rast_db
 
     def draw(self, b, rast, rast_db, prev_depth=None):
         spec, pos, tri = self.spec(b, prev_depth)
         out = {"rast": rast[b]}
-        if rast_db is not None:
+        if self.grad_db:
             out["rast_db"] = rast_db[b]
         pipeline.draw(self.ctx, spec, pos, tri, (self.height, self.width), out=out,
                       during="rasterizing (glraster.diff)")
 
     def saved(self, rast) -> RasterizeSaved:
         return RasterizeSaved(self.pos, self.tri, (self.height, self.width), self.ranges,
-                              rast, self.space)
+                              rast, self.space, self.ctx)
 
 
-def forward(pos, tri, resolution, *, ctx: Context | None = None, ranges=None,
-            grad_db: bool = True, space: str = "persp"):
-    """Rasterize for differentiation: ``(rast, rast_db or None, saved)``.
+def forward(pos, *, tri, resolution, ranges=None, grad_db: bool = True, space: str = "persp",
+            ctx: Context | None = None):
+    """Rasterize for differentiation: ``((rast, rast_db), saved)``.
 
-    Parameters
+    Parameters (checked by :meth:`RASTERIZE.check <glraster.diff.op.Op.check>`)
     ----------
-    pos : (V, 4) or (B, V, 4) array_like of float
+    pos : (V, 4) or (B, V, 4) float32
         Clip-space positions; 3-D is instanced mode (``tri`` drawn over each ``pos[b]``).
-    tri : (T, 3) array_like of int
+    tri : (T, 3) int32
         Vertex indices.
     resolution : (height, width)
-    ctx : Context, optional
-        Defaults to the process-wide context.
-    ranges : (B, 2) array_like of int, optional
+    ranges : (B, 2) int64 or None
         Range mode (``pos`` 2-D): item b draws ``tri[first:first + count]``; ids index the
         whole ``tri``.
     grad_db : bool
-        Also compute ``rast_db`` (else None is returned in its place).
+        Also compute ``rast_db`` (else it is (B, H, W, 0)).
     space : {"persp", "screen"}
         u, v are perspective-correct ("persp") or window-space ("screen") barycentrics.
+    ctx : Context, optional
+        Defaults to the process-wide context.
 
     Returns
     -------
@@ -216,39 +207,163 @@ def forward(pos, tri, resolution, *, ctx: Context | None = None, ranges=None,
         (u, v, z/w, id), ``[b, y, x]``, row 0 at the bottom; id = triangle index + 1
         (:func:`glraster.diff.layout.encode_ids`), 0 on empty pixels. B = 1 for 2-D
         ``pos`` without ranges.
-    rast_db : (B, H, W, 4) float32 or None
+    rast_db : (B, H, W, 4) or (B, H, W, 0) float32
         (du/dx, du/dy, dv/dx, dv/dy) at the pixel centre (window pixels), 0 where empty.
     saved : RasterizeSaved
     """
-    job = _Forward(pos, tri, resolution, ctx, ranges, grad_db, space)
+    job = _Forward(pos, tri, resolution, ranges, grad_db, space, ctx)
     rast, rast_db = job.new_outputs()
     for b in range(job.batch):
         job.draw(b, rast, rast_db)
-    return rast, rast_db, job.saved(rast)
+    return (rast, rast_db), job.saved(rast)
+
+
+# --------------------------------------------------------------------------- backward
+
+
+def backward(saved: RasterizeSaved, grad_rast=None, grad_db=None, *, needs=None,
+             deterministic: bool = False, accumulate: str | None = None):
+    """dL/d pos of point-sampled rasterization, coverage frozen: ``(grad_pos,)``.
+
+    Args:
+        saved: the forward's :class:`RasterizeSaved`.
+        grad_rast: (B, H, W, 4) dL/d rast or None (zero); channels 0, 1 (u, v) are used,
+            z/w and the id carry no gradient (dL/dz = 0).
+        grad_db: (B, H, W, 4) dL/d rast_db (the second-order terms), or None / a
+            (B, H, W, 0) array (zero).
+        needs: None or (want_pos,): ``(None,)`` when pos' gradient is not wanted.
+        deterministic: bit-identical results from run to run (``"per_pixel"``).
+        accumulate: force one of :data:`glraster.diff.compute.ACCUMULATIONS` (tests,
+            measurements).
+
+    Returns:
+        ``(grad_pos,)``, float32 of pos' shape: (dL/dx, dL/dy, 0, dL/dw) per vertex; with
+        (V, 4) pos the batch's contributions are summed.
+    """
+    if needs is not None and not needs[0]:
+        return (None,)
+    if grad_db is not None and grad_db.shape[-1] == 0:
+        grad_db = None
+    if grad_rast is None and grad_db is None:
+        return (np.zeros(saved.pos.shape, np.float32),)
+    mode = compute.accumulation(saved.ctx, deterministic, accumulate)
+    return (_Backward(saved, grad_rast, grad_db, mode).run(),)
+
+
+def backward_pixels(saved: RasterizeSaved, grad_rast, grad_db=None) -> np.ndarray:
+    """The per-pixel terms of :func:`backward`, before the sum over pixels.
+
+    Returns (B, H, W, 3, 4) float32: for each pixel, (dL/dx, dL/dy, 0, dL/dw) of the pixel's
+    contribution to the vertices tri[t, 0], tri[t, 1], tri[t, 2] of its triangle (0 on empty
+    pixels). For error analysis and tests.
+    """
+    rast = saved.rast
+    out = np.empty((rast.shape[0] * rast.shape[1] * rast.shape[2], 3, 4), np.float32)
+    _Backward(saved, grad_rast, grad_db, "per_pixel").run(pixels_out=out)
+    return out.reshape(rast.shape[:3] + (3, 4))
+
+
+class _Backward:
+    """One backward dispatch: the program and the per-vertex buffers, then the chunks of
+    pixels (the shader's bindings: 0 pos, 1 tri, 2 rast, 3 grad_rast, 4 grad_db, 5 the
+    accumulated gradient or the per-pixel contributions)."""
+
+    def __init__(self, saved: RasterizeSaved, grad_rast, grad_db, mode: str):
+        self.saved, self.mode = saved, mode
+        self.ctx = saved.ctx
+        rast = saved.rast
+        self.batch, self.height, self.width, _ = rast.shape
+        if grad_rast is None:
+            grad_rast = np.zeros(rast.shape, np.float32)
+        self.flat = (rast.reshape(-1, 4),
+                     np.ascontiguousarray(grad_rast, np.float32).reshape(-1, 4),
+                     None if grad_db is None
+                     else np.ascontiguousarray(grad_db, np.float32).reshape(-1, 4))
+        pos = saved.pos
+        self.pos3 = pos if pos.ndim == 3 else pos[None]
+        self.stride = pos.shape[-2] if pos.ndim == 3 else 0
+        self.defines = {compute.DEFINES[mode]: None}
+        if saved.space == "screen":
+            self.defines["SPACE_SCREEN"] = None
+        if grad_db is not None:
+            self.defines["GRAD_DB"] = None
+
+    def run(self, pixels_out=None) -> np.ndarray:
+        ctx, tri, mode = self.ctx, self.saved.tri, self.mode
+        total_vertices = self.pos3.shape[0] * self.pos3.shape[1]
+        pixels = self.batch * self.height * self.width
+        with ctx:
+            program = ctx.compute_program(shader_path(BACKWARD), self.defines)
+            ctx.storage_buffer("backward.pos", self.pos3.reshape(-1, 4)).bind_to_storage_buffer(0)
+            ctx.storage_buffer("backward.tri", tri).bind_to_storage_buffer(1)
+            if mode == "per_pixel":
+                total = np.zeros((total_vertices, 4))
+            else:
+                grad = compute.zeroed(ctx, "backward.grad_pos", total_vertices * 16)
+                grad.bind_to_storage_buffer(5)
+            compute.set_uniform(program, "size", (self.width, self.height))
+            compute.set_uniform(program, "vertex_stride", self.stride)
+            compute.set_uniform(program, "n_tri", len(tri))
+            for first, count in compute.chunks(pixels, 48 if mode == "per_pixel" else 16):
+                contrib = self._chunk(program, first, count)
+                if contrib is not None:
+                    if pixels_out is not None:
+                        pixels_out[first:first + count] = contrib
+                    live, rows = compute.corner_vertices(
+                        self.flat[0][first:first + count, 3], first, tri,
+                        self.height * self.width, self.stride)
+                    compute.reduce_rows(total, rows, contrib[live], (0, 1, 3))
+            if mode != "per_pixel":
+                total = compute.read(grad, total_vertices * 4).reshape(-1, 4)
+        return total.astype(np.float32).reshape(self.saved.pos.shape)
+
+    def _chunk(self, program, first: int, count: int):
+        """Run pixels first .. first + count - 1; their (count, 3, 4) contributions in
+        per-pixel mode, else None (they went to the atomic sum)."""
+        ctx = self.ctx
+        part = slice(first, first + count)
+        rast, grad_rast, grad_db = self.flat
+        ctx.storage_buffer("backward.rast", rast[part]).bind_to_storage_buffer(2)
+        ctx.storage_buffer("backward.grad_rast", grad_rast[part]).bind_to_storage_buffer(3)
+        if grad_db is not None:
+            ctx.storage_buffer("backward.grad_db", grad_db[part]).bind_to_storage_buffer(4)
+        if self.mode == "per_pixel":
+            out = ctx.scratch_buffer("backward.contrib", count * 48)
+            out.bind_to_storage_buffer(5)
+        compute.set_uniform(program, "n_pixels", count)
+        compute.set_uniform(program, "first_pixel", first)
+        compute.run(ctx, program, count)
+        if self.mode == "per_pixel":
+            return compute.read(out, count * 12).reshape(count, 3, 4)
+        return None
+
+
+# --------------------------------------------------------------------------- depth peeling
 
 
 class DepthPeeler:
-    """Successive depth layers of one scene (the B axis as in :func:`forward`).
+    """Successive depth layers of one scene (the B axis as in :func:`forward`), from
+    checked rasterize arguments (those of :func:`forward`).
 
-    Each :meth:`rasterize_next_layer` call returns ``(rast, rast_db or None, saved)`` of
-    the next layer: per pixel, the nearest surface strictly behind the previous layer's z/w
-    (fragments at or in front of it are discarded in the fragment shader, which samples
-    the previous layer's z/w from a float texture). The first layer equals
-    :func:`forward`; a pixel empty in one layer is empty in every later one.
+    Each :meth:`rasterize_next_layer` call returns ``((rast, rast_db), saved)`` of the next
+    layer, ``saved`` for :func:`backward`: per pixel, the nearest surface strictly behind
+    the previous layer's z/w (fragments at or in front of it are discarded in the fragment
+    shader, which samples the previous layer's z/w from a float texture). The first layer
+    equals :func:`forward`; a pixel empty in one layer is empty in every later one.
 
     Use as a context manager, or call :meth:`release`, to free the depth texture.
     """
 
-    def __init__(self, pos, tri, resolution, *, ctx: Context | None = None, ranges=None,
-                 grad_db: bool = True, space: str = "persp"):
-        self._job = _Forward(pos, tri, resolution, ctx, ranges, grad_db, space)
+    def __init__(self, pos, *, tri, resolution, ranges=None, grad_db: bool = True,
+                 space: str = "persp", ctx: Context | None = None):
+        self._job = _Forward(pos, tri, resolution, ranges, grad_db, space, ctx)
         self.ctx = self._job.ctx
         self.layer = 0
         self._prev = None      # (B, H, W) float32 z/w of the last layer, +inf where empty
         self._texture = None
 
     def rasterize_next_layer(self):
-        """The next layer: ``(rast, rast_db or None, saved)`` as from :func:`forward`."""
+        """The next layer: ``((rast, rast_db), saved)`` as from :func:`forward`."""
         job = self._job
         rast, rast_db = job.new_outputs()
         if self.layer == 0:
@@ -262,7 +377,7 @@ class DepthPeeler:
                 job.draw(b, rast, rast_db, prev_depth=texture)
         self._prev = np.where(rast[..., 3] != 0, rast[..., 2], np.float32(np.inf))
         self.layer += 1
-        return rast, rast_db, job.saved(rast)
+        return (rast, rast_db), job.saved(rast)
 
     def _depth_texture(self):
         if self._texture is None:
@@ -284,13 +399,3 @@ class DepthPeeler:
 
     def __exit__(self, *exc):
         self.release()
-
-
-def depth_peel(pos, tri, resolution, *, ctx: Context | None = None, ranges=None,
-               layers: int = 2, grad_db: bool = True, space: str = "persp"):
-    """The first ``layers`` depth layers: a list of ``(rast, rast_db or None, saved)``, as
-    from :meth:`DepthPeeler.rasterize_next_layer` (layer 0 equals :func:`forward`)."""
-    layers = validate.positive_int("layers", layers)
-    with DepthPeeler(pos, tri, resolution, ctx=ctx, ranges=ranges, grad_db=grad_db,
-                     space=space) as peeler:
-        return [peeler.rasterize_next_layer() for _ in range(layers)]

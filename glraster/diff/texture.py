@@ -13,7 +13,7 @@ derivations in docs/differentiable.md, "Texture"), in compute shaders
   see :func:`sampler_probe` for why);
 * the backward sends gradients to every texel read (float atomics, a compare-and-swap loop,
   or per-pixel (texel, weight) pairs summed on the host in float64, as
-  :mod:`glraster.diff.backward_gpu`), then pulls a built pyramid's level gradients back into
+  :mod:`glraster.diff.compute`), then pulls a built pyramid's level gradients back into
   the base through the transpose of its box filter (a gather, one pass per level); to uv
   (through the bilinear weights and, for cube maps, the face projection and the level), to
   uv_da (through the level) and to the bias.
@@ -27,15 +27,13 @@ import numpy as np
 
 from glraster.diff import layout
 from glraster.diff import texture_reference as ref
-from glraster.diff.backward_gpu import (
-    _DEFINES,
-    _chunks,
-    _read,
-    _run,
-    _set,
-    _zeroed,
-    accumulation,
-)
+from glraster.diff.compute import DEFINES as _DEFINES
+from glraster.diff.compute import accumulation
+from glraster.diff.compute import chunks as _chunks
+from glraster.diff.compute import read as _read
+from glraster.diff.compute import run as _run
+from glraster.diff.compute import set_uniform as _set
+from glraster.diff.compute import zeroed as _zeroed
 from glraster.gpu.context import Context, default_context
 from glraster.gpu.shaders import shader_path
 
@@ -208,7 +206,7 @@ def backward(saved: TextureSaved, grad_out, *, deterministic: bool = False,
         grad_out: (B, H, W, C) dL/d out.
         deterministic: bit-identical results from run to run (the texel gradients summed per
             texel in pixel order in float64 on the host; the pyramid pass is a gather).
-        accumulate: force one of :data:`glraster.diff.backward_gpu.ACCUMULATIONS`.
+        accumulate: force one of :data:`glraster.diff.compute.ACCUMULATIONS`.
 
     Returns:
         ``(grad_tex, grad_uv, grad_uv_da, grad_mip_level_bias, grad_mip)``, float32:

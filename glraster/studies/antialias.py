@@ -211,13 +211,13 @@ def _msaa(s):
 
 def _analytic(scene, resolution, ctx):
     from glraster.diff import antialias as aa
-    from glraster.diff import rasterize as diff_rasterize
+    from glraster.diff.ops import RASTERIZE
 
     topology = aa.antialias_construct_topology_hash(scene.tri)
 
     def run():
-        rast, _, _ = diff_rasterize.forward(scene.pos, scene.tri, resolution, ctx=ctx,
-                                            grad_db=False)
+        (rast, _), _ = RASTERIZE.forward(np.asarray(scene.pos, np.float32), tri=scene.tri,
+                                         resolution=resolution, ctx=ctx, grad_db=False)
         ids = rast[..., 3].astype(np.int64) - 1           # id + 1 as a float, exact
         color = scene.shade(ids)[..., None].astype(np.float32)
         out, _ = aa.antialias(color, rast, scene.pos, scene.tri, topology, ctx=ctx)

@@ -8,9 +8,9 @@ every ratio is the median, min and max of its per-round ratios, so slow phases o
 shared machine hit both sides; wall time by ``time.perf_counter`` and CPU time of the
 whole process, llvmpipe's and torch's threads included, by ``time.process_time``):
 
-rasterize (NumPy core, :mod:`glraster.diff.rasterize`, :mod:`glraster.diff.backward_gpu`)
+rasterize (the GPU core, :mod:`glraster.diff.rasterize`, on checked inputs)
     ``forward`` without and with ``rast_db`` (``grad_db=False`` / ``True``), and
-    ``rasterize_backward`` from random upstream gradients of rast and rast_db, with float
+    ``backward`` from random upstream gradients of rast and rast_db, with float
     atomics (the default) and ``deterministic=True``:
     ``db_over_nodb``, ``backward_atomic_over_forward``,
     ``backward_deterministic_over_forward`` (both against the forward with rast_db) and
@@ -124,10 +124,10 @@ class _Cell:
     """The inputs and calls of one cell (everything built outside the timed parts)."""
 
     def __init__(self, ctx, count: int, size: int, attributes: int, seed: int = 0):
-        from glraster.diff import backward_gpu
+        import glraster.torch as dr
         from glraster.diff import interpolate as core_interpolate
         from glraster.diff import rasterize as core_rasterize
-        import glraster.torch as dr
+        from glraster.diff.ops import INTERPOLATE, RASTERIZE
         from glraster.torch import baseline
 
         self.ctx, self.size = ctx, size
@@ -135,7 +135,9 @@ class _Cell:
         scene = make_bench_scene("terrain", count)
         self.pos, self.tri = scene.pos, scene.faces
         rng = np.random.default_rng(seed)
-        rast, rast_db, _ = core_rasterize.forward(self.pos, self.tri, self.resolution, ctx=ctx)
+        (pos,), params = RASTERIZE.check(self.pos, tri=self.tri, resolution=self.resolution,
+                                         ctx=ctx)
+        (rast, rast_db), saved = core_rasterize.forward(pos, **params)
         self.rast, self.rast_db = rast, rast_db
         self.covered = float((rast[..., 3] != 0).mean())
         grad_rast = rng.standard_normal(rast.shape).astype(np.float32)
@@ -144,30 +146,28 @@ class _Cell:
         g_out = rng.standard_normal(rast.shape[:3] + (attributes,)).astype(np.float32)
         g_da = rng.standard_normal(rast.shape[:3] + (2 * attributes,)).astype(np.float32)
 
-        res = self.resolution
+        no_db = dict(params, grad_db=False)
         self.raster_calls = {
-            "forward": lambda: core_rasterize.forward(self.pos, self.tri, res, ctx=ctx,
-                                                      grad_db=False),
-            "forward_db": lambda: core_rasterize.forward(self.pos, self.tri, res, ctx=ctx,
-                                                         grad_db=True),
-            "backward_atomic": lambda: backward_gpu.rasterize_backward(
-                self.pos, self.tri, rast, grad_rast, grad_db, ctx=ctx),
-            "backward_deterministic": lambda: backward_gpu.rasterize_backward(
-                self.pos, self.tri, rast, grad_rast, grad_db, ctx=ctx, deterministic=True),
+            "forward": lambda: core_rasterize.forward(pos, **no_db),
+            "forward_db": lambda: core_rasterize.forward(pos, **params),
+            "backward_atomic": lambda: core_rasterize.backward(saved, grad_rast, grad_db),
+            "backward_deterministic": lambda: core_rasterize.backward(
+                saved, grad_rast, grad_db, deterministic=True),
         }
 
         runner = baseline.ForwardBackward(attr, rast, self.tri, rast_db, g_out, g_da,
                                           diff_attrs="all",
                                           glctx=dr.RasterizeGLContext(context=ctx))
         self.runner = runner
-        _, _, saved = core_interpolate.forward(attr, rast, self.tri, rast_db, "all", ctx=ctx)
+        _, isaved = INTERPOLATE.forward(attr, rast, rast_db, tri=self.tri, diff_attrs="all",
+                                        ctx=ctx)
         self.interp_calls = {
             "glraster": lambda: runner("glraster"),
             "baseline": lambda: runner("baseline"),
             "baseline_1_thread": lambda: runner("baseline", threads=1),
-            "core_backward_atomic": lambda: core_interpolate.backward(saved, g_out, g_da),
+            "core_backward_atomic": lambda: core_interpolate.backward(isaved, g_out, g_da),
             "core_backward_deterministic": lambda: core_interpolate.backward(
-                saved, g_out, g_da, deterministic=True),
+                isaved, g_out, g_da, deterministic=True),
         }
 
     def same_math(self) -> dict:
@@ -204,12 +204,12 @@ def run_cell(ctx, size: int, count: int, *, repeats: int = 5, attributes: int = 
     }
     goals = {name: g for name in GOALS
              if (g := _goal(name, ratios[name]["median"], size)) is not None}
-    from glraster.diff import backward_gpu
+    from glraster.diff import compute
 
     return {
         "resolution": [size, size], "triangles": int(len(cell.tri)), "attributes": attributes,
         "covered_fraction": cell.covered,
-        "accumulation": backward_gpu.accumulation(ctx),
+        "accumulation": compute.accumulation(ctx),
         "times": {**{f"rasterize_{k}": _time_stats(raster[k]) for k in RASTER_CALLS},
                   **{f"interpolate_{k}": _time_stats(interp[k]) for k in INTERP_CALLS}},
         "ratios": ratios, "goals": goals, "same_math": same,
@@ -229,8 +229,8 @@ PHASES = {
                                                   ("moderngl/__init__.py", "read")],
     "host setup records": [("glraster/diff/rasterize.py", "setup_records")],
     "host culling": [("glraster/gpu/cull.py", "cull")],
-    "host reduction (ids, bincount)": [("glraster/diff/backward_gpu.py", "_corner_vertices"),
-                                       ("glraster/diff/backward_gpu.py", "_reduce")],
+    "host reduction (ids, bincount)": [("glraster/diff/compute.py", "corner_vertices"),
+                                       ("glraster/diff/compute.py", "reduce_rows")],
 }
 
 
@@ -295,12 +295,12 @@ def run(preset: str = "quick", *, backend: str = "egl", progress=None, **overrid
     load_start = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
     ctx = Context(backend)
     try:
-        from glraster.diff import backward_gpu
+        from glraster.diff import compute
 
         machine = {"renderer": ctx.renderer, "gl_version": ctx.gl_version,
                    "backend": ctx.backend, "cpus": os.cpu_count(),
                    **baseline.runtime(),
-                   "accumulation": backward_gpu.accumulation(ctx)}
+                   "accumulation": compute.accumulation(ctx)}
         cells = []
         for i, (size, count) in enumerate(grid):
             if progress:

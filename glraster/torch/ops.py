@@ -5,9 +5,10 @@ Each op is one private :class:`torch.autograd.Function` around the NumPy core:
 ============  ===========================================  ================================
 dtype         forward                                      backward
 ============  ===========================================  ================================
-float32       ``glraster.diff.rasterize.forward`` (GPU)    ``diff.backward_gpu.rasterize_backward``
+float32       ``glraster.diff.rasterize.forward`` (GPU)    ``glraster.diff.rasterize.backward``
               ``glraster.diff.interpolate.forward``        ``diff.interpolate.backward``
-float64       ``glraster.diff.reference.*_forward``        ``glraster.diff.reference.*_backward``
+float64       ``diff.rasterize_reference.forward``         ``diff.rasterize_reference.backward``
+              ``diff.interpolate_reference.forward``       ``diff.interpolate_reference.backward``
 ============  ===========================================  ================================
 
 so ``torch.autograd.gradcheck`` in float64 runs through the float64 reference, and float32
@@ -39,26 +40,23 @@ import torch
 from torch.autograd.function import once_differentiable
 
 from glraster.diff import layout
+from glraster.diff.ops import INTERPOLATE, RASTERIZE, depth_peeler
 from glraster.torch import _checks
 from glraster.torch.context import RasterizeGLContext
 
 # --------------------------------------------------------------------------- the cores
 
 
-def _reference():
-    from glraster.diff import reference
-
-    return reference
-
-
-def _empty_db(rast: np.ndarray) -> np.ndarray:
-    return np.zeros(rast.shape[:-1] + (0,), rast.dtype)
+def _gl(glctx, dtype):
+    """The GL context of ``glctx`` for the GPU core (float32); None for the float64
+    reference, which needs none (a context is made on first use)."""
+    return None if glctx is None or dtype == np.float64 else glctx.context
 
 
 class _RasterOp:
     """One rasterization (a call of :func:`rasterize` or one peeled layer): ``forward(pos)``
     gives (rast, rast_db, state), ``backward(state, grad_rast, grad_db)`` the gradient of
-    ``pos``. float64 runs the reference, float32 the GPU."""
+    ``pos``, on the core of :data:`glraster.diff.ops.RASTERIZE` the dtype selects."""
 
     def __init__(self, glctx, tri, resolution, ranges, output_db, grad_db, peeler=None):
         self.glctx = glctx
@@ -67,34 +65,22 @@ class _RasterOp:
         self.ranges = ranges
         self.output_db = output_db
         self.grad_db = grad_db
-        self.peeler = peeler  # the NumPy core's depth peeler, for one layer
+        self.peeler = peeler  # the core's depth peeler, for one layer
 
     def forward(self, pos: np.ndarray):
         if self.peeler is not None:
-            rast, rast_db, saved = self.peeler.rasterize_next_layer()
-        elif pos.dtype == np.float64:
-            rast, rast_db, saved = _reference().rasterize_forward(
-                pos, self.tri, self.resolution, ranges=self.ranges)
+            (rast, rast_db), saved = self.peeler.rasterize_next_layer()
         else:
-            from glraster.diff import rasterize as gpu_rasterize
-
-            rast, rast_db, saved = gpu_rasterize.forward(
-                pos, self.tri, self.resolution, ctx=self.glctx.context, ranges=self.ranges,
-                grad_db=self.output_db)
-        if not self.output_db or rast_db is None:
-            rast_db = _empty_db(rast)
+            (rast, rast_db), saved = RASTERIZE.core(pos.dtype).forward(
+                pos, tri=self.tri, resolution=self.resolution, ranges=self.ranges,
+                grad_db=self.output_db, ctx=_gl(self.glctx, pos.dtype))
         return rast, rast_db, (pos, rast, saved)
 
     def backward(self, state, grad_rast: np.ndarray, grad_db):
-        pos, rast, saved = state
+        pos, _, saved = state
         if not (self.grad_db and self.output_db):
             grad_db = None
-        if pos.dtype == np.float64:
-            return _reference().rasterize_backward(saved, grad_rast, grad_db)
-        from glraster.diff import backward_gpu
-
-        return backward_gpu.rasterize_backward(pos, self.tri, rast, grad_rast, grad_db,
-                                               ctx=self.glctx.context)
+        return RASTERIZE.core(pos.dtype).backward(saved, grad_rast, grad_db)[0]
 
 
 class _RasterizeFunction(torch.autograd.Function):
@@ -128,8 +114,9 @@ class _RasterizeFunction(torch.autograd.Function):
 
 
 class _InterpolateOp:
-    """One interpolation on the core the dtype selects (a ``diff_attrs`` that repeats an
-    attribute gives each repeat its channels on both cores; gradients of repeats add)."""
+    """One interpolation on the core of :data:`glraster.diff.ops.INTERPOLATE` the dtype
+    selects (a ``diff_attrs`` that repeats an attribute gives each repeat its channels;
+    gradients of repeats add)."""
 
     def __init__(self, glctx, tri, diff_attrs):
         self.glctx = glctx
@@ -137,25 +124,13 @@ class _InterpolateOp:
         self.diff_attrs = None if diff_attrs is None else tuple(diff_attrs)
 
     def forward(self, attr, rast, rast_db):
-        if attr.dtype == np.float64:
-            out, out_da, saved = _reference().interpolate_forward(
-                attr, rast, self.tri, rast_db, self.diff_attrs)
-        else:
-            from glraster.diff import interpolate as gpu_interpolate
-
-            ctx = None if self.glctx is None else self.glctx.context
-            out, out_da, saved = gpu_interpolate.forward(attr, rast, self.tri, rast_db,
-                                                         self.diff_attrs, ctx=ctx)
-        if out_da is None:
-            out_da = np.zeros(out.shape[:-1] + (0,), out.dtype)
+        (out, out_da), saved = INTERPOLATE.core(attr.dtype).forward(
+            attr, rast, rast_db if self.diff_attrs else None, tri=self.tri,
+            diff_attrs=self.diff_attrs, ctx=_gl(self.glctx, attr.dtype))
         return out, out_da, saved
 
     def backward(self, saved, dtype, grad_out, grad_out_da):
-        if dtype == np.float64:
-            return _reference().interpolate_backward(saved, grad_out, grad_out_da)
-        from glraster.diff import interpolate as gpu_interpolate
-
-        return gpu_interpolate.backward(saved, grad_out, grad_out_da)
+        return INTERPOLATE.core(dtype).backward(saved, grad_out, grad_out_da)
 
 
 def _fit(name, grad, shape, dtype, core_shape=None):
@@ -334,29 +309,6 @@ def interpolate(attr, rast, tri, rast_db=None, diff_attrs=None, *, glctx=None):
 # --------------------------------------------------------------------------- depth peeling
 
 
-class _ReferencePeeler:
-    """The float64 layers of :func:`glraster.diff.reference.depth_peel`, one per call (the
-    reference computes the first n layers at once: n doubles as layers are asked for)."""
-
-    def __init__(self, pos, tri, resolution, ranges):
-        self.args = (pos, tri, resolution, ranges)
-        self.layers = []
-        self.next = 0
-
-    def rasterize_next_layer(self):
-        pos, tri, resolution, ranges = self.args
-        if self.next >= len(self.layers):
-            count = max(2 * len(self.layers), self.next + 1)
-            self.layers = _reference().depth_peel(pos, tri, resolution, count, ranges=ranges)
-        rast, rast_db = self.layers[self.next]
-        self.next += 1
-        saved = _reference().RasterizeSaved.from_rast(pos, tri, rast, ranges=ranges)
-        return rast, rast_db, saved
-
-    def release(self):
-        self.layers = []
-
-
 class DepthPeeler:
     """Successive depth layers (nvdiffrast's ``DepthPeeler``), as a context manager::
 
@@ -387,14 +339,9 @@ class DepthPeeler:
             raise RuntimeError("this context already has an active DepthPeeler")
         tri_np, res, ranges_np, _ = self._args
         pos_np = _checks.numpy(self.pos)
-        if pos_np.dtype == np.float64:
-            self._peeler = _ReferencePeeler(pos_np, tri_np, res, ranges_np)
-        else:
-            from glraster.diff import rasterize as gpu_rasterize
-
-            self._peeler = gpu_rasterize.DepthPeeler(
-                pos_np, tri_np, res, ctx=self.raster_ctx.context, ranges=ranges_np,
-                grad_db=self.raster_ctx.output_db)
+        self._peeler = depth_peeler(pos_np, tri=tri_np, resolution=res, ranges=ranges_np,
+                                    grad_db=self.raster_ctx.output_db,
+                                    ctx=_gl(self.raster_ctx, pos_np.dtype))
         self.raster_ctx.active_depth_peeler = self
         return self
 

@@ -10,8 +10,7 @@ import pytest
 
 from glraster.diff import antialias as gaa
 from glraster.diff import antialias_reference as aar
-from glraster.diff import interpolate as ginterp
-from glraster.diff import rasterize as grast
+from glraster.diff.ops import INTERPOLATE, RASTERIZE
 from tests.diff.test_antialias_reference import behind_scene, mesh_scene, soup_scene
 
 U = 2.0 ** -24
@@ -20,8 +19,9 @@ RES = (72, 96)
 
 def render(ctx, pos, tri, colors, resolution=RES):
     """GPU rast and colour image (float32), as the float64 arrays the reference gets."""
-    rast, _, _ = grast.forward(pos, tri, resolution, ctx=ctx)
-    col, _, _ = ginterp.forward(colors, rast, tri, ctx=ctx)
+    (rast, _), _ = RASTERIZE.forward(np.asarray(pos, np.float32), tri=tri,
+                                     resolution=resolution, ctx=ctx)
+    (col, _), _ = INTERPOLATE.forward(np.asarray(colors, np.float32), rast, tri=tri, ctx=ctx)
     return rast.astype(np.float64), col.astype(np.float64)
 
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from glraster.diff import antialias_reference as aar
-from glraster.diff import reference as ref
+from glraster.diff.ops import INTERPOLATE, RASTERIZE
 from glraster.geometry import camera, shapes
 
 RES = (48, 64)
@@ -69,8 +69,8 @@ def behind_scene(resolution=RES):
 
 def shade(pos, tri, colors, resolution=RES):
     """(rast, colour image) from the float64 reference rasterizer and interpolation."""
-    rast, _, _ = ref.rasterize_forward(pos, tri, resolution)
-    col, _, _ = ref.interpolate_forward(colors, rast, tri)
+    (rast, _), _ = RASTERIZE.forward(pos, tri=tri, resolution=resolution)
+    (col, _), _ = INTERPOLATE.forward(colors, rast, tri=tri)
     return rast, col
 
 
@@ -200,7 +200,7 @@ def test_antialiased_mask_follows_the_covered_area():
     that sum is the derivative of the area (the blend is box coverage)."""
     pos = f32([[-0.7, -0.6, 0.1, 1.0], [0.8, -0.3, 0.2, 1.2], [-0.1, 0.75, 0.3, 0.9]])
     tri = np.array([[0, 1, 2]], np.int32)
-    rast, _, _ = ref.rasterize_forward(pos, tri, RES)
+    (rast, _), _ = RASTERIZE.forward(pos, tri=tri, resolution=RES)
     mask = (rast[..., 3:4] > 0).astype(np.float64)
     out, saved = aar.antialias_forward(mask, rast, pos, tri)
     area = coverage_area(pos, RES)
@@ -224,7 +224,7 @@ def test_shared_edges_are_not_blended_unless_the_vertices_are_split():
     welding the duplicates restores the first result exactly."""
     pos = f32(window_to_clip([[10, 8], [50, 10], [45, 40], [12, 38]], RES))
     tri = np.array([[0, 1, 2], [0, 2, 3]], np.int32)
-    rast, _, _ = ref.rasterize_forward(pos, tri, RES)
+    (rast, _), _ = RASTERIZE.forward(pos, tri=tri, resolution=RES)
     ids = rast[..., 3:4]
     col = np.where(ids == 1, [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]) * (ids > 0)
     out, saved = aar.antialias_forward(col, rast, pos, tri)
@@ -255,7 +255,7 @@ def three_sided_scene():
 
 def test_convex_weights_keep_the_output_within_the_inputs_range():
     res, pos, tri = three_sided_scene()
-    rast, _, _ = ref.rasterize_forward(pos, tri, res)
+    (rast, _), _ = RASTERIZE.forward(pos, tri=tri, resolution=res)
     assert rast[0, 4, 4, 3] == 0 and rast[0, 4, 3, 3] == 1 and rast[0, 4, 5, 3] == 2
     assert rast[0, 3, 4, 3] == 3
     col = np.where(rast[..., 3:4] > 0, 0.0, 1.0)          # black shapes, white background
@@ -303,7 +303,7 @@ def test_gradients_match_central_differences(name):
         res = RES
     elif name == "three_sided":
         res, pos, tri = three_sided_scene()
-        rast, _, _ = ref.rasterize_forward(pos, tri, res)
+        (rast, _), _ = RASTERIZE.forward(pos, tri=tri, resolution=res)
         col = rng.uniform(0, 1, rast.shape[:3] + (2,))
     else:
         pos, tri, colors = SCENES[name]()

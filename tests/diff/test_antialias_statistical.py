@@ -14,9 +14,9 @@ from __future__ import annotations
 import numpy as np
 
 from glraster.diff import antialias as gaa
-from glraster.diff import backward_gpu as bgpu
 from glraster.diff import interpolate as ginterp
 from glraster.diff import rasterize as grast
+from glraster.diff.ops import INTERPOLATE, RASTERIZE
 from tests.diff.test_antialias_reference import mesh_scene, soup_scene
 
 RES = (96, 128)
@@ -36,20 +36,20 @@ class Pipeline:
 
     def render(self, pos):
         pos = np.asarray(pos, np.float32)
-        rast, _, _ = grast.forward(pos, self.tri, self.resolution, ctx=self.ctx)
-        col, _, isaved = ginterp.forward(self.colors, rast, self.tri, ctx=self.ctx)
+        (rast, _), rsaved = RASTERIZE.forward(pos, tri=self.tri, resolution=self.resolution,
+                                              ctx=self.ctx)
+        (col, _), isaved = INTERPOLATE.forward(self.colors, rast, tri=self.tri, ctx=self.ctx)
         out, asaved = gaa.antialias(col, rast, pos, self.tri, self.th, ctx=self.ctx)
-        return rast, out, isaved, asaved
+        return rsaved, out, isaved, asaved
 
     def loss(self, pos) -> float:
         return float((self.render(pos)[1].astype(np.float64) * self.weights).sum())
 
     def gradient(self) -> np.ndarray:
-        rast, _, isaved, asaved = self.render(self.pos)
+        rsaved, _, isaved, asaved = self.render(self.pos)
         g_col, g_pos_aa = gaa.backward(asaved, self.weights, deterministic=True)
         _, g_rast, _ = ginterp.backward(isaved, g_col, deterministic=True)
-        g_pos = bgpu.rasterize_backward(self.pos, self.tri, rast, g_rast, ctx=self.ctx,
-                                        deterministic=True)
+        (g_pos,) = grast.backward(rsaved, g_rast, deterministic=True)
         return g_pos_aa.astype(np.float64) + g_pos, g_pos_aa.astype(np.float64)
 
 

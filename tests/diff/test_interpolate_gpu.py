@@ -1,12 +1,13 @@
-"""Interpolation on the GPU (glraster.diff.interpolate) against float64.
+"""Interpolation on the GPU (glraster.diff.interpolate, called through INTERPOLATE: checked
+once, then the core float32 selects) against float64.
 
 The float64 closed forms are evaluated here in the running-error arithmetic of
-test_backward_gpu (:class:`Err`: value and a first-order bound m on the float32 evaluation
-of the same expression, |float32 - exact| <= u m) and checked against central differences
-and against glraster.diff.reference. Per-pixel outputs (out, out_da, grad_rast,
-grad_rast_db) must lie within K u m of float64; grad_attr within the sum of its pixels'
-bounds plus the float32 summation bound. The inputs (attr, rast, rast_db, upstream
-gradients) are float32 numbers and exact.
+test_rasterize_backward (:class:`Err`: value and a first-order bound m on the float32
+evaluation of the same expression, |float32 - exact| <= u m) and checked against central
+differences and against glraster.diff.interpolate_reference. Per-pixel outputs (out,
+out_da, grad_rast, grad_rast_db) must lie within K u m of float64; grad_attr within the sum
+of its pixels' bounds plus the float32 summation bound. The inputs (attr, rast, rast_db,
+upstream gradients) are float32 numbers and exact.
 """
 
 from __future__ import annotations
@@ -14,20 +15,35 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from glraster.diff import layout
-from glraster.diff import backward_gpu as bg
+from glraster.diff import compute, interpolate_reference, layout
 from glraster.diff import interpolate as ip
-from glraster.diff import reference as ref
-from tests.diff.test_backward_gpu import U32, Err, covered, random_soup
+from glraster.diff.ops import INTERPOLATE, RASTERIZE
+from tests.diff.test_rasterize_backward import U32, Err, covered, random_soup
 
 # every operation of Err counts one rounding; K leaves a margin for fma contraction
 K = 2.0
 
 
 def gpu_raster(ctx, pos, tri, resolution):
-    from glraster.diff import rasterize as dr
-    rast, rast_db, _ = dr.forward(pos, tri, resolution, ctx=ctx, grad_db=True)
+    (rast, rast_db), _ = RASTERIZE.forward(pos, tri=tri, resolution=resolution, ctx=ctx,
+                                           grad_db=True)
     return rast, rast_db
+
+
+def forward(attr, rast, tri, rast_db=None, diff_attrs=None, *, ctx):
+    """(out, out_da, saved) of INTERPOLATE on float32 attr: the GPU core."""
+    (out, out_da), saved = INTERPOLATE.forward(attr, rast, rast_db, tri=tri,
+                                               diff_attrs=diff_attrs, ctx=ctx)
+    return out, out_da, saved
+
+
+def reference(attr, rast, tri, rast_db, diff_attrs, go, gda):
+    """((out, out_da), (grad_attr, grad_rast, grad_rast_db)) of the float64 core."""
+    f64 = [None if a is None else np.asarray(a, np.float64) for a in (attr, rast, rast_db)]
+    outputs, saved = INTERPOLATE.forward(*f64, tri=tri, diff_attrs=diff_attrs)
+    grads = interpolate_reference.backward(saved, np.asarray(go, np.float64),
+                                           None if gda is None else gda.astype(np.float64))
+    return outputs, grads
 
 
 @pytest.fixture
@@ -94,7 +110,7 @@ def within(got, errs, what):
 @pytest.mark.parametrize("diff", [None, [3, 0], "all"])
 def test_forward_within_running_error_bound(ctx, scene, diff):
     attr, rast, rast_db, tri, _ = scene
-    out, out_da, _ = ip.forward(attr, rast, tri, rast_db, diff, ctx=ctx)
+    out, out_da, _ = forward(attr, rast, tri, rast_db, diff, ctx=ctx)
     chosen = layout.diff_attrs(diff, attr.shape[1]) or ()
     px, o, oda, *_ = closed_forms(attr, rast, rast_db, tri, chosen, np.zeros_like(out), None)
     assert out.shape == rast.shape[:3] + (5,) and out.dtype == np.float32
@@ -104,29 +120,29 @@ def test_forward_within_running_error_bound(ctx, scene, diff):
     covered_mask[px] = True
     assert not out[~covered_mask].any(), "empty pixels must be 0"
     if diff is None:
-        assert out_da is None
+        assert out_da.shape == rast.shape[:3] + (0,)
     else:
         assert out_da.shape == rast.shape[:3] + (2 * len(chosen),)
         within(out_da[px], oda, "out_da")
         assert not out_da[~covered_mask].any()
-    o64, _da64, _ = ref.interpolate_forward(attr, rast, tri, rast_db, diff)
+    (o64, _da64), _ = reference(attr, rast, tri, rast_db, diff, out, None)
     np.testing.assert_allclose(want, o64[px], rtol=0, atol=1e-12)
 
 
-@pytest.mark.parametrize("accumulate", bg.ACCUMULATIONS)
+@pytest.mark.parametrize("accumulate", compute.ACCUMULATIONS)
 @pytest.mark.parametrize("diff", [None, [4, 1], "all"])
 def test_backward_within_bound_and_matches_reference(ctx, scene, diff, accumulate):
     """grad_rast, grad_rast_db per pixel within K u m; grad_attr per vertex within the
     sum of its pixels' bounds + (n - 1) u sum |c| (atomics) or u |sum| (float64 sum)."""
-    if accumulate == "atomic_float" and not bg.has_atomic_float(ctx):
+    if accumulate == "atomic_float" and not compute.has_atomic_float(ctx):
         pytest.skip("the driver has no GL_NV_shader_atomic_float")
     attr, rast, rast_db, tri, rng = scene
-    out, out_da, saved = ip.forward(attr, rast, tri, rast_db, diff, ctx=ctx)
+    out, out_da, saved = forward(attr, rast, tri, rast_db, diff, ctx=ctx)
     go = rng.normal(size=out.shape).astype(np.float32)
-    gda = None if out_da is None else rng.normal(size=out_da.shape).astype(np.float32)
+    gda = None if diff is None else rng.normal(size=out_da.shape).astype(np.float32)
     grad_attr, grad_rast, grad_db = ip.backward(saved, go, gda, accumulate=accumulate)
     px, _, _, gr_uv, gdb, corner, index = closed_forms(attr, rast, rast_db, tri,
-                                                       saved.diff_index, go, gda)
+                                                       saved.diff_attrs, go, gda)
     within(grad_rast[px][:, :2], list(gr_uv), "grad_rast")
     assert not grad_rast[..., 2:].any()
     if diff is None:
@@ -148,8 +164,7 @@ def test_backward_within_bound_and_matches_reference(ctx, scene, diff, accumulat
         np.maximum(n - 1, 0) * U32 * (mag + bound)
     assert grad_attr.shape == attr.shape and np.abs(grad_attr).max() > 0
     assert (np.abs(grad_attr - want) <= bound + summation + U32 * np.abs(want)).all()
-    r = ref.interpolate_backward(ref.interpolate_forward(attr, rast, tri, rast_db, diff)[2],
-                                 go, gda)
+    _, r = reference(attr, rast, tri, rast_db, diff, go, gda)
     np.testing.assert_allclose(want, r[0], rtol=0, atol=1e-9 * np.abs(r[0]).max())
 
 
@@ -197,7 +212,7 @@ def test_closed_forms_match_central_differences(ctx, scene):
 
 def test_deterministic_is_bit_identical_over_three_runs(ctx, scene):
     attr, rast, rast_db, tri, rng = scene
-    out, out_da, saved = ip.forward(attr, rast, tri, rast_db, "all", ctx=ctx)
+    out, out_da, saved = forward(attr, rast, tri, rast_db, "all", ctx=ctx)
     go = rng.normal(size=out.shape).astype(np.float32)
     gda = rng.normal(size=out_da.shape).astype(np.float32)
     runs = [ip.backward(saved, go, gda, deterministic=True) for _ in range(3)]
@@ -213,15 +228,15 @@ def test_batched_and_broadcast_attributes(ctx, scene):
     attr, rast, _rast_db, tri, rng = scene
     rasts = np.concatenate([rast, rast[:, ::-1].copy()])
     attr2 = np.stack([attr, attr * np.float32(-2)])
-    out, _, saved = ip.forward(attr2, rasts, tri, ctx=ctx)
+    out, _, saved = forward(attr2, rasts, tri, ctx=ctx)
     for i in range(2):
-        one, _, _ = ip.forward(attr2[i], rasts[i:i + 1], tri, ctx=ctx)
+        one, _, _ = forward(attr2[i], rasts[i:i + 1], tri, ctx=ctx)
         assert np.array_equal(out[i], one[0])
     go = rng.normal(size=out.shape).astype(np.float32)
     g2 = ip.backward(saved, go, deterministic=True)[0]
     assert g2.shape == attr2.shape
-    shared = ip.backward(ip.forward(attr, rasts, tri, ctx=ctx)[2], go, deterministic=True)[0]
-    parts = [ip.backward(ip.forward(attr, rasts[i:i + 1], tri, ctx=ctx)[2], go[i:i + 1],
+    shared = ip.backward(forward(attr, rasts, tri, ctx=ctx)[2], go, deterministic=True)[0]
+    parts = [ip.backward(forward(attr, rasts[i:i + 1], tri, ctx=ctx)[2], go[i:i + 1],
                          deterministic=True)[0] for i in range(2)]
     assert np.array_equal(g2[0], parts[0])
     total = parts[0].astype(np.float64) + parts[1]
@@ -234,8 +249,8 @@ def test_repeated_diff_attrs_repeat_columns_and_add_gradients(ctx, scene):
     grad_attr equal those of [2, 0] with the two listings' upstream gradients added
     (one float32 addition: within u of the sum, per pixel)."""
     attr, rast, rast_db, tri, rng = scene
-    _, da3, saved3 = ip.forward(attr, rast, tri, rast_db, [2, 0, 2], ctx=ctx)
-    out, da2, saved2 = ip.forward(attr, rast, tri, rast_db, [2, 0], ctx=ctx)
+    _, da3, saved3 = forward(attr, rast, tri, rast_db, [2, 0, 2], ctx=ctx)
+    out, da2, saved2 = forward(attr, rast, tri, rast_db, [2, 0], ctx=ctx)
     assert np.array_equal(da3[..., :4], da2) and np.array_equal(da3[..., 4:], da2[..., :2])
     go = rng.normal(size=out.shape).astype(np.float32)
     g3 = rng.normal(size=da3.shape).astype(np.float32)
@@ -247,16 +262,30 @@ def test_repeated_diff_attrs_repeat_columns_and_add_gradients(ctx, scene):
         assert np.array_equal(x, y)
 
 
-def test_arguments_are_checked(ctx, scene):
+def test_arguments_are_checked_once_by_the_op(ctx, scene):
     attr, rast, rast_db, tri, _ = scene
     with pytest.raises(ValueError, match="diff_attrs needs rast_db"):
-        ip.forward(attr, rast, tri, None, "all", ctx=ctx)
+        forward(attr, rast, tri, None, "all", ctx=ctx)
     with pytest.raises(ValueError, match=r"diff_attrs index 7 is out of range for attr with 5"):
-        ip.forward(attr, rast, tri, rast_db, [7], ctx=ctx)
+        forward(attr, rast, tri, rast_db, [7], ctx=ctx)
     with pytest.raises(ValueError, match="diff_attrs must be None, 'all'"):
-        ip.forward(attr, rast, tri, rast_db, "some", ctx=ctx)
+        forward(attr, rast, tri, rast_db, "some", ctx=ctx)
     with pytest.raises(ValueError, match="rast_db must have shape"):
-        ip.forward(attr, rast, tri, rast_db[:, :2], "all", ctx=ctx)
-    _, _, saved = ip.forward(attr, rast, tri, ctx=ctx)
-    with pytest.raises(ValueError, match="grad_out must have shape"):
-        ip.backward(saved, np.zeros(rast.shape[:3] + (4,)))
+        forward(attr, rast, tri, rast_db[:, :2], "all", ctx=ctx)
+    with pytest.raises(ValueError, match="beyond tri's"):
+        forward(attr, rast, tri[:3], ctx=ctx)
+
+
+def test_unwanted_gradients_are_none_and_the_wanted_unchanged(ctx, scene):
+    """needs: (attr, rast, rast_db); unwanted entries are None, the wanted ones the same
+    bits as with every gradient wanted (deterministic)."""
+    attr, rast, rast_db, tri, rng = scene
+    out, out_da, saved = forward(attr, rast, tri, rast_db, "all", ctx=ctx)
+    go = rng.normal(size=out.shape).astype(np.float32)
+    gda = rng.normal(size=out_da.shape).astype(np.float32)
+    full = ip.backward(saved, go, gda, deterministic=True)
+    for needs in [(True, False, False), (False, True, False), (False, False, True),
+                  (False, False, False)]:
+        got = ip.backward(saved, go, gda, needs=needs, deterministic=True)
+        for want, g, all_ in zip(needs, got, full):
+            assert (g is None) if not want else np.array_equal(g, all_), needs

@@ -1,11 +1,11 @@
 """The differentiable rasterize on the GPU (glraster.diff.rasterize) against float64.
 
 rast (u, v, z/w, id) and rast_db (du/dx, du/dy, dv/dx, dv/dy) are compared per pixel with
-the float64 reference (glraster.diff.reference) at the pixel centre, within per-pixel bounds
-derived from the float32 error model (see :func:`bounds`); pixels whose triangle ids differ
-are masked and counted, and must lie where the reference rasterizer says the winner is
-ambiguous (edge band, depth tie). Batches equal separate calls bit for bit; depth peeling's
-layers 2 and 3 equal the reference's depth_peel layers.
+the float64 reference (glraster.diff.rasterize_reference) at the pixel centre, within
+per-pixel bounds derived from the float32 error model (see :func:`bounds`); pixels whose
+triangle ids differ are masked and counted, and must lie where the reference rasterizer
+says the winner is ambiguous (edge band, depth tie). Batches equal separate calls bit for
+bit; depth peeling's layers 2 and 3 equal the float64 peeler's layers.
 """
 
 from __future__ import annotations
@@ -17,7 +17,8 @@ from glraster import reference
 from glraster.conformance.scenes import load_scene
 from glraster.diff import layout
 from glraster.diff import rasterize as dr
-from glraster.diff import reference as diff_reference
+from glraster.diff import rasterize_reference
+from glraster.diff.ops import RASTERIZE, depth_peeler
 from glraster.geometry import synthetic
 from glraster.gpu import pipeline
 from glraster.gpu.context import Context
@@ -36,10 +37,17 @@ SCENES = ("basic_perspective_triangle", "grid_perspective_jitter", "perspective_
 # --------------------------------------------------------------------------- float64
 
 
+def forward(pos, tri, res, *, ctx, **params):
+    """(rast, rast_db, saved) of RASTERIZE on float32 pos: checked, then the GPU core."""
+    (rast, db), saved = RASTERIZE.forward(np.asarray(pos, np.float32), tri=tri,
+                                          resolution=res, ctx=ctx, **params)
+    return rast, db, saved
+
+
 def float64_forward(pos, tri, resolution, space="persp", ctx=None, tri_id=None):
     """The float64 forward of one item and the per-pixel bounds of the GPU's error.
 
-    Values: glraster.diff.reference (``rasterize_values`` at the winning triangles of
+    Values: glraster.diff.rasterize_reference (``rasterize_values`` at the winning triangles of
     ``glraster.reference.rasterize``, i.e. ``rasterize_forward``, or at ``tri_id`` (H, W)
     when given, e.g. a depth layer). The bounds (:func:`bounds`) are evaluated from the
     reference rasterizer's per-triangle geometry (adj(M), det(M)).
@@ -51,7 +59,7 @@ def float64_forward(pos, tri, resolution, space="persp", ctx=None, tri_id=None):
     ref = reference.rasterize(pos, tri, resolution, outputs=("tri_id",))
     ids = ref.tri_id if tri_id is None else np.asarray(tri_id)
     height, width = resolution
-    rast, db = diff_reference.rasterize_values(pos, tri, ids[None], space=space)
+    rast, db = rasterize_reference.rasterize_values(pos, tri, ids[None], space=space)
     out = {"tri_id": ids, "ambiguous": ref.ambiguous, "rast": rast[0], "rast_db": db[0]}
     tol_rast = np.zeros((height, width, 4))
     tol_db = np.zeros((height, width, 4))
@@ -163,7 +171,7 @@ def test_rast_and_rast_db_match_float64_within_their_bounds(ctx, name):
     """Ids exact wherever the winner is not ambiguous; values within :func:`bounds`;
     empty pixels all zero."""
     pos, tri, res = _scene(name)
-    rast, db, saved = dr.forward(pos, tri, res, ctx=ctx)
+    rast, db, saved = forward(pos, tri, res, ctx=ctx)
     assert rast.shape == db.shape == (1, *res, 4) and rast.dtype == db.dtype == np.float32
     got = compare(rast[0], db[0], float64_forward(pos, tri, res, ctx=ctx))
     assert got["pixels"] > 0
@@ -180,7 +188,7 @@ def test_screen_space_matches_float64_within_its_bounds(ctx, name):
     """space="screen": u, v are the window-space barycentrics s_i w_i, rast_db their
     constant gradients; z/w and ids as in persp."""
     pos, tri, res = _scene(name)
-    rast, db, saved = dr.forward(pos, tri, res, ctx=ctx, space="screen")
+    rast, db, saved = forward(pos, tri, res, ctx=ctx, space="screen")
     got = compare(rast[0], db[0], float64_forward(pos, tri, res, "screen", ctx=ctx))
     assert got["id_mismatch_unambiguous"] == 0
     assert got["ratio"] <= 1.0 and got["ratio_db"] <= 1.0, (got["ratio"], got["ratio_db"])
@@ -194,7 +202,7 @@ def test_compensated_barycentrics_stay_within_a_few_ulps_on_well_shaped_triangle
     form: a handful of roundings on values of that size)."""
     pos, tri = synthetic.random_soup(300, seed=11)
     res = (128, 160)
-    rast, db, _ = dr.forward(pos, tri, res, ctx=ctx)
+    rast, db, _ = forward(pos, tri, res, ctx=ctx)
     want = float64_forward(pos, tri, res, ctx=ctx)
     got = compare(rast[0], db[0], want)
     assert got["uv"].max() <= 4 * EPS32 and got["z"].max() <= 4 * EPS32
@@ -203,9 +211,9 @@ def test_compensated_barycentrics_stay_within_a_few_ulps_on_well_shaped_triangle
 
 def test_grad_db_false_returns_the_same_rast_and_no_rast_db(ctx):
     pos, tri, res = _scene("torus")
-    rast, db, _ = dr.forward(pos, tri, res, ctx=ctx)
-    rast2, db2, _ = dr.forward(pos, tri, res, ctx=ctx, grad_db=False)
-    assert db2 is None and db is not None
+    rast, db, _ = forward(pos, tri, res, ctx=ctx)
+    rast2, db2, _ = forward(pos, tri, res, ctx=ctx, grad_db=False)
+    assert db2.shape == rast.shape[:3] + (0,) and db.shape == rast.shape
     np.testing.assert_array_equal(rast2, rast)
 
 
@@ -231,12 +239,13 @@ def test_shader_encodes_ids_beyond_2_24_as_layout_does(ctx):
     large index (the id_base uniform the range mode sets), writes layout.encode_ids's bits."""
     pos, tri = synthetic.random_soup(40, seed=2)
     res = (64, 64)
-    job = dr._Forward(pos, tri, res, ctx, None, False, "persp")
+    job = dr._Forward(np.asarray(pos, np.float32), np.asarray(tri, np.int32), res, None, False,
+                      "persp", ctx)
     for first in (2**24 - 20, 2**24 + 5, 2**27 + 3, 700_000_000):
         spec, p, t = job.spec(0)
         spec.uniforms["id_base"] = first
         values = pipeline.draw(ctx, spec, p, t, res)["rast"]
-        plain, _, _ = dr.forward(pos, tri, res, ctx=ctx, grad_db=False)
+        plain, _, _ = forward(pos, tri, res, ctx=ctx, grad_db=False)
         index = layout.decode_ids(plain[0, ..., 3])
         want = np.where(index >= 0, layout.encode_ids(np.where(index >= 0, index + first, 0)), 0)
         np.testing.assert_array_equal(values[..., 3].view(np.uint32),
@@ -253,10 +262,10 @@ def test_instanced_batch_equals_separate_calls(ctx):
     rng = np.random.default_rng(0)
     pos = np.stack([base * np.float32(s) + rng.normal(0, 0.05, base.shape).astype(np.float32)
                     * [1, 1, 0, 0] for s in (1.0, 0.7, 1.3)]).astype(np.float32)
-    rast, db, saved = dr.forward(pos, tri, res, ctx=ctx)
+    rast, db, saved = forward(pos, tri, res, ctx=ctx)
     assert rast.shape == (3, *res, 4) and saved.pos.shape == pos.shape
     for b in range(3):
-        r1, d1, _ = dr.forward(pos[b], tri, res, ctx=ctx)
+        r1, d1, _ = forward(pos[b], tri, res, ctx=ctx)
         np.testing.assert_array_equal(rast[b], r1[0])
         np.testing.assert_array_equal(db[b], d1[0])
 
@@ -266,11 +275,11 @@ def test_range_batch_equals_separate_calls_with_ids_into_the_whole_tri(ctx):
     first; an empty range gives an empty image."""
     pos, tri, res = _scene("soup_10k")
     ranges = np.array([[0, 300], [300, 4000], [9000, 1000], [5000, 0]])
-    rast, db, saved = dr.forward(pos, tri, res, ctx=ctx, ranges=ranges)
+    rast, db, saved = forward(pos, tri, res, ctx=ctx, ranges=ranges)
     assert rast.shape == (4, *res, 4)
     np.testing.assert_array_equal(saved.ranges, ranges)
     for b, (first, count) in enumerate(ranges):
-        r1, d1, _ = dr.forward(pos, tri[first:first + count], res, ctx=ctx)
+        r1, d1, _ = forward(pos, tri[first:first + count], res, ctx=ctx)
         ids = layout.decode_ids(r1[0, ..., 3])
         np.testing.assert_array_equal(layout.decode_ids(rast[b, ..., 3]),
                                       np.where(ids >= 0, ids + first, -1))
@@ -280,6 +289,14 @@ def test_range_batch_equals_separate_calls_with_ids_into_the_whole_tri(ctx):
 
 
 # --------------------------------------------------------------------------- depth peeling
+
+
+def peel(pos, tri, res, layers, ctx=None):
+    """The first ``layers`` (rast, rast_db, saved) of the depth peeler of pos' dtype."""
+    inputs, params = RASTERIZE.check(pos, tri=tri, resolution=res, ctx=ctx)
+    with depth_peeler(*inputs, **params) as peeler:
+        return [(*outputs, saved) for outputs, saved in
+                (peeler.rasterize_next_layer() for _ in range(layers))]
 
 
 def _peel_ambiguous(pos, tri, res, layers, tie=1e-5):
@@ -300,18 +317,18 @@ def _peel_ambiguous(pos, tri, res, layers, tie=1e-5):
 
 def test_depth_peel_layers_match_the_float64_layers(ctx):
     """Layer 1 equals forward(); layers 2 and 3 keep per pixel the nearest surface strictly
-    behind the previous one, as glraster.diff.reference.depth_peel does: ids equal on every
-    pixel where the surfaces are not within 1e-5 in z/w (masked and counted), values within
-    the bounds of the single-layer test."""
+    behind the previous one, as the float64 peeler (glraster.diff.rasterize_reference)
+    does: ids equal on every pixel where the surfaces are not within 1e-5 in z/w (masked
+    and counted), values within the bounds of the single-layer test."""
     pos, tri = synthetic.random_soup(24, seed=7, w_range=(0.5, 4.0))
     res = (96, 128)
-    want_layers = diff_reference.depth_peel(pos, tri, res, 3)
+    want_layers = peel(np.asarray(pos, np.float64), tri, res, 3)
     ambiguous = _peel_ambiguous(pos, tri, res, 3)
-    layers = dr.depth_peel(pos, tri, res, ctx=ctx, layers=3)
-    first, _, _ = dr.forward(pos, tri, res, ctx=ctx)
+    layers = peel(np.asarray(pos, np.float32), tri, res, 3, ctx)
+    first, _, _ = forward(pos, tri, res, ctx=ctx)
     np.testing.assert_array_equal(layers[0][0], first)
     assert ambiguous.mean() < 0.01
-    for k, ((rast, db, saved), (want_rast, _)) in enumerate(zip(layers, want_layers)):
+    for k, ((rast, db, saved), (want_rast, _, _)) in enumerate(zip(layers, want_layers)):
         gpu_ids = layout.decode_ids(rast[0, ..., 3])
         want_ids = layout.decode_ids(want_rast[0, ..., 3])
         differ = (gpu_ids != want_ids) & ~ambiguous
@@ -331,15 +348,16 @@ def test_depth_peeler_empties_and_batches(ctx):
     pos, tri = synthetic.random_soup(12, seed=5)
     res = (48, 64)
     batch = np.stack([pos, pos[:, [1, 0, 2, 3]]])
-    with dr.DepthPeeler(batch, tri, res, ctx=ctx) as peeler:
+    with dr.DepthPeeler(batch.astype(np.float32), tri=tri.astype(np.int32), resolution=res,
+                        ranges=None, ctx=ctx) as peeler:
         prev = None
         for _ in range(4):
-            rast, _, _ = peeler.rasterize_next_layer()
+            (rast, _), _ = peeler.rasterize_next_layer()
             if prev is not None:
                 assert not (rast[..., 3] != 0)[prev[..., 3] == 0].any()
             prev = rast
         for b in range(2):
-            single = dr.depth_peel(batch[b], tri, res, ctx=ctx, layers=4)[-1][0]
+            single = peel(batch[b].astype(np.float32), tri, res, 4, ctx)[-1][0]
             np.testing.assert_array_equal(single[0], rast[b])
     assert peeler._texture is None
 
@@ -357,7 +375,6 @@ def test_depth_peeler_empties_and_batches(ctx):
     ({"ranges": np.array([[0, 2]])}, r"ranges row 0"),
     ({"ranges": np.array([[-1, 1]])}, r"ranges row 0"),
     ({"ranges": np.array([0, 1])}, r"ranges must have shape"),
-    ({"ranges": np.array([[0, 1]]), "pos": np.ones((2, 3, 4))}, r"ranges needs pos"),
     ({"space": "clip"}, r"space must be one of"),
     ({"grad_db": "yes"}, r"grad_db must be True or False"),
 ])
@@ -366,13 +383,16 @@ def test_bad_input_raises_value_error_naming_the_argument(ctx, kwargs, match):
             "tri": np.array([[0, 1, 2]]), "resolution": (8, 8)}
     args.update(kwargs)
     with pytest.raises(ValueError, match=match):
-        dr.forward(args.pop("pos"), args.pop("tri"), args.pop("resolution"), ctx=ctx, **args)
+        RASTERIZE.forward(args.pop("pos"), ctx=ctx, **args)
 
 
-def test_depth_peel_needs_a_positive_layer_count(ctx):
-    pos, tri = synthetic.random_soup(2, seed=1)
-    with pytest.raises(ValueError, match="layers"):
-        dr.depth_peel(pos, tri, (8, 8), ctx=ctx, layers=0)
+def test_resolution_above_the_drivers_texture_limit_is_refused(ctx):
+    """The one check the GPU core makes itself: the driver's limit, which the op's check
+    (no context) cannot know."""
+    pos = np.array([[-1, -1, 0, 1], [1, -1, 0, 1], [0, 1, 0, 1]], np.float32)
+    with pytest.raises(ValueError, match="resolution"):
+        RASTERIZE.forward(pos, tri=[[0, 1, 2]], resolution=(8, ctx.max_texture_size + 1),
+                          ctx=ctx)
 
 
 def test_needs_gl45_and_says_so_on_a_gl33_context(gl_backend):
@@ -382,6 +402,6 @@ def test_needs_gl45_and_says_so_on_a_gl33_context(gl_backend):
     try:
         pos = np.array([[-0.5, -0.5, 0, 1], [0.5, -0.5, 0, 1], [0, 0.5, 0, 1]], np.float32)
         with pytest.raises(ValueError, match=r"glraster.diff.rasterize needs OpenGL 4.5"):
-            dr.forward(pos, [[0, 1, 2]], (8, 8), ctx=ctx)
+            RASTERIZE.forward(pos, tri=[[0, 1, 2]], resolution=(8, 8), ctx=ctx)
     finally:
         ctx.release()

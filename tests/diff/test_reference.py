@@ -1,4 +1,6 @@
-"""The float64 reference of the differentiable ops (glraster.diff.reference): closed forms
+"""The float64 reference cores of rasterize, interpolate and depth peeling
+(glraster.diff.rasterize_reference, glraster.diff.interpolate_reference), called through
+their ops (glraster.diff.ops: checked once, then the core float64 selects): closed forms
 against the glraster reference rasterizer, and every analytic derivative and backward pass
 against central differences of the float64 forward. No GL.
 
@@ -20,8 +22,9 @@ import numpy as np
 import pytest
 
 from glraster import reference as gref
-from glraster.diff import layout
-from glraster.diff import reference as R
+from glraster.diff import interpolate_reference, layout, rasterize_reference
+from glraster.diff.ops import INTERPOLATE, RASTERIZE, depth_peeler
+from glraster.diff.rasterize_reference import rasterize_values
 
 RES = (24, 32)                       # (H, W): small, every test well under a second
 TOL = 1e-6                           # relative error bound of the brief (see module doc)
@@ -120,6 +123,45 @@ def interior(tri_id):
     return same
 
 
+# --------------------------------------------------------------------------- the cores
+
+
+def rasterize(pos, tri, res, **params):
+    """(rast, rast_db, saved) of RASTERIZE (float64 pos: checked, then the reference)."""
+    (rast, db), saved = RASTERIZE.forward(pos, tri=tri, resolution=res, **params)
+    return rast, db, saved
+
+
+def rasterize_backward(saved, grad_rast, grad_db=None):
+    (grad_pos,) = rasterize_reference.backward(saved, grad_rast, grad_db)
+    return grad_pos
+
+
+def interpolate(attr, rast, tri, rast_db=None, diff_attrs=None):
+    """(out, out_da, saved) of INTERPOLATE (float64 attr)."""
+    (out, out_da), saved = INTERPOLATE.forward(attr, rast, rast_db, tri=tri,
+                                               diff_attrs=diff_attrs)
+    return out, out_da, saved
+
+
+def interpolate_backward(saved, grad_out, grad_out_da=None, needs=None):
+    return interpolate_reference.backward(saved, grad_out, grad_out_da, needs=needs)
+
+
+def peel(pos, tri, res, layers, ranges=None, space="persp"):
+    """The first ``layers`` (rast, rast_db, saved) of the float64 depth peeler."""
+    inputs, params = RASTERIZE.check(np.asarray(pos, np.float64), tri=tri, resolution=res,
+                                     ranges=ranges, space=space)
+    with depth_peeler(*inputs, **params) as peeler:
+        return [(*outputs, saved) for outputs, saved in
+                (peeler.rasterize_next_layer() for _ in range(layers))]
+
+
+def test_float64_selects_the_reference_cores():
+    assert RASTERIZE.core(np.float64) is rasterize_reference
+    assert INTERPOLATE.core(np.float64) is interpolate_reference
+
+
 # --------------------------------------------------------------------------- forward
 
 
@@ -130,7 +172,7 @@ def test_rast_matches_the_glraster_reference_per_batch(batch):
     # float64 evaluations of one formula, in a different operation order.
     pos, tri, ranges = BATCHES[batch]
     for space, field in (("persp", "persp"), ("screen", "screen")):
-        rast, db, saved = R.rasterize_forward(pos, tri, RES, ranges=ranges, space=space)
+        rast, db, saved = rasterize(pos, tri, RES, ranges=ranges, space=space)
         B = 2 if batch in ("instanced", "ranges") else 1
         assert rast.shape == db.shape == (B,) + RES + (4,)
         for b in range(B):
@@ -154,7 +196,7 @@ def test_rast_matches_the_glraster_reference_per_batch(batch):
 
 def test_range_mode_ids_index_the_whole_tri():
     pos, tri, ranges = BATCHES["ranges"]
-    rast, _, _ = R.rasterize_forward(pos, tri, RES, ranges=ranges)
+    rast, _, _ = rasterize(pos, tri, RES, ranges=ranges)
     ids = layout.decode_ids(rast[..., 3])
     for b, (first, count) in enumerate(ranges):
         seen = set(np.unique(ids[b])) - {-1}
@@ -162,7 +204,7 @@ def test_range_mode_ids_index_the_whole_tri():
 
 
 def test_screen_derivatives_are_constant_per_triangle():
-    _, db, saved = R.rasterize_forward(MESH_POS, MESH_TRI, RES, space="screen")
+    _, db, saved = rasterize(MESH_POS, MESH_TRI, RES, space="screen")
     for t in range(len(MESH_TRI)):
         m = saved.tri_id == t
         assert m.sum() > 10
@@ -176,13 +218,13 @@ def test_screen_derivatives_are_constant_per_triangle():
 @pytest.mark.parametrize("batch", BATCHES)
 def test_rast_db_matches_differences_in_the_pixel_position(batch, space):
     pos, tri, ranges = BATCHES[batch]
-    rast, db, saved = R.rasterize_forward(pos, tri, RES, ranges=ranges, space=space)
+    rast, db, saved = rasterize(pos, tri, RES, ranges=ranges, space=space)
     m = covered(rast)
     assert m.sum() > 100
     for axis, (cu, cv) in ((0, (0, 2)), (1, (1, 3))):
         def at(t, axis=axis):
             offset = (t, 0.0) if axis == 0 else (0.0, t)
-            return R.rasterize_values(pos, tri, saved.tri_id, space=space, offset=offset)[0]
+            return rasterize_values(pos, tri, saved.tri_id, space=space, offset=offset)[0]
         numeric = four_point(at, H_PIXEL)
         for channel, uv in ((cu, 0), (cv, 1)):
             err = rel_error(db[..., channel][m], numeric[..., uv][m])
@@ -199,14 +241,14 @@ def test_rast_db_matches_differences_in_the_pixel_position(batch, space):
 def test_rasterize_backward_matches_differences(batch, space, second_order):
     pos, tri, ranges = BATCHES[batch]
     rng = np.random.default_rng(zlib.crc32(f"{batch} {space} {second_order}".encode()))
-    rast, db, saved = R.rasterize_forward(pos, tri, RES, ranges=ranges, space=space)
+    rast, db, saved = rasterize(pos, tri, RES, ranges=ranges, space=space)
     grad_rast = rng.normal(size=rast.shape)              # channels 2, 3 must be ignored
     grad_db = rng.normal(size=db.shape) * 10 if second_order else None
-    grad_pos = R.rasterize_backward(saved, grad_rast, grad_db)
+    grad_pos = rasterize_backward(saved, grad_rast, grad_db)
     assert grad_pos.shape == np.shape(pos) and grad_pos.dtype == np.float64
 
     def loss(p):
-        r, d = R.rasterize_values(p, tri, saved.tri_id, space=space)
+        r, d = rasterize_values(p, tri, saved.tri_id, space=space)
         value = (r[..., :2] * grad_rast[..., :2]).sum()
         return value + ((d * grad_db).sum() if second_order else 0.0)
 
@@ -223,15 +265,15 @@ def test_backward_matches_differences_of_the_real_forward_inside_triangles():
     # pixels >= 1 px inside their triangle, the steps (<= 0.03 px) move no edge over them.
     pos, tri, _ = BATCHES["instanced"]
     rng = np.random.default_rng(3)
-    rast, db, saved = R.rasterize_forward(pos, tri, RES)
+    rast, db, saved = rasterize(pos, tri, RES)
     inside = interior(saved.tri_id)[..., None]
     assert inside.sum() > 100
     grad_rast = rng.normal(size=rast.shape) * inside
     grad_db = rng.normal(size=db.shape) * inside
-    grad_pos = R.rasterize_backward(saved, grad_rast, grad_db)
+    grad_pos = rasterize_backward(saved, grad_rast, grad_db)
 
     def loss(p):
-        r, d, _ = R.rasterize_forward(p, tri, RES)
+        r, d, _ = rasterize(p, tri, RES)
         return (r[..., :2] * grad_rast[..., :2]).sum() + (d * grad_db).sum()
 
     numeric = gradient(loss, pos.copy(), H_POS)
@@ -240,12 +282,12 @@ def test_backward_matches_differences_of_the_real_forward_inside_triangles():
 
 
 def test_grad_of_empty_pixels_and_of_z_and_id_channels_is_ignored():
-    rast, db, saved = R.rasterize_forward(MESH_POS, MESH_TRI, RES)
+    rast, db, saved = rasterize(MESH_POS, MESH_TRI, RES)
     g = np.zeros(rast.shape)
     g[..., 2:] = 1.0                                     # z/w and id: no gradient
     g[~covered(rast)] = 7.0                              # empty pixels: frozen coverage
     grad_db = np.where(covered(rast)[..., None], 0.0, np.full(db.shape, 3.0))
-    assert (R.rasterize_backward(saved, g, grad_db) == 0).all()
+    assert (rasterize_backward(saved, g, grad_db) == 0).all()
 
 
 # --------------------------------------------------------------------------- interpolate
@@ -254,8 +296,8 @@ def test_grad_of_empty_pixels_and_of_z_and_id_channels_is_ignored():
 def test_interpolating_the_identity_gives_the_barycentrics():
     # attr = I (V, V): out[..., tri[t, j]] = b_j, and out_da = the b derivatives
     pos, tri, _ = BATCHES["instanced"]
-    rast, db, saved = R.rasterize_forward(pos, tri, RES)
-    out, out_da, _ = R.interpolate_forward(np.eye(len(MESH_POS)), rast, tri, db, "all")
+    rast, db, saved = rasterize(pos, tri, RES)
+    out, out_da, _ = interpolate(np.eye(len(MESH_POS)), rast, tri, db, "all")
     m = covered(rast)
     verts = tri[saved.tri_id[m]]
     rows = np.arange(m.sum())
@@ -274,15 +316,15 @@ def test_out_da_matches_differences_in_the_pixel_position(space):
     pos, tri, _ = BATCHES["instanced"]
     attr = rng.normal(size=(2, len(MESH_POS), 4))
     chosen = [3, 0, 3]                                   # order kept, repeats allowed
-    rast, db, saved = R.rasterize_forward(pos, tri, RES, space=space)
-    _, out_da, _ = R.interpolate_forward(attr, rast, tri, db, chosen)
+    rast, db, saved = rasterize(pos, tri, RES, space=space)
+    _, out_da, _ = interpolate(attr, rast, tri, db, chosen)
     assert out_da.shape == (2,) + RES + (6,)
     m = covered(rast)
     for axis in (0, 1):
         def at(t, axis=axis):
             offset = (t, 0.0) if axis == 0 else (0.0, t)
-            r, _ = R.rasterize_values(pos, tri, saved.tri_id, space=space, offset=offset)
-            return R.interpolate_forward(attr, r, tri)[0]
+            r, _ = rasterize_values(pos, tri, saved.tri_id, space=space, offset=offset)
+            return interpolate(attr, r, tri)[0]
         numeric = four_point(at, H_PIXEL)
         for slot, k in enumerate(chosen):
             err = rel_error(out_da[..., 2 * slot + axis][m], numeric[..., k][m])
@@ -294,19 +336,19 @@ def test_interpolate_backward_matches_differences(attr_batch):
     # the op alone: attr, rast (u, v) and rast_db as independent inputs
     rng = np.random.default_rng(5)
     pos, tri, _ = BATCHES["instanced"]
-    rast, db, _ = R.rasterize_forward(pos, tri, RES)
+    rast, db, _ = rasterize(pos, tri, RES)
     shape = (len(MESH_POS), 3) if attr_batch is None else (attr_batch, len(MESH_POS), 3)
     attr = rng.normal(size=shape)
     chosen = [2, 0]
-    out, out_da, saved = R.interpolate_forward(attr, rast, tri, db, chosen)
+    out, out_da, saved = interpolate(attr, rast, tri, db, chosen)
     g_out = rng.normal(size=out.shape)
     g_da = rng.normal(size=out_da.shape)
-    g_attr, g_rast, g_db = R.interpolate_backward(saved, g_out, g_da)
+    g_attr, g_rast, g_db = interpolate_backward(saved, g_out, g_da)
     assert g_attr.shape == attr.shape and g_rast.shape == rast.shape == g_db.shape
     assert (g_rast[..., 2:] == 0).all()
 
     def loss(a=attr, r=rast, d=db):
-        o, oda, _ = R.interpolate_forward(a, r, tri, d, chosen)
+        o, oda, _ = interpolate(a, r, tri, d, chosen)
         return (o * g_out).sum() + (oda * g_da).sum()
 
     err = rel_error(g_attr, gradient(lambda a: loss(a=a), attr, 1e-3))
@@ -318,24 +360,24 @@ def test_interpolate_backward_matches_differences(attr_batch):
         def shifted(t, channel=channel):
             r = rast.copy()
             r[..., channel] += t * m
-            return (R.interpolate_forward(attr, r, tri, db, chosen)[0] * g_out).sum(-1) + (
-                R.interpolate_forward(attr, r, tri, db, chosen)[1] * g_da).sum(-1)
+            return (interpolate(attr, r, tri, db, chosen)[0] * g_out).sum(-1) + (
+                interpolate(attr, r, tri, db, chosen)[1] * g_da).sum(-1)
         err = rel_error(g_rast[..., channel][m], four_point(shifted, 1e-3)[m])
         assert err.max() <= TOL, (channel, err.max())
     for channel in range(4):
         def shifted(t, channel=channel):
             d = db.copy()
             d[..., channel] += t * m
-            return (R.interpolate_forward(attr, rast, tri, d, chosen)[1] * g_da).sum(-1)
+            return (interpolate(attr, rast, tri, d, chosen)[1] * g_da).sum(-1)
         err = rel_error(g_db[..., channel][m], four_point(shifted, 1e-3)[m])
         assert err.max() <= TOL, (channel, err.max())
 
 
 def test_interpolate_without_diff_attrs_returns_no_rast_db_gradient():
-    rast, db, _ = R.rasterize_forward(MESH_POS, MESH_TRI, RES)
-    out, out_da, saved = R.interpolate_forward(np.ones((len(MESH_POS), 2)), rast, MESH_TRI, db)
-    assert out_da is None
-    g_attr, _, g_db = R.interpolate_backward(saved, np.ones(out.shape))
+    rast, db, _ = rasterize(MESH_POS, MESH_TRI, RES)
+    out, out_da, saved = interpolate(np.ones((len(MESH_POS), 2)), rast, MESH_TRI, db)
+    assert out_da.shape == out.shape[:3] + (0,)
+    g_attr, _, g_db = interpolate_backward(saved, np.ones(out.shape))
     assert g_db is None
     # sum over pixels of the constant-1 attribute: each pixel's barycentrics sum to 1
     np.testing.assert_allclose(g_attr.sum(0), covered(rast).sum(), rtol=1e-12)
@@ -349,15 +391,15 @@ def test_rasterize_then_interpolate_chain_matches_differences(batch, space):
     pos, tri, ranges = BATCHES[batch]
     attr = rng.normal(size=(np.shape(pos)[-2], 3))
     chosen = "all"
-    rast, db, r_saved = R.rasterize_forward(pos, tri, RES, ranges=ranges, space=space)
-    out, out_da, i_saved = R.interpolate_forward(attr, rast, tri, db, chosen)
+    rast, db, r_saved = rasterize(pos, tri, RES, ranges=ranges, space=space)
+    out, out_da, i_saved = interpolate(attr, rast, tri, db, chosen)
     g_out, g_da = rng.normal(size=out.shape), rng.normal(size=out_da.shape)
-    g_attr, g_rast, g_db = R.interpolate_backward(i_saved, g_out, g_da)
-    g_pos = R.rasterize_backward(r_saved, g_rast, g_db)
+    g_attr, g_rast, g_db = interpolate_backward(i_saved, g_out, g_da)
+    g_pos = rasterize_backward(r_saved, g_rast, g_db)
 
     def loss(p, a):
-        r, d = R.rasterize_values(p, tri, r_saved.tri_id, space=space)
-        o, oda, _ = R.interpolate_forward(a, r, tri, d, chosen)
+        r, d = rasterize_values(p, tri, r_saved.tri_id, space=space)
+        o, oda, _ = interpolate(a, r, tri, d, chosen)
         return (o * g_out).sum() + (oda * g_da).sum()
 
     numeric = gradient(lambda p: loss(p, attr), np.array(pos, np.float64), H_POS)
@@ -371,9 +413,9 @@ def test_rasterize_then_interpolate_chain_matches_differences(batch, space):
 
 
 def test_depth_peeling_layers_lie_strictly_behind_each_other():
-    layers = R.depth_peel(PEEL_POS, PEEL_TRI, RES, 4)
+    layers = [(rast, db) for rast, db, _ in peel(PEEL_POS, PEEL_TRI, RES, 4)]
     assert len(layers) == 4
-    rast0, db0, _ = R.rasterize_forward(PEEL_POS, PEEL_TRI, RES)
+    rast0, db0, _ = rasterize(PEEL_POS, PEEL_TRI, RES)
     np.testing.assert_array_equal(layers[0][0], rast0)   # layer 0 = the rasterizer
     np.testing.assert_array_equal(layers[0][1], db0)
     # how many triangles cover each pixel (each alone through the glraster reference)
@@ -396,16 +438,14 @@ def test_depth_peeling_layers_lie_strictly_behind_each_other():
 def test_depth_peeling_layer_backward_matches_differences():
     rng = np.random.default_rng(7)
     pos, tri, ranges = BATCHES["ranges"]
-    layers = R.depth_peel(pos, tri, RES, 2, ranges, space="persp")
-    rast, db = layers[1]
+    rast, db, saved = peel(pos, tri, RES, 2, ranges, space="persp")[1]
     assert covered(rast).sum() > 30
-    saved = R.RasterizeSaved.from_rast(pos, tri, rast, ranges=ranges)
-    np.testing.assert_array_equal(R.rasterize_values(pos, tri, saved.tri_id)[0], rast)
+    np.testing.assert_array_equal(rasterize_values(pos, tri, saved.tri_id)[0], rast)
     grad_rast, grad_db = rng.normal(size=rast.shape), rng.normal(size=db.shape)
-    grad_pos = R.rasterize_backward(saved, grad_rast, grad_db)
+    grad_pos = rasterize_backward(saved, grad_rast, grad_db)
 
     def loss(p):
-        r, d = R.rasterize_values(p, tri, saved.tri_id)
+        r, d = rasterize_values(p, tri, saved.tri_id)
         return (r[..., :2] * grad_rast[..., :2]).sum() + (d * grad_db).sum()
 
     numeric = gradient(loss, pos.copy(), H_POS)
@@ -436,7 +476,7 @@ def test_ids_encode_as_floats_then_as_bit_patterns_monotone_and_exact():
 
 
 def _rast():
-    rast, db, saved = R.rasterize_forward(MESH_POS, MESH_TRI, RES)
+    rast, db, saved = rasterize(MESH_POS, MESH_TRI, RES)
     return rast, db, saved
 
 
@@ -450,44 +490,32 @@ def _bad_cases():
     frac_id = rast.copy()
     frac_id[0, 10, 10, 3] = 1.5
     attr = np.ones((len(P), 2))
-    _, _, isaved = R.interpolate_forward(attr, rast, T)
     return [
-        (lambda: R.rasterize_forward(P[:, :3], T, RES), r"pos must have shape \(V, 4\)"),
-        (lambda: R.rasterize_forward(nan, T, RES), "pos must be finite, got NaN"),
-        (lambda: R.rasterize_forward(P.astype(str), T, RES), "pos must hold real numbers"),
-        (lambda: R.rasterize_forward(P, T + 3, RES), "tri index 7 is out of range"),
-        (lambda: R.rasterize_forward(P, T * 1.0, RES), "tri must have an integer dtype"),
-        (lambda: R.rasterize_forward(P, T, (0, 4)), "resolution height must be > 0"),
-        (lambda: R.rasterize_forward(P, T, RES, space="ndc"), "space must be one of"),
-        (lambda: R.rasterize_forward(P[None], T, RES, ranges=[[0, 1]]), "ranges needs pos"),
-        (lambda: R.rasterize_forward(P, T, RES, ranges=[[1, 3]]),
+        (lambda: rasterize(P[:, :3], T, RES), r"pos must have shape \(V, 4\)"),
+        (lambda: rasterize(nan, T, RES), "pos must be finite, got NaN"),
+        (lambda: rasterize(P.astype(str), T, RES), "pos must hold real numbers"),
+        (lambda: rasterize(P, T + 3, RES), "tri index 7 is out of range"),
+        (lambda: rasterize(P, T * 1.0, RES), "tri must have an integer dtype"),
+        (lambda: rasterize(P, T, (0, 4)), "resolution height must be > 0"),
+        (lambda: rasterize(P, T, RES, space="ndc"), "space must be one of"),
+        (lambda: rasterize(P, T, RES, ranges=[[1, 3]]),
          r"ranges row 0 = \[1, 3\] reaches triangle 3, beyond tri's 3 triangles"),
-        (lambda: R.rasterize_forward(P, T, RES, ranges=[[0, 1], [-1, 1]]),
+        (lambda: rasterize(P, T, RES, ranges=[[0, 1], [-1, 1]]),
          "ranges row 1 must have first >= 0"),
-        (lambda: R.rasterize_forward(P, T, RES, ranges=[[0, 1, 2]]), "ranges must have shape"),
-        (lambda: R.rasterize_forward(P, T, RES, ranges=[[0.0, 1.0]]),
-         "ranges must have an integer dtype"),
-        (lambda: R.rasterize_backward(saved, rast[..., :3]), r"grad_rast must have shape"),
-        (lambda: R.rasterize_backward(saved, rast, db * np.nan), "grad_db must be finite"),
-        (lambda: R.rasterize_backward((rast, saved), rast), "saved must be the RasterizeSaved"),
-        (lambda: R.rasterize_values(P, T, saved.tri_id + 5), "tri_id must hold -1 or indices"),
-        (lambda: R.interpolate_forward(attr[None, None], rast, T), "attr must have shape"),
-        (lambda: R.interpolate_forward(np.ones((3, len(P), 2)), rast, T), "attr has a batch"),
-        (lambda: R.interpolate_forward(attr, rast, T, None, "all"), "rast_db is required"),
-        (lambda: R.interpolate_forward(attr, rast, T, db, [0, 2]),
-         "diff_attrs index 2 is out of range"),
-        (lambda: R.interpolate_forward(attr, rast, T, db, "some"), "diff_attrs must be None"),
-        (lambda: R.interpolate_forward(attr, rast, T, db, [0.0]), "diff_attrs must hold integer"),
-        (lambda: R.interpolate_forward(attr, rast, T, db[..., :2], [0]),
-         "rast_db must have shape"),
-        (lambda: R.interpolate_forward(attr, rast[0], T), r"rast must have shape \(B, H, W, 4\)"),
-        (lambda: R.interpolate_forward(attr, bad_id, T), "beyond tri's 3 triangles"),
-        (lambda: R.interpolate_forward(attr, frac_id, T), "rast channel 3"),
-        (lambda: R.interpolate_forward(attr, rast, T + 2), "tri index 6 is out of range"),
-        (lambda: R.interpolate_backward(isaved, np.ones(RES + (2,))), "grad_out must have shape"),
-        (lambda: R.interpolate_backward(isaved, np.ones((1,) + RES + (2,)), np.ones(3)),
-         "grad_out_da must be None"),
-        (lambda: R.depth_peel(P, T, RES, 0), "layers must be an integer >= 1"),
+        (lambda: rasterize(P, T, RES, ranges=[[0, 1, 2]]), "ranges must have shape"),
+        (lambda: rasterize(P, T, RES, ranges=[[0.0, 1.0]]), "ranges must have an integer dtype"),
+        (lambda: rasterize_values(P, T, saved.tri_id + 5), "tri_id must hold -1 or indices"),
+        (lambda: interpolate(attr[None, None], rast, T), "attr must have shape"),
+        (lambda: interpolate(np.ones((3, len(P), 2)), rast, T), "attr has a batch"),
+        (lambda: interpolate(attr, rast, T, None, "all"), "diff_attrs needs rast_db"),
+        (lambda: interpolate(attr, rast, T, db, [0, 2]), "diff_attrs index 2 is out of range"),
+        (lambda: interpolate(attr, rast, T, db, "some"), "diff_attrs must be None"),
+        (lambda: interpolate(attr, rast, T, db, [0.0]), "diff_attrs must hold integer"),
+        (lambda: interpolate(attr, rast, T, db[..., :2], [0]), "rast_db must have shape"),
+        (lambda: interpolate(attr, rast[0], T), r"rast must have shape \(B, H, W, 4\)"),
+        (lambda: interpolate(attr, bad_id, T), "beyond tri's 3 triangles"),
+        (lambda: interpolate(attr, frac_id, T), "rast channel 3"),
+        (lambda: interpolate(attr, rast, T + 2), "tri index 6 is out of range"),
     ]
 
 

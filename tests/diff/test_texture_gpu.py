@@ -34,7 +34,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from glraster.diff import backward_gpu as bg
+from glraster.diff import compute as bg
 from glraster.diff import texture as tx
 from glraster.diff import texture_reference as tr
 from tests.diff.test_texture_reference import BOUNDARIES_2D, MODES_2D, make_inputs, safe

@@ -9,7 +9,7 @@ import pytest
 torch = pytest.importorskip("torch")
 
 import glraster.torch as dr
-from glraster.diff import reference as ref
+from glraster.diff.ops import INTERPOLATE, RASTERIZE
 from tests.diff.test_antialias_reference import mesh_scene, soup_scene
 
 RES = (14, 18)
@@ -18,8 +18,8 @@ RES = (14, 18)
 def scene(dtype=torch.float64):
     """A few independent triangles and a small sphere; rast from the float64 reference."""
     pos, tri, colors = soup_scene(RES, count=5, seed=3, layered=True)
-    rast, _, _ = ref.rasterize_forward(pos, tri, RES)
-    col, _, _ = ref.interpolate_forward(colors, rast, tri)
+    (rast, _), _ = RASTERIZE.forward(pos, tri=tri, resolution=RES)
+    (col, _), _ = INTERPOLATE.forward(colors, rast, tri=tri)
     return (torch.tensor(col, dtype=dtype), torch.tensor(rast, dtype=dtype),
             torch.tensor(pos, dtype=dtype), torch.tensor(tri, dtype=torch.int32))
 
@@ -50,8 +50,8 @@ def test_gradcheck_instanced_pos():
     pos1, _, _ = mesh_scene(RES, level=1, eye=(-0.4, 0.3, 3.0))
     rasts, cols = [], []
     for p in (pos0, pos1):
-        r, _, _ = ref.rasterize_forward(p, tri, RES)
-        c, _, _ = ref.interpolate_forward(colors, r, tri)
+        (r, _), _ = RASTERIZE.forward(p, tri=tri, resolution=RES)
+        (c, _), _ = INTERPOLATE.forward(colors, r, tri=tri)
         rasts.append(r)
         cols.append(c)
     rast = torch.tensor(np.concatenate(rasts))

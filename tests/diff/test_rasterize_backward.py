@@ -1,11 +1,11 @@
-"""The rasterize backward on the GPU (glraster.diff.backward_gpu) against float64.
+"""The rasterize backward on the GPU (glraster.diff.rasterize.backward) against float64.
 
 Three tiers:
 
 * the float64 closed form written here (:func:`closed_form`, the shader's formulas step
   by step) against central finite differences of a float64 forward evaluated here
   (:func:`float64_forward`), triangle ids frozen; and against the reference module
-  (glraster.diff.reference.rasterize_backward);
+  (glraster.diff.rasterize_reference.backward);
 * GPU per-pixel terms against the float64 ones within a running error bound: the closed
   form is evaluated in :class:`Err` arithmetic, which carries beside each float64 value a
   first-order bound ``m`` on the error of the same expression evaluated in float32
@@ -23,9 +23,10 @@ import numpy as np
 import pytest
 
 from glraster.conformance.scenes import load_scene
-from glraster.diff import backward_gpu as bg
-from glraster.diff import layout
-from glraster.diff import reference as ref
+from glraster.diff import compute, layout, rasterize_reference
+from glraster.diff import rasterize as dr
+from glraster.diff.ops import RASTERIZE
+from glraster.diff.saved import RasterizeSaved
 
 U32 = 2.0 ** -24
 # GLSL allows 2.5 ulp for division (the shader divides once, 1/S, and multiplies) and the
@@ -235,9 +236,34 @@ def float64_forward(pos, tri, rast_ids, resolution, space="persp"):
 
 
 def gpu_rast(ctx, pos, tri, resolution, space="persp"):
-    from glraster.diff import rasterize as dr
-    rast, _, _ = dr.forward(pos, tri, resolution, ctx=ctx, grad_db=False, space=space)
+    (rast, _), _ = RASTERIZE.forward(pos, tri=tri, resolution=resolution, ctx=ctx,
+                                     grad_db=False, space=space)
     return rast
+
+
+def saved_of(pos, tri, rast, space="persp", ctx=None):
+    """The RasterizeSaved of a raster (its ids frozen), as the forward would make it; a
+    (V, 4) pos with a batch of rasters shares its vertices among them."""
+    return RasterizeSaved(pos=pos, tri=np.asarray(tri, np.int32), resolution=rast.shape[1:3],
+                          ranges=None, rast=rast, space=space, ctx=ctx)
+
+
+def gpu_backward(pos, tri, rast, g, h=None, *, ctx, space="persp", **options):
+    """dL/d pos from the GPU core (options: deterministic, accumulate)."""
+    (grad,) = dr.backward(saved_of(pos, tri, rast, space, ctx), g, h, **options)
+    return grad
+
+
+def gpu_pixels(pos, tri, rast, g, h=None, *, ctx, space="persp"):
+    return dr.backward_pixels(saved_of(pos, tri, rast, space, ctx), g, h)
+
+
+def reference_backward(pos, tri, rast, g, h=None, space="persp"):
+    """dL/d pos from the float64 core, on the same frozen ids."""
+    saved = saved_of(np.asarray(pos, np.float64), tri, rast.astype(np.float64), space)
+    (grad,) = rasterize_reference.backward(saved, g.astype(np.float64),
+                                           None if h is None else h.astype(np.float64))
+    return grad
 
 
 def random_soup(seed=0, count=40, resolution=(48, 64)):
@@ -302,15 +328,14 @@ def test_closed_form_matches_central_differences(ctx, space, with_db):
 @pytest.mark.parametrize("space", ["persp", "screen"])
 def test_closed_form_matches_reference_module(ctx, space):
     """This file's float64 closed form (pixel-relative frame) against
-    glraster.diff.reference (absolute frame): both float64, 1e-9 of the largest entry."""
+    glraster.diff.rasterize_reference (absolute frame): both float64, 1e-9 of the largest entry."""
     pos, tri, res = random_soup(3)
     rast = gpu_rast(ctx, pos, tri, res, space)
     rng = np.random.default_rng(4)
     g, h = upstream(rng, rast.shape), upstream(rng, rast.shape)
     index, terms = closed_form(pos, tri, rast, g, h, space)
     mine = per_vertex(index, term_arrays(terms)[0], len(pos))
-    saved = ref.RasterizeSaved.from_rast(pos, tri, rast, space=space)
-    theirs = ref.rasterize_backward(saved, g, h)
+    theirs = reference_backward(pos, tri, rast, g, h, space)
     assert np.abs(theirs).max() > 0
     np.testing.assert_allclose(mine, theirs, rtol=0, atol=1e-9 * np.abs(theirs).max())
 
@@ -335,22 +360,22 @@ def test_gpu_pixel_terms_within_running_error_bound(ctx, name, space):
     assert len(b) > 0, "the scene must cover pixels"
     _index, terms = closed_form(pos, tri, rast, g, h, space)
     want, bound = term_arrays(terms)
-    got = bg.rasterize_backward_pixels(pos, tri, rast, g, h, ctx=ctx, space=space)[b, y, x]
+    got = gpu_pixels(pos, tri, rast, g, h, ctx=ctx, space=space)[b, y, x]
     assert np.abs(got).max() > 0
     err = np.abs(got - want)
     ratio = err / np.maximum(U32 * bound, 1e-300)
     assert (ratio <= K).all(), f"{name}: max |err| / (u m) = {ratio.max():.2f} > {K}"
-    empty = bg.rasterize_backward_pixels(pos, tri, rast, g, h, ctx=ctx, space=space)
+    empty = gpu_pixels(pos, tri, rast, g, h, ctx=ctx, space=space)
     empty[b, y, x] = 0
     assert not empty.any(), "empty pixels must contribute nothing"
 
 
-@pytest.mark.parametrize("accumulate", bg.ACCUMULATIONS)
+@pytest.mark.parametrize("accumulate", compute.ACCUMULATIONS)
 @pytest.mark.parametrize("name", ["grid_perspective_jitter", "icosphere", "slivers"])
 def test_gpu_vertex_gradients_within_bound(ctx, name, accumulate):
     """Per vertex: |gpu - float64| <= sum of its pixels' K u m + the summation bound
     ((n - 1) u sum |c| for float32 atomics, u |sum| for the float64 sum) + u |sum|."""
-    if accumulate == "atomic_float" and not bg.has_atomic_float(ctx):
+    if accumulate == "atomic_float" and not compute.has_atomic_float(ctx):
         pytest.skip("the driver has no GL_NV_shader_atomic_float")
     pos, tri, res = _scene(name)
     rast = gpu_rast(ctx, pos, tri, res)
@@ -367,7 +392,7 @@ def test_gpu_vertex_gradients_within_bound(ctx, name, accumulate):
     else:
         summation = np.maximum(count - 1, 0) * U32 * (magnitude + pixel_bound)
     tol = pixel_bound + summation + U32 * np.abs(total)
-    got = bg.rasterize_backward(pos, tri, rast, g, h, ctx=ctx, accumulate=accumulate)
+    got = gpu_backward(pos, tri, rast, g, h, ctx=ctx, accumulate=accumulate)
     assert got.shape == pos.shape and got.dtype == np.float32
     assert np.abs(got).max() > 0 and not got[:, 2].any(), "dL/dz must be 0"
     assert (np.abs(got - total) <= tol).all()
@@ -379,7 +404,7 @@ def test_pixels_whose_ids_differ_from_the_reference_are_masked_and_counted(ctx):
     pixels); the rest must agree within the tier-3 bound's scale (1e-4 of the largest)."""
     pos, tri, res = _scene("grid_perspective_jitter")
     rast = gpu_rast(ctx, pos, tri, res)
-    _rast64, _, saved = ref.rasterize_forward(pos, tri, res)
+    _, saved = RASTERIZE.forward(pos.astype(np.float64), tri=tri, resolution=res)
     gpu_ids = layout.decode_ids(rast[..., 3])
     differ = gpu_ids != saved.tri_id
     n_covered = int((gpu_ids >= 0).sum())
@@ -388,8 +413,8 @@ def test_pixels_whose_ids_differ_from_the_reference_are_masked_and_counted(ctx):
     rng = np.random.default_rng(7)
     g, h = upstream(rng, rast.shape), upstream(rng, rast.shape)
     g[differ], h[differ] = 0, 0
-    want = ref.rasterize_backward(saved, g, h)
-    got = bg.rasterize_backward(pos, tri, rast, g, h, ctx=ctx)
+    (want,) = rasterize_reference.backward(saved, g.astype(np.float64), h.astype(np.float64))
+    got = gpu_backward(pos, tri, rast, g, h, ctx=ctx)
     assert np.abs(want).max() > 0
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-4 * np.abs(want).max())
 
@@ -399,7 +424,7 @@ def test_deterministic_is_bit_identical_over_three_runs(ctx):
     rast = gpu_rast(ctx, pos, tri, res)
     rng = np.random.default_rng(8)
     g, h = upstream(rng, rast.shape), upstream(rng, rast.shape)
-    runs = [bg.rasterize_backward(pos, tri, rast, g, h, ctx=ctx, deterministic=True)
+    runs = [gpu_backward(pos, tri, rast, g, h, ctx=ctx, deterministic=True)
             for _ in range(3)]
     assert np.abs(runs[0]).max() > 0
     for other in runs[1:]:
@@ -415,15 +440,15 @@ def test_batches_equal_separate_calls_and_shared_positions_sum_them(ctx):
     rasts = np.concatenate([gpu_rast(ctx, p, tri, res) for p in pos2])
     rng = np.random.default_rng(10)
     g, h = upstream(rng, rasts.shape), upstream(rng, rasts.shape)
-    both = bg.rasterize_backward(pos2, tri, rasts, g, h, ctx=ctx, deterministic=True)
+    both = gpu_backward(pos2, tri, rasts, g, h, ctx=ctx, deterministic=True)
     assert both.shape == pos2.shape
     for i in range(2):
-        one = bg.rasterize_backward(pos2[i], tri, rasts[i:i + 1], g[i:i + 1], h[i:i + 1],
+        one = gpu_backward(pos2[i], tri, rasts[i:i + 1], g[i:i + 1], h[i:i + 1],
                                     ctx=ctx, deterministic=True)
         assert np.array_equal(both[i], one)
     same = np.concatenate([rasts[:1], rasts[:1]])
-    shared = bg.rasterize_backward(pos, tri, same, g, h, ctx=ctx, deterministic=True)
-    parts = [bg.rasterize_backward(pos, tri, same[i:i + 1], g[i:i + 1], h[i:i + 1], ctx=ctx,
+    shared = gpu_backward(pos, tri, same, g, h, ctx=ctx, deterministic=True)
+    parts = [gpu_backward(pos, tri, same[i:i + 1], g[i:i + 1], h[i:i + 1], ctx=ctx,
                                    deterministic=True) for i in range(2)]
     total = parts[0].astype(np.float64) + parts[1]
     tol = U32 * (np.abs(parts[0]) + np.abs(parts[1]) + 2 * np.abs(total))
@@ -436,32 +461,17 @@ def test_chunked_dispatch_equals_one_dispatch(ctx, monkeypatch):
     rast = gpu_rast(ctx, pos, tri, res)
     rng = np.random.default_rng(12)
     g, h = upstream(rng, rast.shape), upstream(rng, rast.shape)
-    whole = bg.rasterize_backward_pixels(pos, tri, rast, g, h, ctx=ctx)
-    monkeypatch.setattr(bg, "MAX_CHUNK_BYTES", 48 * 640)
-    parts = bg.rasterize_backward_pixels(pos, tri, rast, g, h, ctx=ctx)
+    whole = gpu_pixels(pos, tri, rast, g, h, ctx=ctx)
+    monkeypatch.setattr(compute, "MAX_CHUNK_BYTES", 48 * 640)
+    parts = gpu_pixels(pos, tri, rast, g, h, ctx=ctx)
     assert np.array_equal(whole, parts)
 
 
 def test_accumulation_choice_and_atomic_float_on_llvmpipe(ctx):
-    mode = bg.accumulation(ctx)
+    mode = compute.accumulation(ctx)
     if ctx.is_llvmpipe:
-        assert bg.has_atomic_float(ctx), "llvmpipe offers GL_NV_shader_atomic_float"
-    assert mode == ("atomic_float" if bg.has_atomic_float(ctx) else "cas")
-    assert bg.accumulation(ctx, deterministic=True) == "per_pixel"
+        assert compute.has_atomic_float(ctx), "llvmpipe offers GL_NV_shader_atomic_float"
+    assert mode == ("atomic_float" if compute.has_atomic_float(ctx) else "cas")
+    assert compute.accumulation(ctx, deterministic=True) == "per_pixel"
     with pytest.raises(ValueError, match="accumulate must be one of"):
-        bg.accumulation(ctx, accumulate="sorted")
-
-
-def test_shapes_are_checked(ctx):
-    pos, tri, res = random_soup(13, 4)
-    rast = np.zeros((1,) + res + (4,), np.float32)
-    with pytest.raises(ValueError, match=r"grad_rast must have shape \(1, 48, 64, 4\), got \(1, 48, 64, 3\)"):
-        bg.rasterize_backward(pos, tri, rast, np.zeros((1, 48, 64, 3)), ctx=ctx)
-    with pytest.raises(ValueError, match=r"pos must have shape \(V, 4\)"):
-        bg.rasterize_backward(pos[:, :3], tri, rast, rast, ctx=ctx)
-    with pytest.raises(ValueError, match="resolution"):
-        bg.rasterize_backward(pos, tri, rast, rast, ctx=ctx, resolution=(10, 10))
-    with pytest.raises(ValueError, match="pos has 3 batch entries but rast has 1"):
-        bg.rasterize_backward(np.stack([pos] * 3), tri, rast, rast, ctx=ctx)
-    with pytest.raises(ValueError, match="tri index .* is out of range"):
-        bg.rasterize_backward(pos, tri + 100, rast, rast, ctx=ctx)
+        compute.accumulation(ctx, accumulate="sorted")
