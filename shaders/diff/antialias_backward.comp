@@ -59,11 +59,7 @@ void add(uint row, vec3 g) {
 #endif
 }
 
-vec3 frame_vertex(uint row, vec2 n) {
-    vec4 p = pos[row];
-    return vec3((p.x - p.w * n.x) * (0.5 * float(size.x)),
-                (p.y - p.w * n.y) * (0.5 * float(size.y)), p.w);
-}
+#include "include/frame.glsl"
 
 // dL/dtau of the pair whose record is records[2 owner + axis] (owner: its pixel A), to
 // the edge's two vertices.
@@ -72,7 +68,7 @@ void edge_gradient(uint owner, int axis, uvec4 rec, float dl_dtau) {
     uint pix = owner % hw, y = pix / W, x = pix % W;
     vec2 n = vec2(float(2u * x + 1u) / float(size.x) - 1.0,
                   float(2u * y + 1u) / float(size.y) - 1.0);
-    vec3 va = frame_vertex(rec.y, n), vb = frame_vertex(rec.z, n);
+    vec3 va = frame_vertex(pos[rec.y], n, size), vb = frame_vertex(pos[rec.z], n, size);
     vec3 r = cross(va, vb);
     float tau = uintBitsToFloat(rec.w);
     vec3 c = vec3(0.0, 0.0, 1.0);

@@ -39,9 +39,7 @@ uniform uint vertex_stride;
 uniform int n_tri;
 uniform int n_attr;
 
-int decode_id(float f) {
-    return f <= 16777216.0 ? int(f) : floatBitsToInt(f) - 0x4a800000;
-}
+#include "include/triangle_id.glsl"
 
 // contribution of corner j (0, 1, 2) to attribute k
 void add(uint i, uint j, uint slot, uint k, float value) {

@@ -41,11 +41,7 @@ uniform uvec2 size;          // (W, H)
 uniform uint vertex_stride;  // V when pos is batched, else 0
 uniform int n_tri;
 
-// Triangle index + 1 from rast's fourth channel (0: empty pixel): the float's value up to
-// 2^24, its bit pattern minus 0x4a800000 above.
-int decode_id(float f) {
-    return f <= 16777216.0 ? int(f) : floatBitsToInt(f) - 0x4a800000;
-}
+#include "include/triangle_id.glsl"
 
 void add(uint vertex, vec3 g) {
     uint o = 4u * vertex;
