@@ -1,4 +1,5 @@
-"""Differentiable rasterization (seed 003), framework-free: NumPy arrays in and out.
+"""Differentiable rasterization (Laine et al. 2020, "Modular Primitives for
+High-Performance Differentiable Rendering"), framework-free: NumPy arrays in and out.
 
 Each op has a ``forward`` returning its outputs and what its backward needs, a
 ``backward(saved, grads) -> grads of the inputs``, and a float64 reference of both

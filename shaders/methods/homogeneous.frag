@@ -3,7 +3,7 @@
 // The edge functions e_i(p) = adj(M)_i . (p_x, p_y, 1) of M = [[X_j], [Y_j], [w_j]]
 // (homogeneous window coordinates of the clip-space vertices) are linear in window space;
 // s_i = e_i / det(M) gives
-//     persp_i  = s_i / sum_j s_j       (GL 4.5 eq. 14.9; seed 002 eq. 2.4.9)
+//     persp_i  = s_i / sum_j s_j       (GL 4.5 eq. 14.9; Heckbert & Moreton 1991)
 //     screen_i = s_i w_i               (eq. 14.10)
 // The host computes, per triangle and in extended precision, the gradient of s_i and its
 // value at an anchor point a on a 1/256 px grid next to a vertex, each split into a
