@@ -39,23 +39,13 @@ uniform ivec2 size;          // (W, H)
 uniform int n_channels;
 uniform float boost;         // pos_gradient_boost
 
+#include "include/atomic_add_float.glsl"
+
 void add(uint row, vec3 g) {
-#if defined(ACCUM_ATOMIC_FLOAT)
-    atomicAdd(grad_pos[4u * row + 0u], g.x);
-    atomicAdd(grad_pos[4u * row + 1u], g.y);
-    atomicAdd(grad_pos[4u * row + 3u], g.z);
-#elif defined(ACCUM_CAS)
-    for (int c = 0; c < 3; ++c) {
-        uint slot = 4u * row + uint(c == 2 ? 3 : c);
-        float value = g[c];
-        uint seen = grad_pos[slot];
-        while (true) {
-            uint want = floatBitsToUint(uintBitsToFloat(seen) + value);
-            uint got = atomicCompSwap(grad_pos[slot], seen, want);
-            if (got == seen) break;
-            seen = got;
-        }
-    }
+#if defined(ACCUM_ATOMIC_FLOAT) || defined(ACCUM_CAS)
+    ATOMIC_ADD_FLOAT(grad_pos[4u * row + 0u], g.x);
+    ATOMIC_ADD_FLOAT(grad_pos[4u * row + 1u], g.y);
+    ATOMIC_ADD_FLOAT(grad_pos[4u * row + 3u], g.z);
 #endif
 }
 

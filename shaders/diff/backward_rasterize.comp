@@ -42,25 +42,14 @@ uniform uint vertex_stride;  // V when pos is batched, else 0
 uniform int n_tri;
 
 #include "include/triangle_id.glsl"
+#include "include/atomic_add_float.glsl"
 
 void add(uint vertex, vec3 g) {
     uint o = 4u * vertex;
-#if defined(ACCUM_ATOMIC_FLOAT)
-    atomicAdd(grad_pos[o + 0u], g.x);
-    atomicAdd(grad_pos[o + 1u], g.y);
-    atomicAdd(grad_pos[o + 3u], g.z);
-#elif defined(ACCUM_CAS)
-    for (int c = 0; c < 3; ++c) {
-        uint slot = o + uint(c == 2 ? 3 : c);
-        float value = g[c];
-        uint seen = grad_pos[slot];
-        while (true) {
-            uint want = floatBitsToUint(uintBitsToFloat(seen) + value);
-            uint got = atomicCompSwap(grad_pos[slot], seen, want);
-            if (got == seen) break;
-            seen = got;
-        }
-    }
+#if defined(ACCUM_ATOMIC_FLOAT) || defined(ACCUM_CAS)
+    ATOMIC_ADD_FLOAT(grad_pos[o + 0u], g.x);
+    ATOMIC_ADD_FLOAT(grad_pos[o + 1u], g.y);
+    ATOMIC_ADD_FLOAT(grad_pos[o + 3u], g.z);
 #endif
 }
 

@@ -294,18 +294,11 @@ float texel(int index, int c) {
 }
 
 #ifdef BACKWARD
+#include "include/atomic_add_float.glsl"
+
 void add_tex(int index, float value) {
-#if defined(ACCUM_ATOMIC_FLOAT)
-    if (value != 0.0) atomicAdd(grad_tex[index], value);
-#elif defined(ACCUM_CAS)
-    if (value == 0.0) return;
-    uint seen = grad_tex[index];
-    while (true) {
-        uint want = floatBitsToUint(uintBitsToFloat(seen) + value);
-        uint got = atomicCompSwap(grad_tex[index], seen, want);
-        if (got == seen) break;
-        seen = got;
-    }
+#if defined(ACCUM_ATOMIC_FLOAT) || defined(ACCUM_CAS)
+    if (value != 0.0) ATOMIC_ADD_FLOAT(grad_tex[index], value);
 #endif
 }
 
