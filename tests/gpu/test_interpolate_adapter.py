@@ -81,3 +81,14 @@ def test_barycentrics_summing_to_zero_cannot_be_normalized():
         interpolate(np.ones((3, 1)), r, [[0, 1, 2]])
     assert info.value.argument == "raster"
     assert interpolate(np.ones((3, 1)), r, [[0, 1, 2]], normalize=False)[0, 0, 0] == 0.0
+
+
+def test_the_adapter_benchmark_runs_and_agrees_with_the_plain_sum(ctx, capsys):
+    from benchmarks import interpolate_adapter
+
+    assert interpolate_adapter.main(["--sizes", "40x30", "--rounds", "1", "--calls", "1"]) == 0
+    row = capsys.readouterr().out.splitlines()[-1].strip("| ").split(" | ")
+    assert row[0] == "40x30" and int(row[1]) > 50
+    # float32 results of the same float64 sum up to a few roundings: at most one float32
+    # ulp of values below 4 (eye coordinates and w of a unit torus), 2^-22
+    assert float(row[5]) <= 2.0 ** -22
