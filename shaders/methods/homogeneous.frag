@@ -8,9 +8,9 @@
 // The host computes, per triangle and in extended precision, the gradient of s_i and its
 // value at an anchor point a on a 1/256 px grid next to a vertex, each split into a
 // high and a low part. Here s_i(p) = s_i(a) + grad s_i . (p - a) is evaluated with
-// p - a exact (both on the 1/256 grid, |p - a| < 2^15) and the products made error-free
-// exact (include/compensated.glsl), so the result is about as
-// accurate as if computed in twice the working precision and rounded once: the error does
+// p - a exact (both on the 1/256 grid, |p - a| < 2^15) and the products and sums made
+// error-free (include/compensated.glsl), so the result is about as accurate as if
+// computed in twice the working precision and rounded once: the error does
 // not grow with the distance from the framebuffer origin nor with the distance from a.
 //
 // Per-triangle record (SETUP_STRIDE values of type REAL, see glraster/gpu/homogeneous.py):
