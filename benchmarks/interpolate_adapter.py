@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import time
+import timeit
 
 import numpy as np
 
@@ -43,15 +43,6 @@ def _scene(height: int, width: int, ctx):
     return attr, raster, faces
 
 
-def _median_call(fn, calls: int) -> float:
-    times = []
-    for _ in range(calls):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
-
-
 def measure(height: int, width: int, rounds: int, calls: int, ctx) -> dict:
     attr, raster, faces = _scene(height, width, ctx)
     adapter = lambda: gr.interpolate(attr, raster, faces)   # noqa: E731
@@ -59,8 +50,8 @@ def measure(height: int, width: int, rounds: int, calls: int, ctx) -> dict:
     diff = float(np.abs(adapter().astype(np.float64) - plain()).max())
     a, b = [], []
     for _ in range(rounds):
-        a.append(_median_call(adapter, calls))
-        b.append(_median_call(plain, calls))
+        a.append(statistics.median(timeit.repeat(adapter, number=1, repeat=calls)))
+        b.append(statistics.median(timeit.repeat(plain, number=1, repeat=calls)))
     return {"size": f"{width}x{height}", "covered": int(raster.mask.sum()),
             "adapter_ms": 1e3 * statistics.median(a), "plain_ms": 1e3 * statistics.median(b),
             "max_diff": diff}
