@@ -67,7 +67,7 @@ def decode_ids(values, name: str = "rast id channel") -> np.ndarray:
     if bad >= 0:
         where = tuple(int(i) for i in np.unravel_index(bad, v.shape))
         raise ArgumentError(name, f"{name} must hold encoded triangle ids (0: empty), got "
-                                  f"{v[where]!r} at {where}")
+                                  f"{v[where].item()!r} at {where}")
     return ids
 
 
