@@ -1,4 +1,4 @@
-"""Per-pixel attributes from rasterized barycentrics.
+"""Per-pixel attributes from a :class:`~glraster.Raster`: an adapter over the one interpolate.
 
 For a covered pixel with triangle ``t = tri_id[y, x]`` and barycentrics
 ``(b0, b1, b2)`` the attribute is::
@@ -6,15 +6,24 @@ For a covered pixel with triangle ``t = tri_id[y, x]`` and barycentrics
     out[y, x] = b0 * attr[tri[t, 0]] + b1 * attr[tri[t, 1]] + b2 * attr[tri[t, 2]]
 
 With ``space="persp"`` the barycentrics are the perspective-correct ones (GL 4.6 eq. 14.9,
-seed 001's 1/z interpolation already folded in), so the result is the attribute of the
-3D surface point seen through the pixel.  With ``space="screen"`` they are window-space
+the 1/w interpolation already folded in), so the result is the attribute of the 3D surface
+point seen through the pixel.  With ``space="screen"`` they are window-space
 (``noperspective``, eq. 14.10): linear on the screen, which is what affine texture mapping
 does and what window depth obeys.
+
+glraster has one interpolate, the differentiable op :data:`glraster.diff.ops.INTERPOLATE` in
+nvdiffrast's layout (``rast`` (B, H, W, 4) = (u, v, z/w, id), the third weight 1 - u - v),
+with a GPU core and a float64 core (docs/differentiable.md, "One interpolate").  This
+function is its documented adapter for :class:`~glraster.Raster` results: it passes the
+raster's barycentrics, divided by their sum, as (u, v) to the float64 core, so the weighted
+sum is written once.
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from glraster.errors import ArgumentError
 
 __all__ = ["interpolate"]
 
@@ -87,13 +96,26 @@ def interpolate(attr, raster, tri, space: str = "persp", *, normalize: bool = Tr
         raise ValueError(f"raster.tri_id refers to triangle {ids.max()} but tri has "
                          f"{t.shape[0]} triangles")
 
-    H, W = tri_id.shape
-    out = np.zeros((H, W, a.shape[1]), dtype=bary.dtype)
-    if ids.size:
-        corners = a[t[ids]].astype(np.float64, copy=False)       # (N, 3, C)
-        b = bary[covered].astype(np.float64, copy=False)          # (N, 3)
-        vals = np.einsum("nk,nkc->nc", b, corners)
-        if normalize:
-            vals /= b.sum(axis=1, keepdims=True)
-        out[covered] = vals
+    # The math lives in the differentiable interpolate (glraster.diff.ops.INTERPOLATE, its
+    # float64 core): this adapter hands it the raster in nvdiffrast's layout, with (u, v)
+    # the barycentrics divided by their sum, so that 1 - u - v is the third one divided too.
+    from glraster.diff import ids as _ids          # imported here: they load numba, and
+    from glraster.diff.ops import INTERPOLATE      # `import glraster` stays light
+    ys, xs = np.nonzero(covered)
+    b = bary[ys, xs].astype(np.float64)                  # (N, 3)
+    total = b[:, 0] + b[:, 1] + b[:, 2]
+    if normalize and not total.all():
+        k = int(np.flatnonzero(total == 0)[0])
+        raise ArgumentError("raster", f"raster {space} barycentrics sum to 0 at the covered "
+                                      f"pixel (y={ys[k]}, x={xs[k]}): they cannot be normalized")
+    scale = np.where(total == 0, 1.0, total)
+    rast = np.zeros((1, *tri_id.shape, 4))
+    rast[0, ys, xs, 0] = b[:, 0] / scale
+    rast[0, ys, xs, 1] = b[:, 1] / scale
+    rast[0, ys, xs, 3] = _ids.encode_ids(tri_id[ys, xs])
+    (out, _), _saved = INTERPOLATE.forward(a.astype(np.float64, copy=False), rast, tri=t)
+    out = out[0]
+    if not normalize:
+        out[ys, xs] *= total[:, None]
+    out = out.astype(bary.dtype, copy=False)
     return out[..., 0] if squeeze else out

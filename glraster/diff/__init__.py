@@ -1,4 +1,5 @@
-"""Differentiable rasterization, framework-free: NumPy arrays in and out.
+"""Differentiable rasterization (Laine et al. 2020, "Modular Primitives for
+High-Performance Differentiable Rendering"), framework-free: NumPy arrays in and out.
 
 Each op (:mod:`glraster.diff.ops`) has two cores with one signature,
 ``forward(*inputs, **params) -> (outputs, saved)`` and

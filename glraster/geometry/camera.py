@@ -167,7 +167,7 @@ def from_intrinsics(K, width: int, height: int, near: float, far: float) -> np.n
     point at window position ``x_w = u + 0.5``, ``y_w = H - 0.5 - v`` (module docstring,
     eq. C1), i.e. on the same pixel and sub-pixel position.
 
-    Derivation (seed 003 section 2 without its half-pixel shortcut): with
+    Derivation (docs/cameras.md, with the half-pixel terms kept): with
     ``w_c = Z = -z_e`` and ``x_ndc = 2 x_w / W - 1``::
 
         x_c = 2 fx/W x_e - 2 s/W y_e + (1 - 2 (cx + 0.5)/W) z_e

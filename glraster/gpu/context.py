@@ -19,10 +19,10 @@ from pathlib import Path
 import moderngl
 import numpy as np
 
-from glraster.errors import BadEnvironment, GLVersionError, ShaderCompileError
+from glraster.errors import BadEnvironment, GLVersionError
 from glraster.gpu.backends import create_backend
 from glraster.gpu.backends.current import MIN_GL, version_text
-from glraster.gpu.shaders import compile_program, describe_compile_error, with_defines
+from glraster.gpu.shaders import compile_compute, compile_program
 
 # Framebuffers kept alive: enough for a test suite that alternates a few sizes.
 FRAMEBUFFER_CACHE_SIZE = 4
@@ -242,13 +242,7 @@ class Context:
         if program is None:
             self.require_gl(GLSL450_GL, f"the compute shader {Path(path).name}",
                             "compute shaders, GLSL 4.50")
-            source = with_defines(Path(path).read_text(), defines)
-            try:
-                program = self.mgl.compute_shader(source)
-            except moderngl.Error as exc:  # moderngl.Error carries the driver's info log
-                message = describe_compile_error(str(exc), {"compute_shader": Path(path)})
-                raise ShaderCompileError(
-                    f"GLSL compile error in {path}:\n{message}") from None
+            program = compile_compute(self.mgl, path, defines)
             self._compute[key] = program
         return program
 

@@ -127,7 +127,7 @@ METHODS: dict[str, Method] = {m.name: m for m in (
            remaps_ids=False, clip_defect_outputs=("screen",), fallback=HW_GL33,
            interpolations=INTERPOLATIONS),
     Method("divw", "noperspective barycentrics divided by per-vertex w in the shader "
-                   "(seed 002 eq. 2.4.9)",
+                   "(GL 4.5 eq. 14.9)",
            "raster/pull.vert", "methods/divw.frag", varies_screen=True,
            persp_from_screen=True, clip_defect_outputs=("screen", "persp"),
            interpolations=INTERPOLATIONS),
@@ -139,7 +139,7 @@ METHODS: dict[str, Method] = {m.name: m for m in (
            "raster/pull.vert", "methods/homogeneous.frag", defines={"FP64": 1},
            setup=_homogeneous_setup(True), cull_by_default=True, value_dtype="f8",
            compensated=True, needs="shader storage buffers and float64, GLSL 4.50"),
-    Method("solve4", "seed 000's 4x4 linear system per pixel, float32 Gaussian elimination",
+    Method("solve4", "a 4x4 linear system per pixel for (b, w), float32 Gaussian elimination",
            "raster/pull.vert", "methods/solve4.frag", uniforms=_solve4_uniforms),
 )}
 

@@ -8,6 +8,7 @@ affine path when every w is equal, only the requested targets), then one draw th
 from __future__ import annotations
 
 import functools
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -95,22 +96,11 @@ def _check_out(out, names, shape, value_dtype) -> dict:
     return arrays
 
 
-def rasterize(
-    pos,
-    tri,
-    resolution,
-    *,
-    ctx: Context | None = None,
-    outputs=OUTPUTS,
-    method: str = "hw",
-    shader_files: tuple | None = None,
-    cull_backfaces: bool = False,
-    cull: bool | str = "auto",
-    affine: bool | None = None,
-    out: Raster | None = None,
-    samples: int = 1,
-    interpolation: str = "center",
-) -> Raster:
+def rasterize(pos, tri, resolution, *, ctx: Context | None = None, outputs=OUTPUTS,
+              method: str = "hw", shader_files: tuple | None = None,
+              cull_backfaces: bool = False, cull: bool | str = "auto",
+              affine: bool | None = None, out: Raster | None = None, samples: int = 1,
+              interpolation: str = "center") -> Raster:
     """Rasterize triangles on the GPU and read back barycentric targets.
 
     Parameters
@@ -171,8 +161,47 @@ def rasterize(
         ``info["culled"]`` counts dropped triangles by reason; ``info["affine"]`` tells
         whether the affine path was taken.
     """
+    names, samples, interpolation = _check_options(outputs, method, samples, interpolation,
+                                                   out, shader_files, affine, cull)
+    ctx = ctx if ctx is not None else default_context()
+    m = for_context(method, ctx)  # hw below GL 4.5: the vertex-attribute variant
+    if samples > 1:
+        _check_multisampling(ctx, m, samples, interpolation)
+    pos = validate.positions(pos)
+    tri = validate.triangles(tri, len(pos))
+    resolution = validate.resolution(resolution, ctx.max_texture_size)
+    value_dtype = np.float64 if m.value_dtype == "f8" else np.float32
+    fill = _check_out(out, names, resolution, value_dtype) if out is not None else {}
+
+    info = {"backend": ctx.backend, "renderer": ctx.renderer, "method": method,
+            "culled": {}, "affine": False, "vertex_input": m.vertex_input}
+    tri, kept = _culled(ctx, m, pos, tri, resolution, cull, cull_backfaces, info)
+    # (never with custom shader files: fault injection must exercise the persp path)
+    is_affine = affine is None and shader_files is None and len(tri) > 0 and _same_w(pos, tri)
+    info["affine"] = is_affine
+    variant = _variant(m, names, is_affine, kept, samples, interpolation)
+    spec = _draw_spec(ctx, m, variant, pos, tri, kept, resolution, shader_files,
+                      read_depth="depth" in names, cull_backfaces=cull_backfaces,
+                      samples=samples)
+    values = pipeline.draw(ctx, spec, pos, tri, resolution,
+                           out=_caller_targets(fill, variant.colors, names, is_affine, m))
+    positions = values.pop("sample_positions", None)
+    values = _outputs(values, fill, names, m, is_affine,
+                      None if variant.remap_in_shader else kept)
+    mask = pipeline.coverage(values)
+    if "mask" in fill:
+        mask = _copy_into(fill["mask"], mask)
+    if samples > 1:
+        return multisampled(values, mask, positions, interpolation, resolution, info)
+    return Raster(resolution=resolution, mask=mask, info=info, **values)
+
+
+# -- the steps of rasterize ---------------------------------------------------------------
+def _check_options(outputs, method, samples, interpolation, out, shader_files, affine, cull):
+    """``(names, samples, interpolation)`` validated, and ValueError naming the option
+    when one is not allowed or does not go with another."""
     names = validate.outputs(outputs)
-    m = get(method)
+    get(method)
     samples = validate.samples(samples)
     interpolation = validate.interpolation(interpolation)
     if samples > 1 and out is not None:
@@ -184,24 +213,19 @@ def rasterize(
         raise ValueError(f"affine must be None (automatic) or False, got {affine!r}")
     if cull not in (True, False, "auto"):
         raise ValueError(f"cull must be True, False or 'auto', got {cull!r}")
-    ctx = ctx if ctx is not None else default_context()
-    m = for_context(m, ctx)  # hw below GL 4.5: the vertex-attribute variant
-    if samples > 1:
-        _check_multisampling(ctx, m, samples, interpolation)
-    pos = validate.positions(pos)
-    tri = validate.triangles(tri, len(pos))
-    height, width = validate.resolution(resolution, ctx.max_texture_size)
-    value_dtype = np.float64 if m.value_dtype == "f8" else np.float32
-    fill = _check_out(out, names, (height, width), value_dtype) if out is not None else {}
+    return names, samples, interpolation
 
-    # -- skip what the scene does not need ----------------------------------------------
+
+def _culled(ctx, m: Method, pos, tri, resolution, cull, cull_backfaces: bool, info: dict):
+    """``(tri, kept)``: the triangles to draw, and None or the (K,) indices into the
+    caller's ``tri`` of those kept, after dropping what cannot produce a fragment
+    (:mod:`glraster.gpu.cull`; counts by reason in ``info["culled"]``). ValueError when
+    ``pos`` does not fit in one storage block of the driver."""
     kept = None
-    info = {"backend": ctx.backend, "renderer": ctx.renderer, "method": method,
-            "culled": {}, "affine": False, "vertex_input": m.vertex_input}
     if cull == "auto":
         cull = m.cull_by_default or cull_backfaces
     if len(tri) >= CULL_MIN_TRIANGLES and (cull or cull_backfaces):
-        culling = _cull.cull(pos, tri, (height, width), backfaces=cull_backfaces,
+        culling = _cull.cull(pos, tri, resolution, backfaces=cull_backfaces,
                              llvmpipe=ctx.is_llvmpipe, subpixel_bits=ctx.subpixel_bits)
         info["culled"] = culling.reasons
         if not culling.all_kept:
@@ -212,10 +236,28 @@ def rasterize(
             f"pos takes {pos.nbytes} bytes, above the driver's shader storage block "
             f"limit of {ctx.max_storage_block_size} bytes ({ctx.max_storage_block_size // 16} vertices)"
         )
-    # (never with custom shader files: fault injection must exercise the persp path)
-    is_affine = affine is None and shader_files is None and len(tri) > 0 and _same_w(pos, tri)
-    info["affine"] = is_affine
+    return tri, kept
 
+
+@dataclass(frozen=True)
+class _Variant:
+    """The shader variant of one draw.
+
+    colors          : color target name -> (components, dtype), in attachment order
+    defines         : the ``#define``s of the method's shaders for those targets
+    remap_in_shader : the shader maps drawn triangles to the caller's ids (``REMAP``)
+    needs_bary      : persp or screen is computed
+    """
+
+    colors: dict
+    defines: dict
+    remap_in_shader: bool
+    needs_bary: bool
+
+
+def _variant(m: Method, names, is_affine: bool, kept, samples: int,
+             interpolation: str) -> _Variant:
+    """The targets and defines that compute ``names`` with method ``m`` and no more."""
     # the color targets: on the affine path persp and screen are the same values
     wanted = set(names)
     if is_affine and "persp" in wanted:
@@ -223,13 +265,13 @@ def rasterize(
     colors = color_targets(wanted, m)
     needs_bary = "persp" in wanted or "screen" in wanted
 
-    defines = dict(m.defines) if method != "hw" else {}
+    defines = dict(m.defines) if m.name != "hw" else {}
     defines.update(pipeline.output_defines(colors))
     # hw (raster.frag, shared with the fault-injection mutants) remaps on the host
     remap_in_shader = m.remaps_ids and kept is not None and "tri_id" in colors
     if remap_in_shader:
         defines["REMAP"] = 1
-    if method != "hw" and is_affine:
+    if m.name != "hw" and is_affine:
         defines["AFFINE"] = 1
     if m.varies_screen and needs_bary:
         defines["VARY_SCREEN"] = 1
@@ -237,21 +279,30 @@ def rasterize(
         defines["INTERPOLATION"] = interpolation
         if m.vertex_input:
             defines["AUX_QUALIFIERS"] = 1
+    return _Variant(colors, defines, remap_in_shader, needs_bary)
 
+
+def _draw_spec(ctx, m: Method, variant: _Variant, pos, tri, kept, resolution, shader_files,
+               *, read_depth: bool, cull_backfaces: bool, samples: int) -> pipeline.Draw:
+    """The draw of ``tri`` with ``variant``'s program: the method's per-triangle setup
+    (storage binding 2) and the remap table (binding 3), uniforms, state."""
     per_triangle = {}
-    if m.setup is not None and needs_bary and len(tri):
-        per_triangle[2] = m.setup(pos[tri], (height, width))
-    if remap_in_shader:
+    if m.setup is not None and variant.needs_bary and len(tri):
+        per_triangle[2] = m.setup(pos[tri], resolution)
+    if variant.remap_in_shader:
         per_triangle[3] = kept
     vert, frag = shader_files if shader_files is not None else (m.vert, m.frag)
     with ctx:
-        program, vao = ctx.program(_shader_path(vert), _shader_path(frag), defines)
-    spec = pipeline.Draw(
-        program, vao, colors, read_depth="depth" in names, per_triangle=per_triangle,
-        uniforms=m.uniforms(height, width) if m.uniforms and needs_bary else {},
+        program, vao = ctx.program(_shader_path(vert), _shader_path(frag), variant.defines)
+    return pipeline.Draw(
+        program, vao, variant.colors, read_depth=read_depth, per_triangle=per_triangle,
+        uniforms=m.uniforms(*resolution) if m.uniforms and variant.needs_bary else {},
         cull_backfaces=cull_backfaces, vertex_input=m.vertex_input, samples=samples)
 
-    # caller arrays are filled directly where the target layout is the output's own
+
+def _caller_targets(fill: dict, colors: dict, names, is_affine: bool, m: Method) -> dict:
+    """The caller's arrays (``out=``) that targets are read into directly: those whose
+    layout is the target's own."""
     targets_out = {n: fill[n] for n in colors if n in fill}
     if is_affine and "persp" in fill and "screen" not in names:
         targets_out.pop("screen", None)
@@ -259,13 +310,17 @@ def rasterize(
             targets_out["screen"] = fill["persp"]
     if "depth" in fill:
         targets_out["depth"] = fill["depth"]
-    values = pipeline.draw(ctx, spec, pos, tri, (height, width), out=targets_out)
-    positions = values.pop("sample_positions", None)
+    return targets_out
 
+
+def _outputs(values: dict, fill: dict, names, m: Method, is_affine: bool, remap) -> dict:
+    """The outputs from the targets read back: float64 joined from its parts, triangle ids
+    decoded (mapped through ``remap`` (K,) when the host remaps), persp filled from screen
+    on the affine path."""
     if m.value_dtype == "f8":
         values = _join_float64(values, fill)
     if "tri_id" in values:
-        pipeline.decode_ids(values["tri_id"], None if remap_in_shader else kept)
+        pipeline.decode_ids(values["tri_id"], remap)
     if is_affine and "persp" in names:
         screen = values["screen"]
         if "screen" in names:
@@ -274,13 +329,7 @@ def rasterize(
         else:
             values["persp"] = screen if "persp" not in fill else _copy_into(fill["persp"], screen)
             del values["screen"]
-    mask = pipeline.coverage(values)
-    if "mask" in fill:
-        np.copyto(fill["mask"], mask)
-        mask = fill["mask"]
-    if samples > 1:
-        return multisampled(values, mask, positions, interpolation, (height, width), info)
-    return Raster(resolution=(height, width), mask=mask, info=info, **values)
+    return values
 
 
 def multisampled(values: dict, mask, positions, interpolation: str, resolution,

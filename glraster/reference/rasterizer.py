@@ -7,7 +7,7 @@ coordinates X_i = (x_i + w_i) W/2, Y_i = (y_i + w_i) H/2 of the three clip-space
 of a point to its homogeneous window position. For a pixel center p = (p_x, p_y):
 
     s = M^-1 (p_x, p_y, 1)            s_i = lambda_i / w_p,   sum(s) = 1 / w_p
-    persp_i  = s_i / sum(s)            perspective-correct (GL 4.5 eq. 14.9; seed 002 eq. 2.4.9)
+    persp_i  = s_i / sum(s)            perspective-correct (GL 4.5 eq. 14.9; Heckbert & Moreton 1991)
     screen_i = s_i w_i                 window-space affine barycentrics (eq. 14.10)
     z_ndc    = sum(s_i z_i),  depth = z_ndc / 2 + 1/2
 

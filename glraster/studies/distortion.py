@@ -2,13 +2,13 @@
 
 Two things live here:
 
-* :func:`segment_example`: seed 001's worked example, exactly, in rational arithmetic.  A
+* :func:`segment_example`: the worked example of docs/distortion.md, exactly, in rational arithmetic.  A
   camera at the origin looks along the view axis at a segment from V0 = (x, depth) =
   (-4, 2) to V1 = (2, 5); the image plane is at distance 1.  The ray through screen
   position x' = 0 hits the segment at P = (0, 4).  On the screen, x' = 0 lies 5/6 of the
   way from V0' = -2 to V1' = 2/5, so interpolating depth *affinely* in screen space gives
   (1/6) 2 + (5/6) 5 = 9/2, while the true depth is 4; interpolating 1/depth affinely and
-  inverting (GL 4.6 eq. 14.9, seed 001) gives 1 / ((1/6)/2 + (5/6)/5) = 4.
+  inverting (GL 4.6 eq. 14.9; Heckbert & Moreton 1991) gives 1 / ((1/6)/2 + (5/6)/5) = 4.
   :func:`segment_example_gpu` reproduces both numbers on the GPU with ``noperspective``
   and ``smooth`` barycentrics.
 
@@ -87,7 +87,7 @@ class SegmentExample:
 
 def segment_example(v0=(-4, 2), v1=(2, 5), screen_x=0) -> SegmentExample:
     """The worked example for segment ``v0``-``v1`` (x, depth), depths > 0, seen at
-    ``screen_x``; defaults are seed 001's numbers (affine 9/2 against true 4)."""
+    ``screen_x``; defaults are the worked example's numbers (affine 9/2 against true 4)."""
     try:
         x0, d0 = (Fraction(c) for c in v0)
         x1, d1 = (Fraction(c) for c in v1)
@@ -115,7 +115,7 @@ def segment_example(v0=(-4, 2), v1=(2, 5), screen_x=0) -> SegmentExample:
 
 
 def segment_example_gpu(ctx=None, size: int = 33) -> dict:
-    """Seed 001's example on the GPU.
+    """The worked example on the GPU.
 
     The segment becomes a triangle A = (-4, -4, depth 2), C = (-4, 4, depth 2),
     B = (2, 0, depth 5) in eye space, so depth depends on x only and every pixel on the

@@ -39,31 +39,17 @@ uniform ivec2 size;          // (W, H)
 uniform int n_channels;
 uniform float boost;         // pos_gradient_boost
 
+#include "include/atomic_add_float.glsl"
+
 void add(uint row, vec3 g) {
-#if defined(ACCUM_ATOMIC_FLOAT)
-    atomicAdd(grad_pos[4u * row + 0u], g.x);
-    atomicAdd(grad_pos[4u * row + 1u], g.y);
-    atomicAdd(grad_pos[4u * row + 3u], g.z);
-#elif defined(ACCUM_CAS)
-    for (int c = 0; c < 3; ++c) {
-        uint slot = 4u * row + uint(c == 2 ? 3 : c);
-        float value = g[c];
-        uint seen = grad_pos[slot];
-        while (true) {
-            uint want = floatBitsToUint(uintBitsToFloat(seen) + value);
-            uint got = atomicCompSwap(grad_pos[slot], seen, want);
-            if (got == seen) break;
-            seen = got;
-        }
-    }
+#if defined(ACCUM_ATOMIC_FLOAT) || defined(ACCUM_CAS)
+    ATOMIC_ADD_FLOAT(grad_pos[4u * row + 0u], g.x);
+    ATOMIC_ADD_FLOAT(grad_pos[4u * row + 1u], g.y);
+    ATOMIC_ADD_FLOAT(grad_pos[4u * row + 3u], g.z);
 #endif
 }
 
-vec3 frame_vertex(uint row, vec2 n) {
-    vec4 p = pos[row];
-    return vec3((p.x - p.w * n.x) * (0.5 * float(size.x)),
-                (p.y - p.w * n.y) * (0.5 * float(size.y)), p.w);
-}
+#include "include/frame.glsl"
 
 // dL/dtau of the pair whose record is records[2 owner + axis] (owner: its pixel A), to
 // the edge's two vertices.
@@ -72,7 +58,7 @@ void edge_gradient(uint owner, int axis, uvec4 rec, float dl_dtau) {
     uint pix = owner % hw, y = pix / W, x = pix % W;
     vec2 n = vec2(float(2u * x + 1u) / float(size.x) - 1.0,
                   float(2u * y + 1u) / float(size.y) - 1.0);
-    vec3 va = frame_vertex(rec.y, n), vb = frame_vertex(rec.z, n);
+    vec3 va = frame_vertex(pos[rec.y], n, size), vb = frame_vertex(pos[rec.z], n, size);
     vec3 r = cross(va, vb);
     float tau = uintBitsToFloat(rec.w);
     vec3 c = vec3(0.0, 0.0, 1.0);

@@ -35,15 +35,8 @@ uniform uint table_mask;     // slots - 1 (a power of two minus one)
 #define MAX_WALK 8
 #endif
 
-int decode_id(float f) {
-    return f <= 16777216.0 ? int(f) : floatBitsToInt(f) - 0x4a800000;
-}
-
-vec3 frame_vertex(uint row, vec2 n) {
-    vec4 p = pos[row];
-    return vec3((p.x - p.w * n.x) * (0.5 * float(size.x)),
-                (p.y - p.w * n.y) * (0.5 * float(size.y)), p.w);
-}
+#include "include/triangle_id.glsl"
+#include "include/frame.glsl"
 
 // The run (start, count) of opposite vertices of edge (lo, hi), lo <= hi: linear probing
 // from the slot the host's table was built with (antialias_reference._hash).
@@ -89,7 +82,7 @@ uvec4 eval_pair(uint ia, uint ib, uint xa, uint ya, int axis, uint vbase) {
         if (t < 0 || t >= n_tri) return uvec4(0u);
         int vi[3] = int[3](tri[3 * t], tri[3 * t + 1], tri[3 * t + 2]);
         vec3 v[3];
-        for (int j = 0; j < 3; ++j) v[j] = frame_vertex(vbase + uint(vi[j]), n);
+        for (int j = 0; j < 3; ++j) v[j] = frame_vertex(pos[vbase + uint(vi[j])], n, size);
         vec3 r[3];
         for (int i = 0; i < 3; ++i) r[i] = cross(v[(i + 1) % 3], v[(i + 2) % 3]);
         float det = dot(r[0], v[0]);
@@ -134,7 +127,7 @@ uvec4 eval_pair(uint ia, uint ib, uint xa, uint ya, int axis, uint vbase) {
                 int e = entries[start + k];
                 int og = tri[e];
                 if (canon[og] == co) continue;
-                float dG = dot(rl, frame_vertex(vbase + uint(og), n));
+                float dG = dot(rl, frame_vertex(pos[vbase + uint(og)], n, size));
                 if (opposite_signs(dG, dF)) {
                     next = e / 3;
                     next_slot = e % 3;
@@ -144,7 +137,8 @@ uvec4 eval_pair(uint ia, uint ib, uint xa, uint ya, int axis, uint vbase) {
         }
         if (next < 0) {
             // the silhouette; the pair's axis must be the one most across it
-            vec3 rs = cross(frame_vertex(vbase + uint(a), n), frame_vertex(vbase + uint(b), n));
+            vec3 rs = cross(frame_vertex(pos[vbase + uint(a)], n, size),
+                            frame_vertex(pos[vbase + uint(b)], n, size));
             float tau = -rs.z / rs[axis];
             float across = abs(rs[axis]), along = abs(rs[1 - axis]);
             if (axis == 0 ? !(across >= along) : !(across > along)) return uvec4(0u);

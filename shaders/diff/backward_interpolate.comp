@@ -39,23 +39,13 @@ uniform uint vertex_stride;
 uniform int n_tri;
 uniform int n_attr;
 
-int decode_id(float f) {
-    return f <= 16777216.0 ? int(f) : floatBitsToInt(f) - 0x4a800000;
-}
+#include "include/triangle_id.glsl"
+#include "include/atomic_add_float.glsl"
 
 // contribution of corner j (0, 1, 2) to attribute k
 void add(uint i, uint j, uint slot, uint k, float value) {
-#if defined(ACCUM_ATOMIC_FLOAT)
-    if (value != 0.0) atomicAdd(grad_attr[slot], value);
-#elif defined(ACCUM_CAS)
-    if (value == 0.0) return;
-    uint seen = grad_attr[slot];
-    while (true) {
-        uint want = floatBitsToUint(uintBitsToFloat(seen) + value);
-        uint got = atomicCompSwap(grad_attr[slot], seen, want);
-        if (got == seen) break;
-        seen = got;
-    }
+#if defined(ACCUM_ATOMIC_FLOAT) || defined(ACCUM_CAS)
+    if (value != 0.0) ATOMIC_ADD_FLOAT(grad_attr[slot], value);
 #else
     contrib[(3u * i + j) * uint(n_attr) + k] = value;
 #endif

@@ -41,30 +41,15 @@ uniform uvec2 size;          // (W, H)
 uniform uint vertex_stride;  // V when pos is batched, else 0
 uniform int n_tri;
 
-// Triangle index + 1 from rast's fourth channel (0: empty pixel): the float's value up to
-// 2^24, its bit pattern minus 0x4a800000 above.
-int decode_id(float f) {
-    return f <= 16777216.0 ? int(f) : floatBitsToInt(f) - 0x4a800000;
-}
+#include "include/triangle_id.glsl"
+#include "include/atomic_add_float.glsl"
 
 void add(uint vertex, vec3 g) {
     uint o = 4u * vertex;
-#if defined(ACCUM_ATOMIC_FLOAT)
-    atomicAdd(grad_pos[o + 0u], g.x);
-    atomicAdd(grad_pos[o + 1u], g.y);
-    atomicAdd(grad_pos[o + 3u], g.z);
-#elif defined(ACCUM_CAS)
-    for (int c = 0; c < 3; ++c) {
-        uint slot = o + uint(c == 2 ? 3 : c);
-        float value = g[c];
-        uint seen = grad_pos[slot];
-        while (true) {
-            uint want = floatBitsToUint(uintBitsToFloat(seen) + value);
-            uint got = atomicCompSwap(grad_pos[slot], seen, want);
-            if (got == seen) break;
-            seen = got;
-        }
-    }
+#if defined(ACCUM_ATOMIC_FLOAT) || defined(ACCUM_CAS)
+    ATOMIC_ADD_FLOAT(grad_pos[o + 0u], g.x);
+    ATOMIC_ADD_FLOAT(grad_pos[o + 1u], g.y);
+    ATOMIC_ADD_FLOAT(grad_pos[o + 3u], g.z);
 #endif
 }
 

@@ -24,9 +24,7 @@ uniform uint vertex_stride;  // V when attr is batched, else 0
 uniform int n_tri;
 uniform int n_attr;
 
-int decode_id(float f) {
-    return f <= 16777216.0 ? int(f) : floatBitsToInt(f) - 0x4a800000;
-}
+#include "include/triangle_id.glsl"
 
 void main() {
     uint i = gl_GlobalInvocationID.x;

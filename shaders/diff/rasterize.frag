@@ -5,7 +5,7 @@
 //   rast    = (u, v, z/w, id): u = b0, v = b1, the perspective-correct barycentrics of the
 //             triangle's vertices 0 and 1 (SPACE_SCREEN: the window-space ones), z/w the
 //             NDC depth z_c / w_c of the surface point, id = triangle index + 1 encoded as
-//             a float (encode_id below); the clear value 0 marks empty pixels.
+//             a float (include/triangle_id.glsl); the clear value 0 marks empty pixels.
 //   rast_db = (du/dx, du/dy, dv/dx, dv/dy) at the pixel centre, in window pixels.
 //
 // With homogeneous window coordinates X_j = (x_j + w_j) W/2, Y_j = (y_j + w_j) H/2 and
@@ -23,8 +23,8 @@
 // everything scaled by k = max_j |w_j|, plus z_j / k:
 //   [0, 2) anchor a   [2, 5) k g_i (x) high  [5, 8) low   [8, 11) k g_i (y) high  [11, 14) low
 //   [14, 17) k s_i(a) high  [17, 20) low     [20, 23) w_i / k   [24, 27) z_i / k
-// s_i(p) = s_i(a) + grad s_i . (p - a) is evaluated compensated (exact p - a, Dekker's
-// TwoProduct, Knuth's TwoSum), so it is about as accurate as a float64 evaluation rounded
+// s_i(p) = s_i(a) + grad s_i . (p - a) is evaluated compensated (exact p - a,
+// include/compensated.glsl), so it is about as accurate as a float64 evaluation rounded
 // once to float32, wherever the pixel is.
 //
 // Host defines: OUT_RAST, OUT_RAST_DB, RAST_LOCATION, RAST_DB_LOCATION; SPACE_SCREEN;
@@ -32,7 +32,6 @@
 // PEEL (discard fragments at or in front of the previous layer's z/w, prev_depth).
 
 #define RECORD_STRIDE 28
-#define SPLITTER 4097.0  // 2^12 + 1
 
 layout(std430, binding = 2) readonly buffer Setup { float setup[]; };
 #ifdef REMAP
@@ -49,51 +48,14 @@ uniform int id_base;   // index in the caller's tri of the draw's first triangle
 uniform sampler2D prev_depth;  // (H, W) previous layer's z/w; +inf where it was empty
 #endif
 
-// Triangle index + 1 as a float: the value itself up to 2^24, above that the float whose
-// bit pattern is 0x4a800000 + id (> 2^24, increasing with id, decoded from the bits).
-float encode_id(int id) {
-    return id <= 16777216 ? float(id) : intBitsToFloat(0x4a800000 + id);
-}
-
-// hi + lo = a exactly, each with half the mantissa bits (Veltkamp's split).
-void split(float a, out float hi, out float lo) {
-    precise float c = SPLITTER * a;
-    precise float h = c - (c - a);
-    hi = h;
-    lo = a - h;
-}
-
-// hi + lo = a * b exactly (Dekker's TwoProduct; llvmpipe lowers fma() to mul + add).
-void two_product(float a, float b, out float hi, out float lo) {
-    precise float p = a * b;
-    float ah, al, bh, bl;
-    split(a, ah, al);
-    split(b, bh, bl);
-    precise float err = ((ah * bh - p) + ah * bl + al * bh) + al * bl;
-    hi = p;
-    lo = err;
-}
-
-// hi + lo = a + b exactly (Knuth's TwoSum).
-void two_sum(float a, float b, out float hi, out float lo) {
-    precise float s = a + b;
-    precise float bb = s - a;
-    precise float err = (a - (s - bb)) + (b - bb);
-    hi = s;
-    lo = err;
-}
+#include "include/compensated.glsl"
+#include "include/triangle_id.glsl"
 
 // k s_i(a) + k grad s_i . d, compensated.
 float evaluate(int base, int i, float dx, float dy) {
-    float px, ex, py, ey, t, f1, u, f2;
-    two_product(setup[base + 2 + i], dx, px, ex);
-    two_product(setup[base + 8 + i], dy, py, ey);
-    two_sum(px, py, t, f1);
-    two_sum(t, setup[base + 14 + i], u, f2);
-    precise float tail = (f1 + f2) + (ex + ey) + setup[base + 17 + i]
-                         + (setup[base + 5 + i] * dx + setup[base + 11 + i] * dy);
-    precise float result = u + tail;
-    return result;
+    return compensated_plane(setup[base + 2 + i], setup[base + 5 + i], setup[base + 8 + i],
+                             setup[base + 11 + i], setup[base + 14 + i], setup[base + 17 + i],
+                             dx, dy);
 }
 
 void main() {

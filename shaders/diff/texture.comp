@@ -1,7 +1,8 @@
 #version 450
 // Filtered texture lookups (forward) and their gradients (with BACKWARD), one invocation per
 // pixel; the level and the filter are computed here from texel fetches (no GL sampler):
-//   level = 0.5 log2(lenMajorSqr) + bias, clamped to [0, n_levels - 1]   (seed 003)
+//   level = 0.5 log2(lenMajorSqr) + bias, clamped to [0, n_levels - 1]
+//   (docs/differentiable.md, "Texture")
 //   bilinear at texel centres: x = s W_l - 0.5, taps floor(x), floor(x) + 1 (y alike)
 // Defines: FILTER 0 nearest | 1 linear | 2 linear-mipmap-nearest | 3 linear-mipmap-linear;
 // BOUNDARY 0 wrap | 1 clamp | 2 zero | 3 cube; HAS_DA, HAS_BIAS; with BACKWARD one of
@@ -293,18 +294,11 @@ float texel(int index, int c) {
 }
 
 #ifdef BACKWARD
+#include "include/atomic_add_float.glsl"
+
 void add_tex(int index, float value) {
-#if defined(ACCUM_ATOMIC_FLOAT)
-    if (value != 0.0) atomicAdd(grad_tex[index], value);
-#elif defined(ACCUM_CAS)
-    if (value == 0.0) return;
-    uint seen = grad_tex[index];
-    while (true) {
-        uint want = floatBitsToUint(uintBitsToFloat(seen) + value);
-        uint got = atomicCompSwap(grad_tex[index], seen, want);
-        if (got == seen) break;
-        seen = got;
-    }
+#if defined(ACCUM_ATOMIC_FLOAT) || defined(ACCUM_CAS)
+    if (value != 0.0) ATOMIC_ADD_FLOAT(grad_tex[index], value);
 #endif
 }
 

@@ -1,7 +1,7 @@
 #version 450 core
 // "divw": window-space barycentrics b_i from the driver's noperspective interpolation,
-// corrected by the per-vertex 1/w in this shader (seed 002 eq. 2.4.9; seed 004's
-// b'_i = (b_i / w_i) / sum_j (b_j / w_j)). The w_i are fetched by gl_PrimitiveID.
+// corrected by the per-vertex 1/w in this shader (GL 4.5 eq. 14.9; Heckbert &
+// Moreton 1991: b'_i = (b_i / w_i) / sum_j (b_j / w_j)). The w_i are fetched by gl_PrimitiveID.
 //
 // Host defines: OUT_PERSP, OUT_SCREEN, OUT_TRI_ID, *_LOCATION (as in raster.frag);
 // AFFINE (every w equal: persp = screen, no division); REMAP (triangles were culled before

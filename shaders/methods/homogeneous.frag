@@ -3,14 +3,14 @@
 // The edge functions e_i(p) = adj(M)_i . (p_x, p_y, 1) of M = [[X_j], [Y_j], [w_j]]
 // (homogeneous window coordinates of the clip-space vertices) are linear in window space;
 // s_i = e_i / det(M) gives
-//     persp_i  = s_i / sum_j s_j       (GL 4.5 eq. 14.9; seed 002 eq. 2.4.9)
+//     persp_i  = s_i / sum_j s_j       (GL 4.5 eq. 14.9; Heckbert & Moreton 1991)
 //     screen_i = s_i w_i               (eq. 14.10)
 // The host computes, per triangle and in extended precision, the gradient of s_i and its
 // value at an anchor point a on a 1/256 px grid next to a vertex, each split into a
 // high and a low part. Here s_i(p) = s_i(a) + grad s_i . (p - a) is evaluated with
-// p - a exact (both on the 1/256 grid, |p - a| < 2^15) and the products made error-free
-// exact (Dekker's TwoProduct, Knuth's TwoSum, Ogita-Rump-Oishi "Dot2"), so the result is about as
-// accurate as if computed in twice the working precision and rounded once: the error does
+// p - a exact (both on the 1/256 grid, |p - a| < 2^15) and the products and sums made
+// error-free (include/compensated.glsl), so the result is about as accurate as if
+// computed in twice the working precision and rounded once: the error does
 // not grow with the distance from the framebuffer origin nor with the distance from a.
 //
 // Per-triangle record (SETUP_STRIDE values of type REAL, see glraster/gpu/homogeneous.py):
@@ -67,47 +67,13 @@ layout(location = TRI_ID_LOCATION) out int out_tri_id;
 uniform int tri_base;  // index of the draw's first triangle (large meshes draw in batches)
 #endif
 
-// hi + lo = a exactly, each with half the mantissa bits (Veltkamp's split).
-void split(REAL a, out REAL hi, out REAL lo) {
-    precise REAL c = SPLITTER * a;
-    precise REAL h = c - (c - a);
-    hi = h;
-    lo = a - h;
-}
-
-// hi + lo = a * b exactly (Dekker's TwoProduct). llvmpipe lowers GLSL fma() to a separate
-// multiply and add (measured: fma(a, b, -a b) returns 0), so the product is split instead;
-// `precise` keeps the compiler from contracting or reassociating these operations.
-void two_product(REAL a, REAL b, out REAL hi, out REAL lo) {
-    precise REAL p = a * b;
-    REAL ah, al, bh, bl;
-    split(a, ah, al);
-    split(b, bh, bl);
-    precise REAL err = ((ah * bh - p) + ah * bl + al * bh) + al * bl;
-    hi = p;
-    lo = err;
-}
-
-// hi + lo = a + b exactly (Knuth's TwoSum, no ordering needed).
-void two_sum(REAL a, REAL b, out REAL hi, out REAL lo) {
-    precise REAL s = a + b;
-    precise REAL bb = s - a;
-    precise REAL err = (a - (s - bb)) + (b - bb);
-    hi = s;
-    lo = err;
-}
+#include "include/compensated.glsl"
 
 // s_i(a) + grad s_i . d, compensated.
 REAL evaluate(int base, int i, REAL dx, REAL dy) {
-    REAL px, ex, py, ey, t, f1, u, f2;
-    two_product(setup[base + 2 + i], dx, px, ex);
-    two_product(setup[base + 8 + i], dy, py, ey);
-    two_sum(px, py, t, f1);
-    two_sum(t, setup[base + 14 + i], u, f2);
-    precise REAL tail = (f1 + f2) + (ex + ey) + setup[base + 17 + i]
-                        + (setup[base + 5 + i] * dx + setup[base + 11 + i] * dy);
-    precise REAL result = u + tail;
-    return result;
+    return compensated_plane(setup[base + 2 + i], setup[base + 5 + i], setup[base + 8 + i],
+                             setup[base + 11 + i], setup[base + 14 + i], setup[base + 17 + i],
+                             dx, dy);
 }
 
 void main() {

@@ -1,5 +1,5 @@
 #version 450 core
-// "solve4": seed 000's 4x4 linear system per pixel. The point of the triangle seen at the
+// "solve4": a 4x4 linear system per pixel. The point of the triangle seen at the
 // pixel is P = sum_i b_i q_i (q_i the clip-space vertices, b the perspective-correct
 // barycentrics); its NDC position is the pixel's (s_x, s_y), so with w = P_w:
 //     sum_i b_i q_ix - s_x w = 0

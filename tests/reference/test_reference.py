@@ -16,7 +16,7 @@ def window_xy(pos, resolution):
 
 
 def area_ratio_barycentrics(v, p):
-    """Seed 002 / seed 003: screen-space barycentrics as ratios of signed areas."""
+    """Screen-space barycentrics as ratios of signed areas (Moebius 1827; GL 4.5 eq. 14.8)."""
     def area(a, b, c):
         return (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
     total = area(v[0], v[1], v[2])

@@ -1,4 +1,4 @@
-"""Worked example (seed 001), the GPU reproducing it, and the distortion figure's content."""
+"""Worked example (docs/distortion.md), the GPU reproducing it, and the distortion figure's content."""
 
 import random
 from fractions import Fraction

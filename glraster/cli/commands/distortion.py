@@ -2,7 +2,7 @@
 
 Render a tilted checkerboard plane and a checkered cube with affine (noperspective) and
 perspective-correct uv, and write PNGs (affine, correct, uv-error heatmap, labeled side-
-by-side figure), an EXR and the seed-001 worked example (affine depth 4.5 against true 4).
+by-side figure), an EXR and the worked example (affine depth 4.5 against true 4).
 """
 
 from __future__ import annotations
