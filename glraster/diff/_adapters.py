@@ -97,40 +97,6 @@ class _Interpolate:
         return tuple(g if _wanted(needs, k) else None for k, g in enumerate(grads))
 
 
-class _Texture:
-    def __init__(self, gpu: bool):
-        self.gpu = gpu
-
-    def _core(self):
-        if self.gpu:
-            from glraster.diff import texture
-
-            return texture
-        from glraster.diff import texture_reference
-
-        return texture_reference
-
-    def forward(self, tex, uv, uv_da=None, mip_level_bias=None, *mip, filter_mode="auto",
-                boundary_mode="wrap", max_mip_level=None, own_mips=False, ctx=None):
-        from glraster.diff import texture_reference as ref
-
-        levels = list(mip) if mip else None
-        if levels is not None and own_mips:
-            levels = ref.OwnMips(levels)
-        kwargs = {"ctx": ctx} if self.gpu else {}
-        out, saved = self._core().forward(tex, uv, uv_da, mip_level_bias, levels, filter_mode,
-                                          boundary_mode, max_mip_level, **kwargs)
-        return (out,), saved
-
-    def backward(self, saved, grad_out, *, needs=None):
-        args = saved.args
-        if grad_out is None:
-            grad_out = np.zeros(args.uv.shape[:3] + (args.channels,), args.tex.dtype)
-        grad_tex, grad_uv, grad_da, grad_bias, grad_mip = self._core().backward(saved, grad_out)
-        grads = (grad_tex, grad_uv, grad_da, grad_bias, *(grad_mip or ()))
-        return tuple(g if _wanted(needs, k) else None for k, g in enumerate(grads))
-
-
 class _Antialias:
     def __init__(self, gpu: bool):
         self.gpu = gpu
@@ -168,8 +134,6 @@ RASTERIZE_GPU = _RasterizeGPU()
 RASTERIZE_REFERENCE = _RasterizeReference()
 INTERPOLATE_GPU = _Interpolate(gpu=True)
 INTERPOLATE_REFERENCE = _Interpolate(gpu=False)
-TEXTURE_GPU = _Texture(gpu=True)
-TEXTURE_REFERENCE = _Texture(gpu=False)
 ANTIALIAS_GPU = _Antialias(gpu=True)
 ANTIALIAS_REFERENCE = _Antialias(gpu=False)
 
