@@ -97,45 +97,10 @@ class _Interpolate:
         return tuple(g if _wanted(needs, k) else None for k, g in enumerate(grads))
 
 
-class _Antialias:
-    def __init__(self, gpu: bool):
-        self.gpu = gpu
-
-    def forward(self, color, rast, pos, *, tri, topology_hash=None, pos_gradient_boost=1.0,
-                convex=True, ctx=None):
-        if self.gpu:
-            from glraster.diff import antialias
-
-            out, saved = antialias.antialias(color, rast, pos, tri, topology_hash,
-                                             pos_gradient_boost, ctx=ctx, convex=convex)
-        else:
-            from glraster.diff import antialias_reference
-
-            out, saved = antialias_reference.antialias_forward(
-                color, rast, pos, tri, topology_hash, pos_gradient_boost, convex=convex)
-        return (out,), saved
-
-    def backward(self, saved, grad_out, *, needs=None):
-        if grad_out is None:
-            grad_out = np.zeros(saved.color.shape, saved.color.dtype)
-        if self.gpu:
-            from glraster.diff import antialias
-
-            grad_color, grad_pos = antialias.backward(saved, grad_out)
-        else:
-            from glraster.diff import antialias_reference
-
-            grad_color, grad_pos = antialias_reference.antialias_backward(saved, grad_out)
-        grads = (grad_color, None, grad_pos)
-        return tuple(g if _wanted(needs, k) else None for k, g in enumerate(grads))
-
-
 RASTERIZE_GPU = _RasterizeGPU()
 RASTERIZE_REFERENCE = _RasterizeReference()
 INTERPOLATE_GPU = _Interpolate(gpu=True)
 INTERPOLATE_REFERENCE = _Interpolate(gpu=False)
-ANTIALIAS_GPU = _Antialias(gpu=True)
-ANTIALIAS_REFERENCE = _Antialias(gpu=False)
 
 
 class _GPUPeeler:

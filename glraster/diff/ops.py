@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from glraster.diff import layout, texture_args
+from glraster.diff import antialias_args, layout, texture_args
 from glraster.diff.op import Op
 
 
@@ -115,9 +115,7 @@ TEXTURE = Op("texture", ("tex", "uv", "uv_da", "mip_level_bias", "*mip"), ("out"
 
 def _antialias_check(color, rast, pos, *, tri, topology_hash=None, pos_gradient_boost=1.0,
                      convex=True, ctx=None):
-    from glraster.diff import antialias_reference as ref
-
-    color, rast, pos, tri, th, boost, convex = ref.check_inputs(
+    color, rast, pos, tri, th, boost, convex = antialias_args.check(
         color, rast, pos, tri, topology_hash, pos_gradient_boost, convex,
         dtype=float_dtype(color))
     return (color, rast, pos), dict(tri=tri, topology_hash=th, pos_gradient_boost=boost,
@@ -130,8 +128,7 @@ def _antialias_shapes(color, *_, **__):
 
 ANTIALIAS = Op("antialias", ("color", "rast", "pos"), ("out",), _antialias_check,
                _antialias_shapes,
-               gpu="glraster.diff._adapters:ANTIALIAS_GPU",
-               reference="glraster.diff._adapters:ANTIALIAS_REFERENCE")
+               gpu="glraster.diff.antialias", reference="glraster.diff.antialias_reference")
 
 
 OPS = {op.name: op for op in (RASTERIZE, INTERPOLATE, TEXTURE, ANTIALIAS)}

@@ -17,7 +17,12 @@ from glraster.diff import antialias as gaa
 from glraster.diff import backward_gpu as bgpu
 from glraster.diff import interpolate as ginterp
 from glraster.diff import rasterize as grast
-from tests.diff.test_antialias_reference import mesh_scene, soup_scene
+from tests.diff.test_antialias_reference import (
+    antialias_backward,
+    antialias_forward,
+    mesh_scene,
+    soup_scene,
+)
 
 RES = (96, 128)
 STEPS_PX = (0.1, 0.25, 0.5)
@@ -38,7 +43,8 @@ class Pipeline:
         pos = np.asarray(pos, np.float32)
         rast, _, _ = grast.forward(pos, self.tri, self.resolution, ctx=self.ctx)
         col, _, isaved = ginterp.forward(self.colors, rast, self.tri, ctx=self.ctx)
-        out, asaved = gaa.antialias(col, rast, pos, self.tri, self.th, ctx=self.ctx)
+        out, asaved = antialias_forward(col, rast, pos, self.tri, self.th, dtype=np.float32,
+                                        ctx=self.ctx)
         return rast, out, isaved, asaved
 
     def loss(self, pos) -> float:
@@ -46,7 +52,7 @@ class Pipeline:
 
     def gradient(self) -> np.ndarray:
         rast, _, isaved, asaved = self.render(self.pos)
-        g_col, g_pos_aa = gaa.backward(asaved, self.weights, deterministic=True)
+        g_col, g_pos_aa = antialias_backward(asaved, self.weights, deterministic=True)
         _, g_rast, _ = ginterp.backward(isaved, g_col, deterministic=True)
         g_pos = bgpu.rasterize_backward(self.pos, self.tri, rast, g_rast, ctx=self.ctx,
                                         deterministic=True)
