@@ -34,7 +34,7 @@ import numpy as np
 
 from glraster.diff import backward_gpu as _gpu
 from glraster.diff import layout
-from glraster.diff.antialias_args import AntialiasSaved, check
+from glraster.diff.antialias_args import AntialiasSaved, check, wanted
 from glraster.diff.antialias_reference import MAX_WALK
 from glraster.diff.topology_hash import TopologyHash, antialias_construct_topology_hash
 from glraster.gpu.context import Context, default_context
@@ -205,12 +205,12 @@ class _PositionGradients:
     """Where the backward sums the position gradients (inside ``with ctx``): a zeroed
     storage buffer the shader adds into (float atomics or a compare-and-swap loop), or
     (per_pixel) each pair's contributions, summed per vertex on the host in float64 and
-    pair order; ``wanted`` False skips that host sum and the read-back."""
+    pair order; ``needed`` False skips that host sum and the read-back."""
 
-    def __init__(self, ctx: Context, mode: str, rows: int, wanted: bool):
-        self.ctx, self.mode, self.rows, self.wanted = ctx, mode, rows, wanted
+    def __init__(self, ctx: Context, mode: str, rows: int, needed: bool):
+        self.ctx, self.mode, self.rows, self.needed = ctx, mode, rows, needed
         if mode == "per_pixel":
-            self.total = np.zeros((rows, 4)) if wanted else None
+            self.total = np.zeros((rows, 4)) if needed else None
         else:
             self.buffer = _gpu._zeroed(ctx, "antialias.grad_pos", rows * 16)
 
@@ -224,7 +224,7 @@ class _PositionGradients:
 
     def add(self, n_pairs: int) -> None:
         """After a chunk ran (per_pixel): its pairs' (x, y, row, w) terms into the totals."""
-        if self.mode != "per_pixel" or not self.wanted:
+        if self.mode != "per_pixel" or not self.needed:
             return
         terms = _gpu._read(self.contrib, n_pairs * 8, np.uint32).reshape(-1, 4)
         rows = terms[:, 2].astype(np.int64) - 1
@@ -238,15 +238,6 @@ class _PositionGradients:
         if self.mode == "per_pixel":
             return self.total
         return _gpu._read(self.buffer, self.rows * 4).reshape(-1, 4)
-
-
-def _wanted(needs) -> tuple[bool, bool]:
-    """(color, pos) wanted, from ``needs`` (None or three flags: color, rast, pos)."""
-    if needs is None:
-        return True, True
-    if len(needs) != 3:
-        raise ValueError(f"needs must have one flag per input (3), got {len(needs)}")
-    return bool(needs[0]), bool(needs[2])
 
 
 def backward(saved: AntialiasSaved, grad_out, *, needs=None, deterministic: bool = False,
@@ -269,7 +260,7 @@ def backward(saved: AntialiasSaved, grad_out, *, needs=None, deterministic: bool
         (with (V, 4) pos the images' contributions are summed); None where not wanted.
         Which pairs blend stays fixed: the gradient flows through the crossings' positions.
     """
-    want_color, want_pos = _wanted(needs)
+    want_color, want_pos = wanted(needs)
     ctx, color = saved.ctx, saved.color
     grad_out = (np.zeros(color.shape, np.float32) if grad_out is None
                 else layout.image("grad_out", grad_out, color.shape, np.float32))

@@ -18,7 +18,7 @@ from glraster.diff import layout
 from glraster.diff.topology_hash import TopologyHash, topology_hash_for
 from glraster.errors import ArgumentError
 
-__all__ = ["AntialiasSaved", "check"]
+__all__ = ["AntialiasSaved", "check", "wanted"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -67,3 +67,13 @@ def check(color, rast, pos, tri, topology_hash=None, pos_gradient_boost=1.0, con
     if not isinstance(convex, (bool, np.bool_)):
         raise ArgumentError("convex", f"convex must be True or False, got {convex!r}")
     return color, rast, pos, tri, th, float(pos_gradient_boost), bool(convex)
+
+
+def wanted(needs) -> tuple[bool, bool]:
+    """(color, pos) wanted, from the backward's ``needs`` (None: all; or three flags:
+    color, rast, pos; rast has no gradient)."""
+    if needs is None:
+        return True, True
+    if len(needs) != 3:
+        raise ValueError(f"needs must have one flag per input (3), got {len(needs)}")
+    return bool(needs[0]), bool(needs[2])

@@ -43,7 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from glraster.diff import layout
-from glraster.diff.antialias_args import AntialiasSaved
+from glraster.diff.antialias_args import AntialiasSaved, wanted
 from glraster.diff.topology_hash import TopologyHash, antialias_construct_topology_hash
 
 __all__ = [
@@ -427,15 +427,6 @@ def crossing_gradients(pos, rows, a_yx, axis, resolution, dl_dtau, stride_pos=No
 
 
 
-def _wanted(needs) -> tuple[bool, bool]:
-    """(color, pos) wanted, from ``needs`` (None or three flags: color, rast, pos)."""
-    if needs is None:
-        return True, True
-    if len(needs) != 3:
-        raise ValueError(f"needs must have one flag per input (3), got {len(needs)}")
-    return bool(needs[0]), bool(needs[2])
-
-
 def _alpha_gradients(saved: AntialiasSaved, g, flat, mod, par, total, scale):
     """dL/d alpha per pair from g (pixels, C): through the blend and, with ``convex``,
     through the scale of pixels whose weights sum past 1."""
@@ -457,7 +448,7 @@ def backward(saved: AntialiasSaved, grad_out, *, needs=None, deterministic: bool
     none (no position gradients are computed then). The ids and which pairs blend stay
     those of the forward (visibility gradients come through alpha). ``deterministic`` and
     ``accumulate`` are the GPU core's options, accepted for the one signature."""
-    want_color, want_pos = _wanted(needs)
+    want_color, want_pos = wanted(needs)
     color, p = saved.color, saved.pairs
     batch_n, height, width, channels = color.shape
     grad_out = (np.zeros(color.shape) if grad_out is None

@@ -33,7 +33,14 @@ from glraster.diff.backward_gpu import (
     _zeroed,
     accumulation,
 )
-from glraster.diff.texture_args import BOUNDARY_CODE, FILTER_CODE, TextureArgs, TextureSaved, check
+from glraster.diff.texture_args import (
+    BOUNDARY_CODE,
+    FILTER_CODE,
+    TextureArgs,
+    TextureSaved,
+    check,
+    wanted,
+)
 from glraster.gpu.context import Context, default_context
 from glraster.gpu.shaders import shader_path
 
@@ -124,14 +131,6 @@ def _bind_common(ctx, program, args, defines, part, uv, da, bias, info, count, f
     _set(program, "channels", args.channels)
 
 
-def _wanted(needs, count: int) -> list[bool]:
-    if needs is None:
-        return [True] * count
-    if len(needs) != count:
-        raise ValueError(f"needs must have one flag per input ({count}), got {len(needs)}")
-    return [bool(n) for n in needs]
-
-
 def forward(tex, uv, uv_da=None, mip_level_bias=None, *mip, filter_mode="auto",
             boundary_mode="wrap", max_mip_level=None, own_mips=False,
             ctx: Context | None = None):
@@ -196,14 +195,14 @@ def _pyramid_backward(ctx, grad, args, firsts, images):
 class _TexelGradients:
     """Where the backward sums the texel gradients (inside ``with ctx``): a zeroed storage
     buffer the shader adds into (float atomics or a compare-and-swap loop), or (per_pixel)
-    float64 totals summed on the host from each pixel's (texel, weight) slots; ``wanted``
+    float64 totals summed on the host from each pixel's (texel, weight) slots; ``needed``
     False skips that host sum and every read-back (tex and the mip levels need none)."""
 
-    def __init__(self, ctx: Context, mode: str, total: int, channels: int, wanted: bool):
+    def __init__(self, ctx: Context, mode: str, total: int, channels: int, needed: bool):
         self.ctx, self.mode, self.total, self.channels = ctx, mode, total, channels
-        self.wanted = wanted
+        self.needed = needed
         if mode == "per_pixel":
-            self.totals = np.zeros((total, channels)) if wanted else None
+            self.totals = np.zeros((total, channels)) if needed else None
         else:
             self.buffer = _zeroed(ctx, "texture.grad_tex", total * channels * 4)
             self.buffer.bind_to_storage_buffer(9)
@@ -220,7 +219,7 @@ class _TexelGradients:
     def add(self, count: int, g_rows: np.ndarray) -> None:
         """After a chunk ran: its (texel, weight) slots times g (count, C) into the totals
         (per_pixel mode), in float64 and pixel order."""
-        if self.mode != "per_pixel" or not self.wanted:
+        if self.mode != "per_pixel" or not self.needed:
             return
         index = _read(self.index, count * CONTRIB_SLOTS, np.int32).reshape(count, -1)
         weight = _read(self.weight, count * CONTRIB_SLOTS).reshape(count, -1)
@@ -287,7 +286,7 @@ def backward(saved: TextureSaved, grad_out, *, needs=None, deterministic: bool =
     """
     args, ctx = saved.args, saved.ctx
     mips = len(args.mip or ())
-    want = _wanted(needs, 4 + mips)
+    want = wanted(needs, 4 + mips)
     want[2] &= args.uv_da is not None
     want[3] &= args.bias is not None
     texels = want[0] or (args.mipmapped and any(want[4:4 + len(args.user_mips)]))

@@ -31,7 +31,7 @@ from glraster.diff import layout
 from glraster.errors import ArgumentError
 
 __all__ = ["BOUNDARY_MODES", "FILTER_MODES", "MIP_MODES", "TextureArgs", "TextureSaved",
-           "check", "level_shapes"]
+           "check", "level_shapes", "wanted"]
 
 FILTER_MODES = ("auto", "nearest", "linear", "linear-mipmap-nearest", "linear-mipmap-linear")
 BOUNDARY_MODES = ("wrap", "clamp", "zero", "cube")
@@ -128,6 +128,16 @@ class TextureSaved:
     args: TextureArgs
     levels: list | None = None
     ctx: Any = None
+
+
+def wanted(needs, count: int) -> list[bool]:
+    """The backward's ``needs`` (None: all) as one bool per input (``count`` of them:
+    tex, uv, uv_da, mip_level_bias, then the mip levels)."""
+    if needs is None:
+        return [True] * count
+    if len(needs) != count:
+        raise ValueError(f"needs must have one flag per input ({count}), got {len(needs)}")
+    return [bool(n) for n in needs]
 
 
 def _mode(name: str, value, modes) -> str:

@@ -29,10 +29,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from glraster.diff import layout
-from glraster.diff.texture_args import TextureArgs, TextureSaved
+from glraster.diff.texture_args import TextureArgs, TextureSaved, level_shapes, wanted
 
-__all__ = ["backward", "build_mips", "forward", "lookup_geometry", "mips_backward",
-           "texel_sums"]
+__all__ = ["backward", "build_mips", "forward", "level_shapes", "lookup_geometry",
+           "mips_backward", "texel_sums"]
 
 # cube faces (+x, -x, +y, -y, +z, -z), GL's table 8.19: s_c = sigma_s d[axis_s],
 # t_c = sigma_t d[axis_t], m = sigma_m d[axis_m] > 0, s = (s_c / m + 1) / 2 (t alike)
@@ -567,14 +567,6 @@ def forward(tex, uv, uv_da=None, mip_level_bias=None, *mip, filter_mode="auto",
     return (out.reshape(args.uv.shape[:3] + (args.channels,)),), TextureSaved(args, levels)
 
 
-def _wanted(needs, count: int) -> list[bool]:
-    if needs is None:
-        return [True] * count
-    if len(needs) != count:
-        raise ValueError(f"needs must have one flag per input ({count}), got {len(needs)}")
-    return [bool(n) for n in needs]
-
-
 def backward(saved: TextureSaved, grad_out, *, needs=None, deterministic: bool = False,
              accumulate: str | None = None):
     """Gradients of :func:`forward` in float64.
@@ -599,7 +591,7 @@ def backward(saved: TextureSaved, grad_out, *, needs=None, deterministic: bool =
     """
     args = saved.args
     mips = len(args.mip or ())
-    want = _wanted(needs, 4 + mips)
+    want = wanted(needs, 4 + mips)
     shape = args.uv.shape[:3] + (args.channels,)
     grad_out = (np.zeros(shape) if grad_out is None
                 else layout.image("grad_out", grad_out, shape=shape))
