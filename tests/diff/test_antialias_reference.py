@@ -12,6 +12,7 @@ from glraster.diff import antialias_reference as aar
 from glraster.diff import reference as ref
 from glraster.diff import topology_hash as topo
 from glraster.diff.ops import ANTIALIAS
+from glraster.errors import ArgumentError
 from glraster.geometry import camera, shapes
 
 RES = (48, 64)
@@ -440,3 +441,24 @@ def test_bad_input_raises_value_errors_naming_the_argument():
         aar.antialias_construct_topology_hash(tri - 1)
     with pytest.raises(ValueError, match="pos for welding must have shape"):
         aar.antialias_construct_topology_hash(tri, pos=pos[:3])
+
+
+def test_bad_input_error_carries_the_argument_name():
+    pos, tri, colors = mesh_scene(level=1)
+    rast, col = shade(pos, tri, colors)
+    cases = [
+        ("color", lambda: antialias_forward(col[:, :-1], rast, pos, tri)),
+        ("pos", lambda: antialias_forward(col, rast, np.stack([pos, pos]), tri)),
+        ("topology_hash", lambda: antialias_forward(
+            col, rast, pos, tri, aar.antialias_construct_topology_hash(tri[:-1]))),
+        ("topology_hash", lambda: antialias_forward(col, rast, pos, tri, {"edges": 3})),
+        ("pos_gradient_boost", lambda: antialias_forward(col, rast, pos, tri,
+                                                         pos_gradient_boost=True)),
+        ("convex", lambda: antialias_forward(col, rast, pos, tri, convex=1)),
+        ("tri", lambda: aar.antialias_construct_topology_hash(tri[:, :2])),
+        ("pos", lambda: aar.antialias_construct_topology_hash(tri, pos=pos[:3])),
+    ]
+    for argument, call in cases:
+        with pytest.raises(ArgumentError) as info:
+            call()
+        assert info.value.argument == argument

@@ -22,6 +22,7 @@ import pytest
 from glraster.diff import texture_args as ta
 from glraster.diff import texture_reference as tr
 from glraster.diff.ops import TEXTURE
+from glraster.errors import ArgumentError
 
 REL = 1e-6
 MARGIN = 1e-3
@@ -416,3 +417,23 @@ def test_bad_grad_out_raises():
     _, saved = texture_forward(np.zeros((1, 4, 4, 3)), np.zeros((2, 3, 3, 2)))
     with pytest.raises(ValueError, match=r"grad_out must have shape \(2, 3, 3, 3\)"):
         texture_backward(saved, np.zeros((2, 3, 3, 2)))
+
+
+@pytest.mark.parametrize("kwargs, argument", [
+    ({"filter_mode": "cubic"}, "filter_mode"),
+    ({"boundary_mode": "mirror"}, "boundary_mode"),
+    ({"max_mip_level": -1}, "max_mip_level"),
+    ({"own_mips": "yes"}, "own_mips"),
+    ({"tex": np.zeros((4, 4, 3))}, "tex"),
+    ({"tex": np.zeros((3, 4, 4, 3))}, "tex"),
+    ({"uv": np.zeros((2, 3, 3, 3))}, "uv"),
+    ({"uv_da": np.zeros((2, 3, 3, 2))}, "uv_da"),
+    ({"mip_level_bias": np.zeros((2, 3, 3, 1))}, "mip_level_bias"),
+    ({"mip": [np.zeros((1, 2, 3, 3))], "filter_mode": "linear-mipmap-linear"}, "mip"),
+])
+def test_bad_input_error_carries_the_argument_name(kwargs, argument):
+    args = {"tex": np.zeros((1, 4, 4, 3)), "uv": np.zeros((2, 3, 3, 2))}
+    args.update(kwargs)
+    with pytest.raises(ArgumentError) as info:
+        texture_forward(**args)
+    assert info.value.argument == argument
