@@ -1,6 +1,9 @@
-"""Filtered, mipmapped texture lookups on the GPU, forward and backward (NumPy API).
+"""Filtered, mipmapped texture lookups on the GPU, forward and backward: the texture op's
+GPU core (NumPy arrays in and out), with the float64 reference's signature
+(:mod:`glraster.diff.texture_reference`; :data:`glraster.diff.ops.TEXTURE` checks the
+arguments and picks the core).
 
-nvdiffrast's ``texture`` semantics (layouts in :mod:`glraster.diff.texture_reference`,
+nvdiffrast's ``texture`` semantics (layouts in :mod:`glraster.diff.texture_args`,
 derivations in docs/differentiable.md, "Texture"), in compute shaders
 (``shaders/diff/texture.comp``, ``shaders/diff/texture_mip.comp``):
 
