@@ -87,18 +87,30 @@ def _upload_levels(ctx: Context, args: TextureArgs, name: str = "texture.levels"
             level = np.ascontiguousarray(args.mip[k - 1], np.float32)
             buffer.write(level.tobytes(), offset=firsts[k] * channels * 4)
     elif args.levels > 1:
-        program = ctx.compute_program(shader_path(_MIP_SHADER), {})
-        buffer.bind_to_storage_buffer(0)
-        _set(program, "images", images)
-        _set(program, "channels", channels)
-        for k in range(1, args.levels):
-            (h0, w0), (h1, w1) = args.shapes[k - 1], args.shapes[k]
-            _set(program, "fine_first", firsts[k - 1] * channels)
-            _set(program, "coarse_first", firsts[k] * channels)
-            _set(program, "fine_size", (w0, h0))
-            _set(program, "coarse_size", (w1, h1))
-            _run(ctx, program, images * h1 * w1)
+        _pyramid_passes(ctx, buffer, args, firsts, images, backward=False)
     return buffer, info, firsts, total, images
+
+
+def _pyramid_passes(ctx: Context, buffer, args: TextureArgs, firsts, images: int,
+                    backward: bool) -> None:
+    """The box filter between neighbouring levels of ``buffer`` (every level, base first),
+    one pass per level: forward, each coarser level from the finer one, finest first (one
+    invocation per coarse texel); backward, each level's gradient added into the finer one
+    through the transpose of the filter, coarsest first (a gather: one per fine texel)."""
+    program = ctx.compute_program(shader_path(_MIP_SHADER), {"BACKWARD": None} if backward
+                                  else {})
+    buffer.bind_to_storage_buffer(0)
+    channels = args.channels
+    _set(program, "images", images)
+    _set(program, "channels", channels)
+    steps = range(args.levels - 1, 0, -1) if backward else range(1, args.levels)
+    for k in steps:
+        (h0, w0), (h1, w1) = args.shapes[k - 1], args.shapes[k]
+        _set(program, "fine_first", firsts[k - 1] * channels)
+        _set(program, "coarse_first", firsts[k] * channels)
+        _set(program, "fine_size", (w0, h0))
+        _set(program, "coarse_size", (w1, h1))
+        _run(ctx, program, images * (h0 * w0 if backward else h1 * w1))
 
 
 def _defines(args: TextureArgs) -> dict:
@@ -178,23 +190,6 @@ def forward(tex, uv, uv_da=None, mip_level_bias=None, *mip, filter_mode="auto",
     return (out.reshape(args.uv.shape[:3] + (channels,)),), TextureSaved(args, None, ctx)
 
 
-def _pyramid_backward(ctx, grad, args, firsts, images):
-    """In the gradient buffer ``grad`` (every level, base first): add each level's
-    gradient into the finer one through the transpose of the box filter, coarsest first."""
-    program = ctx.compute_program(shader_path(_MIP_SHADER), {"BACKWARD": None})
-    grad.bind_to_storage_buffer(0)
-    channels = args.channels
-    _set(program, "images", images)
-    _set(program, "channels", channels)
-    for k in range(args.levels - 1, 0, -1):
-        (h0, w0), (h1, w1) = args.shapes[k - 1], args.shapes[k]
-        _set(program, "fine_first", firsts[k - 1] * channels)
-        _set(program, "coarse_first", firsts[k] * channels)
-        _set(program, "fine_size", (w0, h0))
-        _set(program, "coarse_size", (w1, h1))
-        _run(ctx, program, images * h0 * w0)
-
-
 class _TexelGradients:
     """Where the backward sums the texel gradients (inside ``with ctx``): a zeroed storage
     buffer the shader adds into (float atomics or a compare-and-swap loop), or (per_pixel)
@@ -244,7 +239,7 @@ class _TexelGradients:
             self.buffer = self.ctx.storage_buffer("texture.grad_tex", flat)
         if not args.pulls_pyramid:
             return _read(self.buffer, self.total * self.channels).reshape(-1, self.channels)
-        _pyramid_backward(self.ctx, self.buffer, args, firsts, images)
+        _pyramid_passes(self.ctx, self.buffer, args, firsts, images, backward=True)
         return _read(self.buffer, firsts[1] * self.channels).reshape(-1, self.channels)
 
 
