@@ -13,7 +13,7 @@ import numpy as np
 import glraster as gr
 from glraster.diff import antialias as gaa
 from glraster.diff import antialias_reference as aar
-from glraster.diff.ops import INTERPOLATE, RASTERIZE
+from glraster.diff.ops import ANTIALIAS, INTERPOLATE, RASTERIZE
 from glraster.geometry import camera, shapes
 
 
@@ -35,8 +35,8 @@ def best(fn, repeat: int) -> float:
 
 
 def reference(color, rast, pos, tri, th, g):
-    _, saved = aar.antialias_forward(color, rast, pos, tri, th)
-    aar.antialias_backward(saved, g)
+    _, saved = ANTIALIAS.forward(color, rast, pos, tri=tri, topology_hash=th)
+    aar.backward(saved, g)
 
 
 def main(argv=None):
@@ -57,17 +57,17 @@ def main(argv=None):
         g = np.random.default_rng(1).normal(size=col.shape).astype(np.float32)
         th = gaa.antialias_construct_topology_hash(tri)
         th.table()
-        _, saved = gaa.antialias(col, rast, pos, tri, th, ctx=ctx)
+        _, saved = ANTIALIAS.forward(col, rast, pos, tri=tri, topology_hash=th, ctx=ctx)
         gaa.backward(saved, g)
-        fwd = best(functools.partial(gaa.antialias, col, rast, pos, tri, th, ctx=ctx),
-                   args.repeat)
+        fwd = best(functools.partial(ANTIALIAS.forward, col, rast, pos, tri=tri,
+                                     topology_hash=th, ctx=ctx), args.repeat)
         bwd = best(functools.partial(gaa.backward, saved, g), args.repeat)
         bwd_det = best(functools.partial(gaa.backward, saved, g, deterministic=True),
                        args.repeat)
         r64, c64, p64 = rast.astype(np.float64), col.astype(np.float64), pos.astype(np.float64)
         ref = best(functools.partial(reference, c64, r64, p64, tri, th, g),
                    max(1, args.repeat // 2))
-        _, s = aar.antialias_forward(c64, r64, p64, tri, th)
+        _, s = ANTIALIAS.forward(c64, r64, p64, tri=tri, topology_hash=th)
         both = fwd + bwd
         print(f"| {size}² | {len(tri)} | {len(s.pairs.tau)} | {fwd * 1e3:.1f} | {bwd * 1e3:.1f} | "
               f"{bwd_det * 1e3:.1f} | {both * 1e3:.1f} | {ref * 1e3:.0f} | {ref / both:.1f} |")

@@ -1,6 +1,7 @@
 """Antialiasing with visibility gradients on the GPU (NumPy API; seed 003, "Antialias").
 
-:func:`antialias` blends the colours of neighbouring pixels across the silhouette edges of
+:func:`forward` (the GPU core of :data:`glraster.diff.ops.ANTIALIAS`, with the float64
+reference's signature) blends the colours of neighbouring pixels across the silhouette edges of
 the rendered mesh, so that the image depends continuously on the vertex positions there;
 :func:`backward` returns the gradients of the colour and of the clip-space positions (the
 two vertices of each crossing edge). The model, its derivation and its float64 twin are in
@@ -29,39 +30,22 @@ image; tri (T, 3).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-from glraster.diff import antialias_reference as _ref
 from glraster.diff import compute as _gpu
+from glraster.diff import layout
+from glraster.diff.antialias_args import AntialiasSaved, check, wanted
+from glraster.diff.antialias_reference import MAX_WALK
+from glraster.diff.topology_hash import TopologyHash, antialias_construct_topology_hash
 from glraster.gpu.context import Context, default_context
 from glraster.gpu.shaders import shader_path
 
-__all__ = ["AntialiasSaved", "TopologyHash", "antialias", "antialias_construct_topology_hash",
-           "backward", "pair_records"]
-
-TopologyHash = _ref.TopologyHash
-antialias_construct_topology_hash = _ref.antialias_construct_topology_hash
+__all__ = ["TopologyHash", "antialias_construct_topology_hash", "backward", "forward",
+           "pair_records"]
 
 PAIRS = "diff/antialias_pairs.comp"
 BLEND = "diff/antialias_blend.comp"
 BACKWARD = "diff/antialias_backward.comp"
-
-
-@dataclass(frozen=True, eq=False)
-class AntialiasSaved:
-    """What :func:`backward` needs (checked float32 arrays; ``pos`` as given)."""
-
-    color: np.ndarray
-    rast: np.ndarray
-    pos: np.ndarray
-    tri: np.ndarray
-    topology_hash: TopologyHash
-    pos_gradient_boost: float
-    convex: bool
-    ctx: Context
-    ids: np.ndarray
 
 
 def _images_per_chunk(batch: int, pixels_per_image: int, bytes_per_pixel: int) -> int:
@@ -105,7 +89,7 @@ class _Passes:
     def run_pairs(self, first: int, count: int, codes: np.ndarray):
         """Pass 1 over images first .. first + count - 1; returns the records buffer."""
         ctx = self.ctx
-        program = ctx.compute_program(shader_path(PAIRS), {"MAX_WALK": _ref.MAX_WALK})
+        program = ctx.compute_program(shader_path(PAIRS), {"MAX_WALK": MAX_WALK})
         table = self.th.table()
         ctx.storage_buffer("antialias.pos", self.pos3.reshape(-1, 4)).bind_to_storage_buffer(0)
         ctx.storage_buffer("antialias.tri", self.tri).bind_to_storage_buffer(1)
@@ -158,35 +142,30 @@ class _Passes:
         return out, scale
 
 
-def _check(color, rast, pos, tri, topology_hash, pos_gradient_boost, convex):
-    """The checked inputs (float32) and the decoded triangle ids (B, H, W)."""
-    return _ref.check_inputs(color, rast, pos, tri, topology_hash, pos_gradient_boost,
-                             convex, dtype=np.float32, ids=True)
-
-
-def antialias(color, rast, pos, tri, topology_hash=None, pos_gradient_boost=1.0, *,
-              ctx: Context | None = None, convex: bool = True):
-    """Antialias ``color`` across the silhouette edges of the mesh, on the GPU.
+def forward(color, rast, pos, *, tri, topology_hash, pos_gradient_boost=1.0, convex=True,
+            ctx: Context | None = None):
+    """Antialias ``color`` across the silhouette edges of the mesh, on the GPU, on float32
+    arrays checked by :func:`glraster.diff.antialias_args.check`.
 
     Args:
-        color: (B, H, W, C) the image to antialias (float32; other numbers converted).
+        color: (B, H, W, C) the image to antialias.
         rast: (B, H, W, 4) the rasterizer's output (u, v, z/w, id) the image was shaded from.
         pos: (V, 4) or (B, V, 4) the clip-space positions it was rasterized from.
-        tri: (T, 3) integer vertex indices.
-        topology_hash: from :func:`antialias_construct_topology_hash` (None: built here).
+        tri: (T, 3) int32 vertex indices.
+        topology_hash: from :func:`antialias_construct_topology_hash` for ``tri``.
         pos_gradient_boost: factor on the gradients :func:`backward` gives ``pos``.
-        ctx: the context (default: the process-wide one).
         convex: scale a pixel's weights to sum to 1 where they would sum past it (three or
             more blends), so that the output stays within the inputs' range (False: the
             plain sum, which can overshoot).
+        ctx: the context (default: the process-wide one).
 
     Returns:
-        ``(out, saved)``: out (B, H, W, C) float32; saved an :class:`AntialiasSaved`.
+        ``((out,), saved)``: out (B, H, W, C) float32; saved an
+        :class:`~glraster.diff.antialias_args.AntialiasSaved`.
     """
     ctx = ctx or default_context()
-    color, rast, pos, tri, th, boost, convex, ids = _check(
-        color, rast, pos, tri, topology_hash, pos_gradient_boost, convex)
-    passes = _Passes(ctx, color, rast, pos, tri, th, ids)
+    ids = layout.decode_ids(rast[..., 3], "rast channel 3 (triangle id)")
+    passes = _Passes(ctx, color, rast, pos, tri, topology_hash, ids)
     out = color.copy()
     flat_out = out.reshape(-1, passes.channels)
     with ctx:
@@ -196,17 +175,19 @@ def antialias(color, rast, pos, tri, topology_hash=None, pos_gradient_boost=1.0,
             values, _ = passes.run_blend(first, count, records, pixels, convex, True)
             flat_out[first * passes.hw + pixels.astype(np.int64)] = _gpu.read(
                 values, len(pixels) * passes.channels).reshape(len(pixels), passes.channels)
-    saved = AntialiasSaved(color, rast, pos, tri, th, boost, convex, ctx, ids)
-    return out, saved
+    saved = AntialiasSaved(color, rast, pos, tri, topology_hash, float(pos_gradient_boost),
+                           bool(convex), ids, ctx=ctx)
+    return (out,), saved
 
 
 def pair_records(color, rast, pos, tri, topology_hash=None, *, ctx: Context | None = None):
     """The pass-1 records as (B, H, W, 2, 4) uint32 (code, row_a, row_b, bits of tau) per
     pixel A and axis (0: the pair with the right neighbour, 1: with the one above); for
-    tests and error analysis."""
+    tests and error analysis (arguments checked as the op's)."""
     ctx = ctx or default_context()
-    color, rast, pos, tri, th, _, _, ids = _check(color, rast, pos, tri, topology_hash, 1.0,
-                                                  True)
+    color, rast, pos, tri, th, _, _ = check(color, rast, pos, tri, topology_hash,
+                                            dtype=np.float32)
+    ids = layout.decode_ids(rast[..., 3])
     passes = _Passes(ctx, color, rast, pos, tri, th, ids)
     out = np.empty((passes.batch * passes.hw, 2, 4), np.uint32)
     with ctx:
@@ -220,80 +201,121 @@ def pair_records(color, rast, pos, tri, topology_hash=None, *, ctx: Context | No
     return out.reshape(passes.batch, passes.height, passes.width, 2, 4)
 
 
-def backward(saved: AntialiasSaved, grad_out, *, deterministic: bool = False,
+class _PositionGradients:
+    """Where the backward sums the position gradients (inside ``with ctx``): a zeroed
+    storage buffer the shader adds into (float atomics or a compare-and-swap loop), or
+    (per_pixel) each pair's contributions, summed per vertex on the host in float64 and
+    pair order; ``needed`` False skips that host sum and the read-back."""
+
+    def __init__(self, ctx: Context, mode: str, rows: int, needed: bool):
+        self.ctx, self.mode, self.rows, self.needed = ctx, mode, rows, needed
+        if mode == "per_pixel":
+            self.total = np.zeros((rows, 4)) if needed else None
+        else:
+            self.buffer = _gpu.zeroed(ctx, "antialias.grad_pos", rows * 16)
+
+    def bind(self, n_pairs: int) -> None:
+        """Bind the chunk's target at 6 (the per-pair slots, or the buffer)."""
+        if self.mode == "per_pixel":
+            self.contrib = _gpu.zeroed(self.ctx, "antialias.contrib", n_pairs * 32)
+            self.contrib.bind_to_storage_buffer(6)
+        else:
+            self.buffer.bind_to_storage_buffer(6)
+
+    def add(self, n_pairs: int) -> None:
+        """After a chunk ran (per_pixel): its pairs' (x, y, row, w) terms into the totals."""
+        if self.mode != "per_pixel" or not self.needed:
+            return
+        terms = _gpu.read(self.contrib, n_pairs * 8, np.uint32).reshape(-1, 4)
+        rows = terms[:, 2].astype(np.int64) - 1
+        live = rows >= 0
+        values = terms.view(np.float32)[live].astype(np.float64)
+        values[:, 2] = 0.0
+        _gpu.reduce_rows(self.total, rows[live][:, None], values[:, None, :], (0, 1, 3))
+
+    def result(self) -> np.ndarray:
+        """(rows, 4) the summed gradients."""
+        if self.mode == "per_pixel":
+            return self.total
+        return _gpu.read(self.buffer, self.rows * 4).reshape(-1, 4)
+
+
+def backward(saved: AntialiasSaved, grad_out, *, needs=None, deterministic: bool = False,
              accumulate: str | None = None):
-    """Gradients of :func:`antialias`, on the GPU.
+    """Gradients of :func:`forward`, on the GPU.
 
     Args:
-        saved: the second value :func:`antialias` returned.
-        grad_out: (B, H, W, C) dL/d out.
+        saved: the second value :func:`forward` returned.
+        grad_out: (B, H, W, C) dL/d out, or None (zero).
+        needs: None (all) or three flags (color, rast, pos): without pos the position
+            gradients are neither summed on the host nor read back; without color the
+            colour gradients are not read back; nothing runs when neither is wanted.
         deterministic: bit-identical grad_pos from run to run (per-pair contributions
             summed per vertex in pixel order, in float64 on the host).
         accumulate: force one of :data:`glraster.diff.compute.ACCUMULATIONS`.
 
     Returns:
-        ``(grad_color, grad_pos)``: grad_color (B, H, W, C) float32; grad_pos float32 of
-        pos' shape, (dL/dx, dL/dy, 0, dL/dw) per vertex times ``pos_gradient_boost`` (with
-        (V, 4) pos the images' contributions are summed). Which pairs blend stays fixed:
-        the gradient flows through the crossings' positions.
+        ``(grad_color, None, grad_pos)``: grad_color (B, H, W, C) float32; grad_pos float32
+        of pos' shape, (dL/dx, dL/dy, 0, dL/dw) per vertex times ``pos_gradient_boost``
+        (with (V, 4) pos the images' contributions are summed); None where not wanted.
+        Which pairs blend stays fixed: the gradient flows through the crossings' positions.
     """
-    ctx = saved.ctx
-    color = saved.color
-    grad_out = _ref.layout.image("grad_out", grad_out, color.shape, np.float32)
+    want_color, want_pos = wanted(needs)
+    ctx, color = saved.ctx, saved.color
+    grad_out = (np.zeros(color.shape, np.float32) if grad_out is None
+                else layout.image("grad_out", grad_out, color.shape, np.float32))
     mode = _gpu.accumulation(ctx, deterministic, accumulate)
+    if not (want_color or want_pos):
+        return None, None, None
     passes = _Passes(ctx, color, saved.rast, saved.pos, saved.tri, saved.topology_hash,
                      saved.ids)
     hw, channels = passes.hw, passes.channels
-    total_rows = passes.pos3.shape[0] * passes.pos3.shape[1]
-    grad_color = grad_out.copy()
-    flat_gc = grad_color.reshape(-1, channels)
+    grad_color = grad_out.copy() if want_color else None
     flat_g = grad_out.reshape(-1, channels)
     defines = {_gpu.DEFINES[mode]: None}
     if saved.convex:
         defines["CONVEX"] = None
     with ctx:
-        if mode == "per_pixel":
-            total = np.zeros((total_rows, 4))
-        else:
-            grad = _gpu.zeroed(ctx, "antialias.grad_pos", total_rows * 16)
+        sums = _PositionGradients(ctx, mode, passes.pos3.shape[0] * passes.pos3.shape[1],
+                                  want_pos)
         for first, count in passes.chunks(48 + 12 * channels):
             codes, pixels = passes.lists(first, count)
             if len(pixels) == 0:
                 continue
-            part = slice(first * hw, (first + count) * hw)
-            records = passes.run_pairs(first, count, codes)
-            _, scale = passes.run_blend(first, count, records, pixels, saved.convex, False)
-            program = ctx.compute_program(shader_path(BACKWARD), defines)
-            # run_blend bound the chunk's colour at 0, the records at 1
-            scale.bind_to_storage_buffer(2)
-            ctx.storage_buffer("antialias.grad_out", flat_g[part]).bind_to_storage_buffer(3)
-            out_gc = ctx.scratch_buffer("antialias.grad_color", len(pixels) * channels * 4)
-            out_gc.bind_to_storage_buffer(4)
-            ctx.storage_buffer("antialias.pos", passes.pos3.reshape(-1, 4)
-                               ).bind_to_storage_buffer(5)
-            if mode == "per_pixel":
-                contrib = _gpu.zeroed(ctx, "antialias.contrib", len(codes) * 32)
-                contrib.bind_to_storage_buffer(6)
-            else:
-                grad.bind_to_storage_buffer(6)
-            ctx.storage_buffer("antialias.pixel_list", pixels).bind_to_storage_buffer(7)
-            _gpu.set_uniform(program, "n_list", len(pixels))
-            _gpu.set_uniform(program, "size", (passes.width, passes.height))
-            _gpu.set_uniform(program, "n_channels", channels)
-            _gpu.set_uniform(program, "boost", saved.pos_gradient_boost)
-            _gpu.run(ctx, program, len(pixels))
-            flat_gc[first * hw + pixels.astype(np.int64)] = _gpu.read(
-                out_gc, len(pixels) * channels).reshape(len(pixels), channels)
-            if mode == "per_pixel":
-                terms = _gpu.read(contrib, len(codes) * 8, np.uint32).reshape(-1, 4)
-                rows = terms[:, 2].astype(np.int64) - 1
-                live = rows >= 0
-                values = terms.view(np.float32)[live].astype(np.float64)
-                values[:, 2] = 0.0
-                _gpu.reduce_rows(total, rows[live][:, None], values[:, None, :], (0, 1, 3))
-        if mode != "per_pixel":
-            total = _gpu.read(grad, total_rows * 4).reshape(-1, 4)
-    grad_pos = total.reshape(passes.pos3.shape)
-    if saved.pos.ndim == 2:
-        grad_pos = grad_pos[0]
-    return grad_color, grad_pos.astype(np.float32)
+            out_gc = _backward_pass(passes, saved, defines, first, count, codes, pixels,
+                                    flat_g[first * hw:(first + count) * hw], sums)
+            if want_color:
+                grad_color.reshape(-1, channels)[first * hw + pixels.astype(np.int64)] = \
+                    _gpu.read(out_gc, len(pixels) * channels).reshape(len(pixels), channels)
+            sums.add(len(codes))
+        total = sums.result() if want_pos else None
+    grad_pos = None
+    if want_pos:
+        grad_pos = total.reshape(passes.pos3.shape)
+        grad_pos = (grad_pos[0] if saved.pos.ndim == 2 else grad_pos).astype(np.float32)
+    return grad_color, None, grad_pos
+
+
+def _backward_pass(passes: _Passes, saved: AntialiasSaved, defines, first, count, codes,
+                   pixels, grad_out, sums: _PositionGradients):
+    """Passes 1 to 3 over one chunk of images: the pair records, the blend's scales, then
+    the backward over the listed pixels (colour gradients by gather into the returned
+    buffer, position gradients into ``sums``)."""
+    ctx, channels = passes.ctx, passes.channels
+    records = passes.run_pairs(first, count, codes)
+    _, scale = passes.run_blend(first, count, records, pixels, saved.convex, False)
+    program = ctx.compute_program(shader_path(BACKWARD), defines)
+    # run_blend bound the chunk's colour at 0, the records at 1
+    scale.bind_to_storage_buffer(2)
+    ctx.storage_buffer("antialias.grad_out", grad_out).bind_to_storage_buffer(3)
+    out_gc = ctx.scratch_buffer("antialias.grad_color", len(pixels) * channels * 4)
+    out_gc.bind_to_storage_buffer(4)
+    ctx.storage_buffer("antialias.pos", passes.pos3.reshape(-1, 4)).bind_to_storage_buffer(5)
+    sums.bind(len(codes))
+    ctx.storage_buffer("antialias.pixel_list", pixels).bind_to_storage_buffer(7)
+    _gpu.set_uniform(program, "n_list", len(pixels))
+    _gpu.set_uniform(program, "size", (passes.width, passes.height))
+    _gpu.set_uniform(program, "n_channels", channels)
+    _gpu.set_uniform(program, "boost", saved.pos_gradient_boost)
+    _gpu.run(ctx, program, len(pixels))
+    return out_gc

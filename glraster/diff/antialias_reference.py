@@ -1,6 +1,12 @@
-"""Antialiasing of a rendered image with visibility gradients: the topology hash and the
-float64 reference of the forward and backward (NumPy only; docs/differentiable.md,
-"Antialias"; seed 003, "Edge Hash Function" and "Antialias").
+"""The antialias op's float64 reference core: antialiasing of a rendered image with
+visibility gradients, forward and backward, in NumPy (docs/differentiable.md, "Antialias";
+seed 003, "Antialias").
+
+The core signature of :mod:`glraster.diff.op` (the same as the GPU core,
+:mod:`glraster.diff.antialias`): ``forward(color, rast, pos, *, tri, topology_hash,
+pos_gradient_boost, convex, ctx) -> ((out,), saved)`` on arrays checked by
+:func:`glraster.diff.antialias_args.check`, and ``backward(saved, grad_out, needs=None) ->
+(grad_color, None, grad_pos)`` (rast gets no gradient).
 
 The model, per pair of neighbouring pixels A, B = A + d (d = (1, 0) or (0, 1)) whose
 triangle ids differ:
@@ -32,191 +38,23 @@ same in float32; decisions within a band of their float32 error are counted as a
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from glraster.diff import layout
+from glraster.diff.antialias_args import AntialiasSaved, wanted
+from glraster.diff.topology_hash import TopologyHash, antialias_construct_topology_hash
 
 __all__ = [
-    "DECISION_BAND", "MAX_WALK", "Pairs", "ReferenceAntialiasSaved", "TopologyHash",
-    "antialias_backward", "antialias_construct_topology_hash", "antialias_forward", "pairs",
+    "DECISION_BAND", "MAX_WALK", "Pairs", "TopologyHash", "antialias_construct_topology_hash",
+    "backward", "crossing_gradients", "forward", "pairs",
 ]
 
 # A decision (a sign, or a comparison) is ambiguous when the quantity is within this
 # multiple of u = 2^-24 of its first-order float32 error bound m (units of u, one rounding
 # per operation; see _frame): |q| <= 16 u m. The GPU's quantities err by at most ~u m.
 DECISION_BAND = 16 * 2.0 ** -24
-
-HASH_EMPTY = 0xFFFFFFFF
-_MASK32 = 0xFFFFFFFF
-_HASH_A = 0x9E3779B1
-_HASH_B = 0x85EBCA77
-
-
-def _hash(lo: np.ndarray, hi: np.ndarray, mask: int) -> np.ndarray:
-    """The slot of edge (lo, hi), lo <= hi, in a table of mask + 1 slots: the GPU's
-    ``(lo * 0x9E3779B1) ^ (hi * 0x85EBCA77)`` in uint32 arithmetic, then ``^ (h >> 15)``."""
-    lo = lo.astype(np.uint64)
-    hi = hi.astype(np.uint64)
-    h = ((lo * _HASH_A) & _MASK32) ^ ((hi * _HASH_B) & _MASK32)
-    h ^= h >> np.uint64(15)
-    return (h & np.uint64(mask)).astype(np.int64)
-
-
-# --------------------------------------------------------------------------- topology hash
-
-
-@dataclass(frozen=True, eq=False)
-class TopologyHash:
-    """The edges of a triangle mesh and, per edge, the vertices opposite it.
-
-    tri       : (T, 3) int32, the triangles it was built from
-    canon     : (V,) int64, each vertex's representative (itself unless welded)
-    keys      : (E,) int64 sorted, lo * V + hi of the canonical edge (lo <= hi)
-    start, count : (E,) int64, each edge's run in ``entries``
-    entries   : (3T,) int32, 3 t + i for each triangle t having the edge as its edge i
-                (the one opposite its vertex i: ``tri.ravel()[entry]`` is that vertex),
-                grouped by edge
-    welded    : whether vertices at equal positions were merged
-    """
-
-    tri: np.ndarray
-    canon: np.ndarray
-    keys: np.ndarray
-    start: np.ndarray
-    count: np.ndarray
-    entries: np.ndarray
-    welded: bool = False
-    _table: list = field(default_factory=list, repr=False)
-
-    @property
-    def num_vertices(self) -> int:
-        return len(self.canon)
-
-    @property
-    def num_edges(self) -> int:
-        return len(self.keys)
-
-    @property
-    def opposite(self) -> np.ndarray:
-        """(3T,) the vertex opposite the edge in each of ``entries``."""
-        return self.tri.ravel()[self.entries]
-
-    def lookup(self, a, b) -> tuple[np.ndarray, np.ndarray]:
-        """(start, count) of the edges (a, b) (arrays of vertex indices; count 0 where the
-        edge is not in the mesh)."""
-        ca, cb = self.canon[np.asarray(a)], self.canon[np.asarray(b)]
-        key = np.minimum(ca, cb) * self.num_vertices + np.maximum(ca, cb)
-        at = np.clip(np.searchsorted(self.keys, key), 0, max(len(self.keys) - 1, 0))
-        found = (self.keys[at] == key) if len(self.keys) else np.zeros(key.shape, bool)
-        return np.where(found, self.start[at], 0), np.where(found, self.count[at], 0)
-
-    def table(self) -> np.ndarray:
-        """The open-addressing hash table the GPU probes: (S, 4) uint32 rows
-        (lo, hi, start, count), S a power of two >= 2 E, lo = 0xffffffff on empty slots;
-        edge (lo, hi) sits at the first free slot from ``_hash(lo, hi)`` on (linear
-        probing), so a lookup probes until it finds the key or an empty slot."""
-        if self._table:
-            return self._table[0]
-        edges = len(self.keys)
-        size = 1 << max(4, int(2 * max(edges, 1) - 1).bit_length())
-        mask = size - 1
-        lo, hi = self.keys // self.num_vertices, self.keys % self.num_vertices
-        slot_of = _hash(lo, hi, mask)
-        owner = np.full(size, -1, np.int64)
-        pending = np.arange(edges)
-        probe = slot_of.copy()
-        while pending.size:
-            want = probe[pending]
-            free = owner[want] < 0
-            cand, slots = pending[free], want[free]
-            slots_u, first = np.unique(slots, return_index=True)
-            owner[slots_u] = cand[first]
-            placed = np.zeros(edges, bool)
-            placed[cand[first]] = True
-            pending = pending[~placed[pending]]
-            probe[pending] = (probe[pending] + 1) & mask
-        table = np.zeros((size, 4), np.uint32)
-        table[:, 0] = HASH_EMPTY
-        used = owner >= 0
-        e = owner[used]
-        table[used, 0] = lo[e]
-        table[used, 1] = hi[e]
-        table[used, 2] = self.start[e]
-        table[used, 3] = self.count[e]
-        self._table.append(table)
-        return table
-
-    def check(self, tri: np.ndarray, num_vertices: int) -> None:
-        """ValueError unless this hash was built for ``tri`` and ``num_vertices`` suffice."""
-        if self.tri.shape != tri.shape or not np.array_equal(self.tri, tri):
-            raise ValueError("topology_hash was built for a different tri (shape "
-                             f"{self.tri.shape}); build it with "
-                             "antialias_construct_topology_hash(tri) for this one")
-        if self.num_vertices > num_vertices:
-            raise ValueError(f"topology_hash was built for {self.num_vertices} vertices, "
-                             f"pos has {num_vertices}")
-
-
-def _weld(pos, num_vertices: int) -> np.ndarray:
-    """canon (V,): the lowest index of the vertices with exactly this vertex's position."""
-    p = layout.real_array("pos", pos)
-    if p.ndim != 2 or p.shape[1] not in (3, 4) or p.shape[0] < num_vertices:
-        raise ValueError(f"pos for welding must have shape (V, 3) or (V, 4) with V >= "
-                         f"{num_vertices} (tri's largest index + 1), got {p.shape}")
-    p = np.ascontiguousarray(p, dtype=np.float64)
-    if not np.isfinite(p).all():
-        raise ValueError("pos for welding must be finite")
-    _, first, inverse = np.unique(p, axis=0, return_index=True, return_inverse=True)
-    return first[inverse.ravel()].astype(np.int64)
-
-
-def antialias_construct_topology_hash(tri, *, pos=None) -> TopologyHash:
-    """The topology hash of ``tri`` (T, 3) for :func:`antialias_forward` (and the GPU op).
-
-    Build it once for a mesh whose triangles do not change. ``pos`` (V, 3) or (V, 4),
-    optional: vertices with exactly equal positions are welded, so that a mesh whose
-    vertices are duplicated (e.g. at texture seams) has its shared edges recognised instead
-    of every edge looking like a silhouette; the positions are read once, here.
-    """
-    arr = np.asarray(tri)
-    if arr.dtype == np.bool_ or not np.issubdtype(arr.dtype, np.integer):
-        raise ValueError(f"tri must have an integer dtype, got {arr.dtype}")
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        raise ValueError(f"tri must have shape (T, 3), got {arr.shape}")
-    if arr.size and arr.min() < 0:
-        raise ValueError(f"tri must hold vertex indices >= 0, got {int(arr.min())}")
-    if arr.size and arr.max() >= 2 ** 31 - 1:
-        raise ValueError(f"tri holds vertex index {int(arr.max())}, beyond int32")
-    tri32 = np.ascontiguousarray(arr, dtype=np.int32)
-    num_vertices = int(tri32.max()) + 1 if tri32.size else 0
-    if pos is not None:
-        canon = _weld(pos, num_vertices)
-        num_vertices = len(canon)
-    else:
-        canon = np.arange(num_vertices, dtype=np.int64)
-    t = tri32.astype(np.int64)
-    a = canon[t[:, [1, 2, 0]]].ravel()      # edge i joins vertices i+1, i+2; opposite i
-    b = canon[t[:, [2, 0, 1]]].ravel()
-    slot = np.arange(t.size)                 # 3 t + i
-    keys = np.minimum(a, b) * max(num_vertices, 1) + np.maximum(a, b)
-    order = np.argsort(keys, kind="stable")
-    unique, start, count = np.unique(keys[order], return_index=True, return_counts=True)
-    return TopologyHash(tri=tri32, canon=canon, keys=unique.astype(np.int64),
-                        start=start.astype(np.int64), count=count.astype(np.int64),
-                        entries=slot[order].astype(np.int32), welded=pos is not None)
-
-
-def topology_hash_for(topology_hash, tri: np.ndarray, num_vertices: int) -> TopologyHash:
-    """``topology_hash`` checked against ``tri`` (built from it when None)."""
-    if topology_hash is None:
-        topology_hash = antialias_construct_topology_hash(tri)
-    elif not isinstance(topology_hash, TopologyHash):
-        raise ValueError("topology_hash must come from antialias_construct_topology_hash(), "
-                         f"got {type(topology_hash).__name__}")
-    topology_hash.check(tri, num_vertices)
-    return topology_hash
 
 
 # --------------------------------------------------------------------------- the pairs
@@ -300,6 +138,166 @@ def _near(q, m, band):
 MAX_WALK = 8
 
 
+
+@dataclass(frozen=True)
+class _Mesh:
+    """What every walk reads (checked float64 inputs): pos3 (B or 1, V, 4), tri (T, 3),
+    the topology hash's arrays, the resolution (H, W) and the decision band."""
+
+    pos3: np.ndarray
+    tri: np.ndarray
+    tri_flat: np.ndarray
+    canon: np.ndarray
+    entries: np.ndarray
+    topology_hash: TopologyHash
+    resolution: tuple
+    band: float
+
+
+def _exit_edge(mesh: _Mesh, axis, vert, ndc, pb, own_a, entry, first):
+    """Where the walk leaves each current triangle (K of them, vertices ``vert`` (K, 3)):
+    the first edge crossed along the segment from the own pixel's centre (``own_a``: A's)
+    towards the other, never back through the ``entry`` edge. Returns (v, m, r, rm, best,
+    reached, ambiguous): the frame's vertices and edge lines with their error bounds, the
+    exit edge (K,), whether the other centre comes first (no exit), the ambiguous rows."""
+    band = mesh.band
+    v, m = _frame(mesh.pos3[pb[:, None], vert], ndc[:, None, :], mesh.resolution)
+    r, rm = _line(v[:, [1, 2, 0]], v[:, [2, 0, 1]], m[:, [1, 2, 0]], m[:, [2, 0, 1]])
+    det, det_m = _dot(r[:, 0], rm[:, 0], v[:, 0], m[:, 0])
+    amb = _near(det, det_m, band)
+    sgn = np.sign(det)[:, None]
+    # the edge functions at A's centre and at B's (B = A + d: r_w + r_d)
+    e_a, e_b = r[..., 2], r[..., 2] + r[..., axis]
+    amb |= (_near(e_a, rm[..., 2], band)
+            | _near(e_b, rm[..., 2] + rm[..., axis] + np.abs(e_b), band)).any(-1)
+    fwd = own_a[:, None]
+    own = np.where(fwd, e_a, e_b) * sgn
+    other = np.where(fwd, e_b, e_a) * sgn
+    arange3 = np.arange(3)[None]
+    leaving = (own > other) & (sgn != 0) & (arange3 != entry[:, None])
+    leaving &= ~first[:, None] | (own >= 0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tau = -e_a / r[..., axis]
+        tau_m = (rm[..., 2] + np.abs(tau) * rm[..., axis]) / np.abs(r[..., axis]) + np.abs(tau)
+    best = np.argmin(np.where(leaving, np.where(fwd, tau, -tau), np.inf), -1)
+    tb = np.take_along_axis(tau, best[:, None], -1)
+    tbm = np.take_along_axis(tau_m, best[:, None], -1)
+    rival = leaving & (arange3 != best[:, None])
+    amb |= (rival & (np.abs(tau - tb) <= band * (tau_m + tbm))).any(-1)
+    reached = ~leaving.any(-1) | (np.take_along_axis(other, best[:, None], -1)[:, 0] >= 0)
+    return v, m, r, rm, best, reached, amb
+
+
+def _beyond(mesh: _Mesh, vert, exit_, line, line_m, vo, mo, ndc, pb):
+    """The mesh's triangle beyond each exit edge (``exit_`` of triangles ``vert`` (K, 3),
+    edge line ``line`` (K, 3), the opposite vertex in the frame ``vo`` (K, 3); with error
+    bounds ``line_m``, ``mo``): one sharing the edge (the topology hash) whose opposite
+    vertex lies on the other side of it. Returns (triangle or -1, its slot of the edge,
+    ambiguous rows)."""
+    band = mesh.band
+    idx = np.arange(len(exit_))
+    a_v = vert[idx, (exit_ + 1) % 3]
+    b_v = vert[idx, (exit_ + 2) % 3]
+    o_v = vert[idx, exit_]
+    d_f, d_f_m = _dot(line, line_m, vo, mo)
+    amb = _near(d_f, d_f_m, band)
+    start, count = mesh.topology_hash.lookup(a_v, b_v)
+    nxt = np.full(len(exit_), -1)
+    nxt_slot = np.full(len(exit_), -1)
+    for j in range(int(count.max()) if count.size else 0):
+        live = j < count
+        ent = mesh.entries[np.where(live, start + j, 0)]
+        og = mesh.tri_flat[ent]
+        live &= mesh.canon[og] != mesh.canon[o_v]
+        vgo, mgo = _frame(mesh.pos3[pb, og], ndc, mesh.resolution)
+        d_g, d_g_m = _dot(line, line_m, vgo, mgo)
+        amb |= live & _near(d_g, d_g_m, band)
+        beyond = live & (np.sign(d_g) * np.sign(d_f) < 0) & (nxt < 0)
+        nxt = np.where(beyond, ent // 3, nxt)
+        nxt_slot = np.where(beyond, ent % 3, nxt_slot)
+    return nxt, nxt_slot, amb
+
+
+def _walk(mesh: _Mesh, axis, t_a, t_b, first_a, ndc, pb):
+    """Every candidate pair's walk (N pairs): from the nearer pixel's triangle (``first_a``:
+    A's) across the mesh to the silhouette. Returns (found (N,) bool, the silhouette edge's
+    triangle and slot (N,), ambiguous (N,) bool, walks stopped at MAX_WALK)."""
+    n = len(t_a)
+    amb = np.zeros(n, bool)
+    own_a = first_a.copy()
+    cur = np.where(own_a, t_a, t_b)
+    entry = np.full(n, -1)
+    step = np.zeros(n, np.int64)
+    attempt = np.zeros(n, np.int64)
+    active = cur >= 0
+    found = np.zeros(n, bool)
+    edge_t = np.zeros(n, np.int64)
+    edge_i = np.zeros(n, np.int64)
+    n_limit = 0
+    while active.any():
+        k = np.flatnonzero(active)
+        vert = mesh.tri[cur[k]].astype(np.int64)
+        first = step[k] == 0
+        v, m, r, rm, best, reached, amb_k = _exit_edge(mesh, axis, vert, ndc[k], pb[k],
+                                                       own_a[k], entry[k], first)
+        amb[k] |= amb_k
+        # reached the other centre inside the first triangle: try the other pixel's
+        retry = reached & first & (attempt[k] == 0)
+        kk = k[retry]
+        other_t = np.where(own_a[kk], t_b[kk], t_a[kk])
+        own_a[kk] = ~own_a[kk]
+        cur[kk] = other_t
+        attempt[kk] = 1
+        entry[kk] = -1
+        active[kk] = other_t >= 0
+        active[k[reached & ~retry]] = False
+        go = ~reached
+        kg, bg = k[go], best[go]
+        nxt, nxt_slot, amb_g = _beyond(mesh, vert[go], bg, r[go, bg], rm[go, bg], v[go, bg],
+                                       m[go, bg], ndc[kg], pb[kg])
+        amb[kg] |= amb_g
+        walk_on = nxt >= 0
+        sil = kg[~walk_on]
+        found[sil] = True
+        edge_t[sil] = cur[sil]
+        edge_i[sil] = bg[~walk_on]
+        active[sil] = False
+        kw = kg[walk_on]
+        cur[kw] = nxt[walk_on]
+        entry[kw] = nxt_slot[walk_on]
+        step[kw] += 1
+        over = kw[step[kw] >= MAX_WALK]
+        n_limit += len(over)
+        active[over] = False
+    return found, edge_t, edge_i, amb, n_limit
+
+
+def _crossings(mesh: _Mesh, axis, sel, edge_t, edge_i, amb, ndc, pb):
+    """The pairs ``sel`` whose walk found a silhouette: where its edge crosses the segment
+    between the centres (tau from A's, with its error bound in units of u), kept where the
+    pair's axis is the one most across the edge. Returns (kept rows of ``sel``, tau, tau's
+    bound, the edge's two vertices (K, 2)); marks the orientation test's ambiguous rows."""
+    vert = mesh.tri[edge_t[sel]].astype(np.int64)
+    i = edge_i[sel]
+    rows = np.arange(len(sel))
+    ends = np.stack([vert[rows, (i + 1) % 3], vert[rows, (i + 2) % 3]], -1)
+    v2, m2 = _frame(mesh.pos3[pb[sel][:, None], ends], ndc[sel][:, None, :], mesh.resolution)
+    r, rm = _line(v2[:, 0], v2[:, 1], m2[:, 0], m2[:, 1])
+    tau = -r[:, 2] / r[:, axis]
+    tau_m = (rm[:, 2] + np.abs(tau) * rm[:, axis]) / np.abs(r[:, axis]) + np.abs(tau)
+    # orientation: the pair's axis must be the one most across the edge
+    d_across, d_along = np.abs(r[:, axis]), np.abs(r[:, 1 - axis])
+    keep = d_across >= d_along if axis == 0 else d_across > d_along
+    amb[sel] |= _near(d_across - d_along, rm[:, 0] + rm[:, 1], mesh.band)
+    return sel[keep], tau[keep], tau_m[keep], ends[keep]
+
+
+_PAIR_FIELDS = {"batch": ((0,), np.int64), "axis": ((0,), np.int64),
+                "a_yx": ((0, 2), np.int64), "modified": ((0, 2), np.int64),
+                "partner": ((0, 2), np.int64), "tau": ((0,), np.float64),
+                "rows": ((0, 2), np.int64), "tau_mag": ((0,), np.float64)}
+
+
 def pairs(rast, pos, tri, topology_hash: TopologyHash, *, band: float = DECISION_BAND) -> Pairs:
     """Every blended pair of ``rast`` (checked float64 inputs: rast (B, H, W, 4), pos
     (V, 4) or (B, V, 4), tri (T, 3) int32), in float64, with the ambiguous decisions.
@@ -311,212 +309,50 @@ def pairs(rast, pos, tri, topology_hash: TopologyHash, *, band: float = DECISION
     (a continuous surface; in the first triangle: try the other pixel's triangle instead),
     or after :data:`MAX_WALK` triangles (counted in ``walk_limit``)."""
     batch_n, height, width, _ = rast.shape
-    ids = layout.rast_ids(rast, len(tri))
+    ids = layout.decode_ids(rast[..., 3], "rast channel 3 (triangle id)")
     zw = rast[..., 2]
     pos3 = pos if pos.ndim == 3 else pos[None]
-    num_vertices = pos3.shape[1]
-    stride = num_vertices if pos.ndim == 3 else 0
-    tri_flat = tri.ravel().astype(np.int64)
-    canon = topology_hash.canon
-    entries = topology_hash.entries.astype(np.int64)
+    stride = pos3.shape[1] if pos.ndim == 3 else 0
+    mesh = _Mesh(pos3, tri, tri.ravel().astype(np.int64), topology_hash.canon,
+                 topology_hash.entries.astype(np.int64), topology_hash, (height, width), band)
     ambiguous = np.zeros((batch_n, height, width), bool)
-    out = {k: [] for k in ("batch", "axis", "a_yx", "modified", "partner", "tau", "rows",
-                           "tau_mag")}
+    out = {k: [] for k in _PAIR_FIELDS}
     n_ambiguous = n_candidates = n_limit = 0
-    arange3 = np.arange(3)
     for axis in (0, 1):
-        if axis == 0:
-            ia, ib = ids[:, :, :-1], ids[:, :, 1:]
-        else:
-            ia, ib = ids[:, :-1, :], ids[:, 1:, :]
+        ia, ib = (ids[:, :, :-1], ids[:, :, 1:]) if axis == 0 else (ids[:, :-1, :], ids[:, 1:, :])
         b, y, x = np.nonzero(ia != ib)
-        n = len(b)
-        n_candidates += n
-        if n == 0:
+        n_candidates += len(b)
+        if len(b) == 0:
             continue
         yb, xb = (y, x + 1) if axis == 0 else (y + 1, x)
         t_a, t_b = ids[b, y, x], ids[b, yb, xb]
-        z_a, z_b = zw[b, y, x], zw[b, yb, xb]
-        first_a = (t_b < 0) | ((t_a >= 0) & ~(z_b < z_a))
+        first_a = (t_b < 0) | ((t_a >= 0) & ~(zw[b, yb, xb] < zw[b, y, x]))
         ndc = np.stack([(2 * x + 1) / width - 1, (2 * y + 1) / height - 1], -1)
         pb = b if pos.ndim == 3 else np.zeros_like(b)
-        amb = np.zeros(n, bool)
-        # walk state: current triangle, direction (+1: from A to B), entry edge slot, step
-        own_a = first_a.copy()
-        cur = np.where(own_a, t_a, t_b)
-        entry = np.full(n, -1)
-        step = np.zeros(n, np.int64)
-        attempt = np.zeros(n, np.int64)
-        active = cur >= 0
-        found = np.zeros(n, bool)
-        edge_t = np.zeros(n, np.int64)
-        edge_i = np.zeros(n, np.int64)
-        while active.any():
-            k = np.flatnonzero(active)
-            vert = tri[cur[k]].astype(np.int64)
-            clip = pos3[pb[k][:, None], vert]
-            v, m = _frame(clip, ndc[k][:, None, :], (height, width))
-            r, rm = _line(v[:, [1, 2, 0]], v[:, [2, 0, 1]], m[:, [1, 2, 0]], m[:, [2, 0, 1]])
-            det, det_m = _dot(r[:, 0], rm[:, 0], v[:, 0], m[:, 0])
-            amb[k] |= _near(det, det_m, band)
-            sgn = np.sign(det)[:, None]
-            e_a, e_b = r[..., 2], r[..., 2] + r[..., axis]
-            amb[k] |= (_near(e_a, rm[..., 2], band)
-                       | _near(e_b, rm[..., 2] + rm[..., axis] + np.abs(e_b), band)).any(-1)
-            fwd = own_a[k][:, None]
-            own = np.where(fwd, e_a, e_b) * sgn
-            other = np.where(fwd, e_b, e_a) * sgn
-            leaving = (own > other) & (sgn != 0) & (arange3[None] != entry[k][:, None])
-            first = step[k] == 0
-            leaving &= ~first[:, None] | (own >= 0)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                tau = -e_a / r[..., axis]
-                tau_m = (rm[..., 2] + np.abs(tau) * rm[..., axis]) / np.abs(r[..., axis]) \
-                    + np.abs(tau)
-            key = np.where(leaving, np.where(fwd, tau, -tau), np.inf)
-            best = np.argmin(key, -1)
-            has = leaving.any(-1)
-            tb = np.take_along_axis(tau, best[:, None], -1)
-            tbm = np.take_along_axis(tau_m, best[:, None], -1)
-            rival = leaving & (arange3[None] != best[:, None])
-            amb[k] |= (rival & (np.abs(tau - tb) <= band * (tau_m + tbm))).any(-1)
-            reached = ~has | (np.take_along_axis(other, best[:, None], -1)[:, 0] >= 0)
-            # reached the other centre inside the first triangle: try the other pixel's
-            retry = reached & first & (attempt[k] == 0)
-            kk = k[retry]
-            other_t = np.where(own_a[kk], t_b[kk], t_a[kk])
-            own_a[kk] = ~own_a[kk]
-            cur[kk] = other_t
-            attempt[kk] = 1
-            entry[kk] = -1
-            active[kk] = other_t >= 0
-            active[k[reached & ~retry]] = False
-            go = ~reached
-            kg, bg = k[go], best[go]
-            # the exit edge (a, b) = vertices bg+1, bg+2, opposite bg: who lies beyond it?
-            vg = vert[go]
-            a_v = vg[np.arange(len(kg)), (bg + 1) % 3]
-            b_v = vg[np.arange(len(kg)), (bg + 2) % 3]
-            o_v = vg[np.arange(len(kg)), bg]
-            rl, rlm = r[go, bg], rm[go, bg]
-            vo, mo = v[go, bg], m[go, bg]
-            d_f, d_f_m = _dot(rl, rlm, vo, mo)
-            amb[kg] |= _near(d_f, d_f_m, band)
-            start, count = topology_hash.lookup(a_v, b_v)
-            nxt = np.full(len(kg), -1)
-            nxt_slot = np.full(len(kg), -1)
-            for j in range(int(count.max()) if count.size else 0):
-                live = j < count
-                ent = entries[np.where(live, start + j, 0)]
-                og = tri_flat[ent]
-                live &= canon[og] != canon[o_v]
-                vgo, mgo = _frame(pos3[pb[kg], og], ndc[kg], (height, width))
-                d_g, d_g_m = _dot(rl, rlm, vgo, mgo)
-                amb[kg] |= live & _near(d_g, d_g_m, band)
-                beyond = live & (np.sign(d_g) * np.sign(d_f) < 0) & (nxt < 0)
-                nxt = np.where(beyond, ent // 3, nxt)
-                nxt_slot = np.where(beyond, ent % 3, nxt_slot)
-            walk_on = nxt >= 0
-            sil = kg[~walk_on]
-            found[sil] = True
-            edge_t[sil] = cur[sil]
-            edge_i[sil] = bg[~walk_on]
-            active[sil] = False
-            kw = kg[walk_on]
-            cur[kw] = nxt[walk_on]
-            entry[kw] = nxt_slot[walk_on]
-            step[kw] += 1
-            over = kw[step[kw] >= MAX_WALK]
-            n_limit += len(over)
-            active[over] = False
+        found, edge_t, edge_i, amb, limit = _walk(mesh, axis, t_a, t_b, first_a, ndc, pb)
+        n_limit += limit
         sel = np.flatnonzero(found)
         if sel.size:
-            t, i = edge_t[sel], edge_i[sel]
-            vert = tri[t].astype(np.int64)
-            rows3 = np.arange(len(sel))
-            va_i, vb_i = vert[rows3, (i + 1) % 3], vert[rows3, (i + 2) % 3]
-            v2, m2 = _frame(pos3[pb[sel][:, None], np.stack([va_i, vb_i], -1)],
-                            ndc[sel][:, None, :], (height, width))
-            r, rm = _line(v2[:, 0], v2[:, 1], m2[:, 0], m2[:, 1])
-            tau = -r[:, 2] / r[:, axis]
-            tau_m = (rm[:, 2] + np.abs(tau) * rm[:, axis]) / np.abs(r[:, axis]) + np.abs(tau)
-            # orientation: the pair's axis must be the one most across the edge
-            d_across, d_along = np.abs(r[:, axis]), np.abs(r[:, 1 - axis])
-            keep = d_across >= d_along if axis == 0 else d_across > d_along
-            amb[sel] |= _near(d_across - d_along, rm[:, 0] + rm[:, 1], band)
-            blend = sel[keep]
-            tau, tau_m = tau[keep], tau_m[keep]
+            blend, tau, tau_m, ends = _crossings(mesh, axis, sel, edge_t, edge_i, amb, ndc, pb)
             at_a = tau < 0.5
             a_yx = np.stack([y[blend], x[blend]], -1)
             b_yx = np.stack([yb[blend], xb[blend]], -1)
-            out["batch"].append(b[blend])
-            out["axis"].append(np.full(len(blend), axis))
-            out["a_yx"].append(a_yx)
-            out["modified"].append(np.where(at_a[:, None], a_yx, b_yx))
-            out["partner"].append(np.where(at_a[:, None], b_yx, a_yx))
-            out["tau"].append(tau)
-            out["tau_mag"].append(tau_m)
-            base = b[blend] * stride
-            out["rows"].append(np.stack([va_i[keep] + base, vb_i[keep] + base], -1))
+            for name, value in (
+                    ("batch", b[blend]), ("axis", np.full(len(blend), axis)), ("a_yx", a_yx),
+                    ("modified", np.where(at_a[:, None], a_yx, b_yx)),
+                    ("partner", np.where(at_a[:, None], b_yx, a_yx)), ("tau", tau),
+                    ("tau_mag", tau_m), ("rows", ends + (b[blend] * stride)[:, None])):
+                out[name].append(value)
         n_ambiguous += int(amb.sum())
         ambiguous[b[amb], y[amb], x[amb]] = True
         ambiguous[b[amb], yb[amb], xb[amb]] = True
-
-    def cat(name, shape, dtype):
-        return (np.concatenate(out[name]) if out[name] else np.zeros(shape, dtype))
-
-    tau = cat("tau", (0,), np.float64)
-    return Pairs(batch=cat("batch", (0,), np.int64), axis=cat("axis", (0,), np.int64),
-                 a_yx=cat("a_yx", (0, 2), np.int64), modified=cat("modified", (0, 2), np.int64),
-                 partner=cat("partner", (0, 2), np.int64), tau=tau, alpha=np.abs(0.5 - tau),
-                 rows=cat("rows", (0, 2), np.int64), tau_mag=cat("tau_mag", (0,), np.float64),
-                 ambiguous=ambiguous, ambiguous_pairs=n_ambiguous,
-                 candidate_pairs=n_candidates, walk_limit=n_limit)
+    fields = {name: np.concatenate(out[name]) if out[name] else np.zeros(shape, dtype)
+              for name, (shape, dtype) in _PAIR_FIELDS.items()}
+    return Pairs(**fields, alpha=np.abs(0.5 - fields["tau"]), ambiguous=ambiguous,
+                 ambiguous_pairs=n_ambiguous, candidate_pairs=n_candidates, walk_limit=n_limit)
 
 
 # --------------------------------------------------------------------------- forward, backward
-
-
-@dataclass
-class ReferenceAntialiasSaved:
-    """What :func:`antialias_backward` needs: the checked float64 inputs and the pairs."""
-
-    color: np.ndarray
-    rast: np.ndarray
-    pos: np.ndarray
-    tri: np.ndarray
-    topology_hash: TopologyHash
-    pairs: Pairs
-    pos_gradient_boost: float
-    convex: bool
-
-
-def check_inputs(color, rast, pos, tri, topology_hash, pos_gradient_boost, convex,
-                 dtype=np.float64, ids: bool = False):
-    """The checked arguments of antialias (ValueErrors name the argument):
-    (color, rast, pos, tri, topology_hash, boost, convex), and with ``ids`` the decoded
-    triangle ids (B, H, W) last."""
-    rast = layout.image("rast", rast, dtype=dtype)
-    batch_n, height, width, _ = rast.shape
-    color = layout.image("color", color, dtype=dtype, channels=None)
-    if color.shape[:3] != rast.shape[:3] or color.shape[3] < 1:
-        raise ValueError(f"color must have shape {(batch_n, height, width)} + (C,) with C >= 1 "
-                         f"(rast's B, H, W), got {color.shape}")
-    pos = layout.positions(pos, dtype=dtype)
-    if pos.ndim == 3 and pos.shape[0] != batch_n:
-        raise ValueError(f"pos has a batch of {pos.shape[0]}, rast of {batch_n}: 3-D pos "
-                         "needs one entry per image")
-    tri = layout.triangles(tri, pos.shape[-2])
-    tri_ids = layout.rast_ids(rast, len(tri))
-    th = topology_hash_for(topology_hash, tri, pos.shape[-2])
-    if isinstance(pos_gradient_boost, (bool, np.bool_)) or not isinstance(
-            pos_gradient_boost, (int, float, np.integer, np.floating)) \
-            or not np.isfinite(pos_gradient_boost):
-        raise ValueError(f"pos_gradient_boost must be a finite number, got {pos_gradient_boost!r}")
-    if not isinstance(convex, (bool, np.bool_)):
-        raise ValueError(f"convex must be True or False, got {convex!r}")
-    out = (color, rast, pos, tri, th, float(pos_gradient_boost), bool(convex))
-    return out + (tri_ids,) if ids else out
 
 
 def _flat(p: Pairs, yx: np.ndarray, height: int, width: int) -> np.ndarray:
@@ -532,13 +368,18 @@ def _weights(p: Pairs, pixels: int, height: int, width: int, convex: bool):
     return mod, par, total, scale
 
 
-def antialias_forward(color, rast, pos, tri, topology_hash=None, pos_gradient_boost=1.0, *,
-                      convex: bool = True):
-    """Antialiased ``color`` in float64: returns (out (B, H, W, C), saved)."""
-    color, rast, pos, tri, th, boost, convex = check_inputs(
-        color, rast, pos, tri, topology_hash, pos_gradient_boost, convex)
+
+
+def forward(color, rast, pos, *, tri, topology_hash, pos_gradient_boost=1.0, convex=True,
+            ctx=None):
+    """Antialiased ``color`` in float64, on arrays checked by
+    :func:`glraster.diff.antialias_args.check` (``ctx`` is ignored).
+
+    Returns ``((out,), saved)``: out (B, H, W, C) float64; saved an
+    :class:`~glraster.diff.antialias_args.AntialiasSaved` holding the :class:`Pairs`.
+    """
     batch_n, height, width, channels = color.shape
-    p = pairs(rast, pos, tri, th)
+    p = pairs(rast, pos, tri, topology_hash)
     pixels = batch_n * height * width
     flat = color.reshape(pixels, channels)
     mod, par, _, scale = _weights(p, pixels, height, width, convex)
@@ -547,8 +388,10 @@ def antialias_forward(color, rast, pos, tri, topology_hash=None, pos_gradient_bo
     for c in range(channels):
         out[:, c] += np.bincount(mod, weights=w * (flat[par, c] - flat[mod, c]),
                                  minlength=pixels)
-    saved = ReferenceAntialiasSaved(color, rast, pos, tri, th, p, boost, convex)
-    return out.reshape(color.shape), saved
+    ids = layout.decode_ids(rast[..., 3])
+    saved = AntialiasSaved(color, rast, pos, tri, topology_hash, float(pos_gradient_boost),
+                           bool(convex), ids, pairs=p)
+    return (out.reshape(color.shape),), saved
 
 
 def crossing_gradients(pos, rows, a_yx, axis, resolution, dl_dtau, stride_pos=None):
@@ -582,34 +425,55 @@ def crossing_gradients(pos, rows, a_yx, axis, resolution, dl_dtau, stride_pos=No
     return out
 
 
-def antialias_backward(saved: ReferenceAntialiasSaved, grad_out):
-    """(grad_color (B, H, W, C), grad_pos of pos' shape) in float64; the ids and which pairs
-    blend stay those of the forward (visibility gradients come through alpha)."""
-    color, p = saved.color, saved.pairs
-    batch_n, height, width, channels = color.shape
-    grad_out = layout.image("grad_out", grad_out, color.shape)
-    pixels = batch_n * height * width
-    flat = color.reshape(pixels, channels)
-    g = grad_out.reshape(pixels, channels)
-    mod, par, total, scale = _weights(p, pixels, height, width, saved.convex)
+
+
+def _alpha_gradients(saved: AntialiasSaved, g, flat, mod, par, total, scale):
+    """dL/d alpha per pair from g (pixels, C): through the blend and, with ``convex``,
+    through the scale of pixels whose weights sum past 1."""
+    p = saved.pairs
+    pixels = len(flat)
     delta = (g[mod] * (flat[par] - flat[mod])).sum(-1)      # dL/d(raw weight) per pair
-    w = p.alpha * scale[mod]
-    grad_color = g * (1.0 - np.bincount(mod, weights=w, minlength=pixels))[:, None]
-    for c in range(channels):
-        grad_color[:, c] += np.bincount(par, weights=w * g[mod, c], minlength=pixels)
     dl_dalpha = scale[mod] * delta
     if saved.convex:
         weighted = np.bincount(mod, weights=p.alpha * delta, minlength=pixels)
         over = total[mod] > 1.0
         dl_dalpha = np.where(over, scale[mod] * (delta - scale[mod] * weighted[mod]), dl_dalpha)
-    sign = np.where(p.tau < 0.5, -1.0, 1.0)                 # alpha = 1/2 - tau at A
-    grad_pos = np.zeros(saved.pos.reshape(-1, 4).shape)
-    if len(p.tau):
-        terms = crossing_gradients(saved.pos, p.rows, p.a_yx, p.axis, (height, width),
-                                   sign * dl_dalpha)
-        for j in range(2):
-            for c in (0, 1, 3):
-                grad_pos[:, c] += np.bincount(p.rows[:, j], weights=terms[:, j, c],
-                                              minlength=len(grad_pos))
-    grad_pos *= saved.pos_gradient_boost
-    return grad_color.reshape(color.shape), grad_pos.reshape(saved.pos.shape)
+    return dl_dalpha
+
+
+def backward(saved: AntialiasSaved, grad_out, *, needs=None, deterministic: bool = False,
+             accumulate: str | None = None):
+    """Gradients of :func:`forward` in float64: ``(grad_color (B, H, W, C), None,
+    grad_pos of pos' shape)``, None where ``needs`` (three flags: color, rast, pos) wants
+    none (no position gradients are computed then). The ids and which pairs blend stay
+    those of the forward (visibility gradients come through alpha). ``deterministic`` and
+    ``accumulate`` are the GPU core's options, accepted for the one signature."""
+    want_color, want_pos = wanted(needs)
+    color, p = saved.color, saved.pairs
+    batch_n, height, width, channels = color.shape
+    grad_out = (np.zeros(color.shape) if grad_out is None
+                else layout.image("grad_out", grad_out, color.shape))
+    pixels = batch_n * height * width
+    flat = color.reshape(pixels, channels)
+    g = grad_out.reshape(pixels, channels)
+    mod, par, total, scale = _weights(p, pixels, height, width, saved.convex)
+    grad_color = grad_pos = None
+    if want_color:
+        w = p.alpha * scale[mod]
+        grad_color = g * (1.0 - np.bincount(mod, weights=w, minlength=pixels))[:, None]
+        for c in range(channels):
+            grad_color[:, c] += np.bincount(par, weights=w * g[mod, c], minlength=pixels)
+        grad_color = grad_color.reshape(color.shape)
+    if want_pos:
+        grad_pos = np.zeros(saved.pos.reshape(-1, 4).shape)
+        if len(p.tau):
+            dl_dalpha = _alpha_gradients(saved, g, flat, mod, par, total, scale)
+            sign = np.where(p.tau < 0.5, -1.0, 1.0)         # alpha = 1/2 - tau at A
+            terms = crossing_gradients(saved.pos, p.rows, p.a_yx, p.axis, (height, width),
+                                       sign * dl_dalpha)
+            for j in range(2):
+                for c in (0, 1, 3):
+                    grad_pos[:, c] += np.bincount(p.rows[:, j], weights=terms[:, j, c],
+                                                  minlength=len(grad_pos))
+        grad_pos = (grad_pos * saved.pos_gradient_boost).reshape(saved.pos.shape)
+    return grad_color, None, grad_pos

@@ -52,6 +52,15 @@ def _finite(name: str, arr: np.ndarray, out: np.ndarray) -> np.ndarray:
     return out
 
 
+def float_array(name: str, value, dtype=np.float64) -> np.ndarray:
+    """``value`` (any shape) as a C-contiguous finite array of ``dtype``, or ValueError
+    naming ``name`` (not real numbers; NaN, Inf or a value beyond ``dtype``)."""
+    arr = real_array(name, value, dtype)
+    with np.errstate(over="ignore"):
+        out = np.ascontiguousarray(arr, dtype=dtype)
+    return _finite(name, arr, out)
+
+
 def positions(pos, dtype=np.float64) -> np.ndarray:
     """``pos`` (V, 4) or (B, V, 4) as a C-contiguous finite array of ``dtype``."""
     arr = real_array("pos", pos, dtype)

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from glraster.diff import layout
+from glraster.diff import antialias_args, layout, texture_args
 from glraster.diff.op import Op
 from glraster.errors import ArgumentError
 
@@ -97,17 +97,12 @@ INTERPOLATE = Op("interpolate", ("attr", "rast", "rast_db"), ("out", "out_da"),
 
 def _texture_check(tex, uv, uv_da=None, mip_level_bias=None, *mip, filter_mode="auto",
                    boundary_mode="wrap", max_mip_level=None, own_mips=False, ctx=None):
-    from glraster.diff import texture_reference as ref
-
-    dtype = float_dtype(tex)
-    levels = list(mip) if mip else None
-    if levels is not None and own_mips:
-        levels = ref.OwnMips(levels)
-    args = ref.check_arguments(tex, uv, uv_da, mip_level_bias, levels, filter_mode,
-                               boundary_mode, max_mip_level, dtype=dtype)
+    args = texture_args.check(tex, uv, uv_da, mip_level_bias, *mip, filter_mode=filter_mode,
+                              boundary_mode=boundary_mode, max_mip_level=max_mip_level,
+                              own_mips=own_mips, dtype=float_dtype(tex))
     arrays = (args.tex, args.uv, args.uv_da, args.bias, *(args.mip or ()))
-    return arrays, dict(filter_mode=args.filter_mode, boundary_mode=boundary_mode,
-                        max_mip_level=max_mip_level, own_mips=bool(own_mips), ctx=ctx)
+    return arrays, dict(filter_mode=args.filter_mode, boundary_mode=args.boundary_mode,
+                        max_mip_level=max_mip_level, own_mips=args.own_mips, ctx=ctx)
 
 
 def _texture_shapes(tex, uv, *_, **__):
@@ -116,8 +111,7 @@ def _texture_shapes(tex, uv, *_, **__):
 
 TEXTURE = Op("texture", ("tex", "uv", "uv_da", "mip_level_bias", "*mip"), ("out",),
              _texture_check, _texture_shapes,
-             gpu="glraster.diff._adapters:TEXTURE_GPU",
-             reference="glraster.diff._adapters:TEXTURE_REFERENCE")
+             gpu="glraster.diff.texture", reference="glraster.diff.texture_reference")
 
 
 # --------------------------------------------------------------------------- antialias
@@ -125,9 +119,7 @@ TEXTURE = Op("texture", ("tex", "uv", "uv_da", "mip_level_bias", "*mip"), ("out"
 
 def _antialias_check(color, rast, pos, *, tri, topology_hash=None, pos_gradient_boost=1.0,
                      convex=True, ctx=None):
-    from glraster.diff import antialias_reference as ref
-
-    color, rast, pos, tri, th, boost, convex = ref.check_inputs(
+    color, rast, pos, tri, th, boost, convex = antialias_args.check(
         color, rast, pos, tri, topology_hash, pos_gradient_boost, convex,
         dtype=float_dtype(color))
     return (color, rast, pos), dict(tri=tri, topology_hash=th, pos_gradient_boost=boost,
@@ -140,8 +132,7 @@ def _antialias_shapes(color, *_, **__):
 
 ANTIALIAS = Op("antialias", ("color", "rast", "pos"), ("out",), _antialias_check,
                _antialias_shapes,
-               gpu="glraster.diff._adapters:ANTIALIAS_GPU",
-               reference="glraster.diff._adapters:ANTIALIAS_REFERENCE")
+               gpu="glraster.diff.antialias", reference="glraster.diff.antialias_reference")
 
 
 OPS = {op.name: op for op in (RASTERIZE, INTERPOLATE, TEXTURE, ANTIALIAS)}

@@ -1,6 +1,9 @@
-"""Filtered, mipmapped texture lookups on the GPU, forward and backward (NumPy API).
+"""Filtered, mipmapped texture lookups on the GPU, forward and backward: the texture op's
+GPU core (NumPy arrays in and out), with the float64 reference's signature
+(:mod:`glraster.diff.texture_reference`; :data:`glraster.diff.ops.TEXTURE` checks the
+arguments and picks the core).
 
-nvdiffrast's ``texture`` semantics (layouts in :mod:`glraster.diff.texture_reference`,
+nvdiffrast's ``texture`` semantics (layouts in :mod:`glraster.diff.texture_args`,
 derivations in docs/differentiable.md, "Texture"), in compute shaders
 (``shaders/diff/texture.comp``, ``shaders/diff/texture_mip.comp``):
 
@@ -21,12 +24,9 @@ derivations in docs/differentiable.md, "Texture"), in compute shaders
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from glraster.diff import layout
-from glraster.diff import texture_reference as ref
 from glraster.diff.compute import DEFINES as _DEFINES
 from glraster.diff.compute import accumulation
 from glraster.diff.compute import chunks as _chunks
@@ -34,26 +34,25 @@ from glraster.diff.compute import read as _read
 from glraster.diff.compute import run as _run
 from glraster.diff.compute import set_uniform as _set
 from glraster.diff.compute import zeroed as _zeroed
+from glraster.diff.texture_args import (
+    BOUNDARY_CODE,
+    FILTER_CODE,
+    TextureArgs,
+    TextureSaved,
+    check,
+    wanted,
+)
 from glraster.gpu.context import Context, default_context
 from glraster.gpu.shaders import shader_path
 
-__all__ = ["TextureSaved", "backward", "build_mips", "forward", "sampler_probe"]
+__all__ = ["backward", "build_mips", "forward", "sampler_probe"]
 
 _SHADER = "diff/texture.comp"
 _MIP_SHADER = "diff/texture_mip.comp"
 CONTRIB_SLOTS = 8
 
 
-@dataclass
-class TextureSaved:
-    """What :func:`backward` needs from :func:`forward`: the checked float32 arguments
-    (:class:`glraster.diff.texture_reference.TextureArgs`) and the context."""
-
-    args: ref.TextureArgs
-    ctx: Context
-
-
-def _geometry(args: ref.TextureArgs):
+def _geometry(args: TextureArgs):
     """(info (L, 4) int32 rows (first texel, H, W, 0), first texel per level, total texels)."""
     faces = 6 if args.cube else 1
     images = args.tex.shape[0] * faces
@@ -73,7 +72,7 @@ def _storage_limit(ctx: Context, nbytes: int, what: str) -> None:
                          "texture, fewer channels or max_mip_level")
 
 
-def _upload_levels(ctx: Context, args: ref.TextureArgs, name: str = "texture.levels"):
+def _upload_levels(ctx: Context, args: TextureArgs, name: str = "texture.levels"):
     """Every level in one storage buffer (base uploaded; mips uploaded or built on the GPU).
     Inside ``with ctx``. Returns (buffer, info, firsts, total texels, images)."""
     info, firsts, total, images = _geometry(args)
@@ -86,23 +85,35 @@ def _upload_levels(ctx: Context, args: ref.TextureArgs, name: str = "texture.lev
             level = np.ascontiguousarray(args.mip[k - 1], np.float32)
             buffer.write(level.tobytes(), offset=firsts[k] * channels * 4)
     elif args.levels > 1:
-        program = ctx.compute_program(shader_path(_MIP_SHADER), {})
-        buffer.bind_to_storage_buffer(0)
-        _set(program, "images", images)
-        _set(program, "channels", channels)
-        for k in range(1, args.levels):
-            (h0, w0), (h1, w1) = args.shapes[k - 1], args.shapes[k]
-            _set(program, "fine_first", firsts[k - 1] * channels)
-            _set(program, "coarse_first", firsts[k] * channels)
-            _set(program, "fine_size", (w0, h0))
-            _set(program, "coarse_size", (w1, h1))
-            _run(ctx, program, images * h1 * w1)
+        _pyramid_passes(ctx, buffer, args, firsts, images, backward=False)
     return buffer, info, firsts, total, images
 
 
-def _defines(args: ref.TextureArgs) -> dict:
-    defines = {"FILTER": ref.FILTER_CODE[args.filter_mode],
-               "BOUNDARY": ref.BOUNDARY_CODE[args.boundary_mode]}
+def _pyramid_passes(ctx: Context, buffer, args: TextureArgs, firsts, images: int,
+                    backward: bool) -> None:
+    """The box filter between neighbouring levels of ``buffer`` (every level, base first),
+    one pass per level: forward, each coarser level from the finer one, finest first (one
+    invocation per coarse texel); backward, each level's gradient added into the finer one
+    through the transpose of the filter, coarsest first (a gather: one per fine texel)."""
+    program = ctx.compute_program(shader_path(_MIP_SHADER), {"BACKWARD": None} if backward
+                                  else {})
+    buffer.bind_to_storage_buffer(0)
+    channels = args.channels
+    _set(program, "images", images)
+    _set(program, "channels", channels)
+    steps = range(args.levels - 1, 0, -1) if backward else range(1, args.levels)
+    for k in steps:
+        (h0, w0), (h1, w1) = args.shapes[k - 1], args.shapes[k]
+        _set(program, "fine_first", firsts[k - 1] * channels)
+        _set(program, "coarse_first", firsts[k] * channels)
+        _set(program, "fine_size", (w0, h0))
+        _set(program, "coarse_size", (w1, h1))
+        _run(ctx, program, images * (h0 * w0 if backward else h1 * w1))
+
+
+def _defines(args: TextureArgs) -> dict:
+    defines = {"FILTER": FILTER_CODE[args.filter_mode],
+               "BOUNDARY": BOUNDARY_CODE[args.boundary_mode]}
     if args.mipmapped and args.uv_da is not None:
         defines["HAS_DA"] = None
     if args.mipmapped and args.bias is not None:
@@ -110,7 +121,7 @@ def _defines(args: ref.TextureArgs) -> dict:
     return defines
 
 
-def _pixel_inputs(args: ref.TextureArgs):
+def _pixel_inputs(args: TextureArgs):
     n = int(np.prod(args.uv.shape[:3]))
     uv = args.uv.reshape(n, -1)
     da = args.uv_da.reshape(n, -1) if args.uv_da is not None else None
@@ -133,22 +144,18 @@ def _bind_common(ctx, program, args, defines, part, uv, da, bias, info, count, f
     _set(program, "channels", args.channels)
 
 
-def forward(tex, uv, uv_da=None, mip_level_bias=None, mip=None, filter_mode="auto",
-            boundary_mode="wrap", max_mip_level=None, *, ctx: Context | None = None):
-    """Filtered texture lookups on the GPU (nvdiffrast's ``texture``).
+def forward(tex, uv, uv_da=None, mip_level_bias=None, *mip, filter_mode="auto",
+            boundary_mode="wrap", max_mip_level=None, own_mips=False,
+            ctx: Context | None = None):
+    """Filtered texture lookups on the GPU (nvdiffrast's ``texture``), on float32 arrays
+    checked by :func:`glraster.diff.texture_args.check` (layouts there).
 
     Args:
-        tex: (Bt, Ht, Wt, C), or (Bt, 6, N, N, C) with ``boundary_mode="cube"``; Bt = 1
-            broadcasts over uv's batch. float32 (other numbers converted).
-        uv: (B, H, W, 2) texture coordinates (s, t), texel (i, j) = tex[b, j, i] centred at
-            ((i + 0.5)/Wt, (j + 0.5)/Ht); cube: (B, H, W, 3) directions.
-        uv_da: None or (B, H, W, 4) (ds/dX, ds/dY, dt/dX, dt/dY) per image pixel; cube
-            (B, H, W, 6) (dx/dX, dx/dY, dy/dX, dy/dY, dz/dX, dz/dY). Sets the level.
-        mip_level_bias: None or (B, H, W), added to the level.
-        mip: None (build the pyramid) or a list of levels 1, 2, ... each (Bt, Ht_k, Wt_k, C)
-            with Ht_k = max(1, Ht_{k-1} // 2) (same for Wt), each getting its own gradient;
-            or tex's own pyramid built earlier (:class:`~glraster.diff.texture_reference.
-            OwnMips`: uploaded instead of built, its gradients pulled back into tex).
+        tex, uv, uv_da, mip_level_bias: the texture, coordinates, their screen derivatives
+            (None: no level from them) and the level bias (None: 0).
+        mip: levels 1, 2, ... (none: the pyramid is built on the GPU); each gets its own
+            gradient, or, with ``own_mips``, they are tex's own pyramid built earlier
+            (uploaded instead of built; their gradients are pulled back into tex).
         filter_mode: "nearest", "linear", "linear-mipmap-nearest", "linear-mipmap-linear" or
             "auto" (linear-mipmap-linear with uv_da or mip_level_bias, else linear).
         boundary_mode: "wrap", "clamp", "zero" or "cube".
@@ -156,11 +163,12 @@ def forward(tex, uv, uv_da=None, mip_level_bias=None, mip=None, filter_mode="aut
         ctx: the context (default: the process-wide one).
 
     Returns:
-        ``(out, saved)``: out (B, H, W, C) float32; saved a :class:`TextureSaved`.
+        ``((out,), saved)``: out (B, H, W, C) float32; saved a
+        :class:`~glraster.diff.texture_args.TextureSaved`.
     """
     ctx = ctx or default_context()
-    args = ref.check_arguments(tex, uv, uv_da, mip_level_bias, mip, filter_mode, boundary_mode,
-                               max_mip_level, dtype=np.float32)
+    args = TextureArgs.of(tex, uv, uv_da, mip_level_bias, mip, filter_mode, boundary_mode,
+                          max_mip_level, own_mips)
     n, uv_f, da, bias = _pixel_inputs(args)
     channels = args.channels
     out = np.empty((n, channels), np.float32)
@@ -177,125 +185,160 @@ def forward(tex, uv, uv_da=None, mip_level_bias=None, mip=None, filter_mode="aut
             result.bind_to_storage_buffer(5)
             _run(ctx, program, count)
             out[part] = _read(result, count * channels).reshape(count, channels)
-    return out.reshape(args.uv.shape[:3] + (channels,)), TextureSaved(args, ctx)
+    return (out.reshape(args.uv.shape[:3] + (channels,)),), TextureSaved(args, None, ctx)
 
 
-def _pyramid_backward(ctx, grad, args, firsts, images):
-    """In the gradient buffer ``grad`` (every level, base first): add each level's
-    gradient into the finer one through the transpose of the box filter, coarsest first."""
-    program = ctx.compute_program(shader_path(_MIP_SHADER), {"BACKWARD": None})
-    grad.bind_to_storage_buffer(0)
-    channels = args.channels
-    _set(program, "images", images)
-    _set(program, "channels", channels)
-    for k in range(args.levels - 1, 0, -1):
-        (h0, w0), (h1, w1) = args.shapes[k - 1], args.shapes[k]
-        _set(program, "fine_first", firsts[k - 1] * channels)
-        _set(program, "coarse_first", firsts[k] * channels)
-        _set(program, "fine_size", (w0, h0))
-        _set(program, "coarse_size", (w1, h1))
-        _run(ctx, program, images * h0 * w0)
+class _TexelGradients:
+    """Where the backward sums the texel gradients (inside ``with ctx``): a zeroed storage
+    buffer the shader adds into (float atomics or a compare-and-swap loop), or (per_pixel)
+    float64 totals summed on the host from each pixel's (texel, weight) slots; ``needed``
+    False skips that host sum and every read-back (tex and the mip levels need none)."""
+
+    def __init__(self, ctx: Context, mode: str, total: int, channels: int, needed: bool):
+        self.ctx, self.mode, self.total, self.channels = ctx, mode, total, channels
+        self.needed = needed
+        if mode == "per_pixel":
+            self.totals = np.zeros((total, channels)) if needed else None
+        else:
+            self.buffer = _zeroed(ctx, "texture.grad_tex", total * channels * 4)
+            self.buffer.bind_to_storage_buffer(9)
+
+    def bind(self, count: int) -> None:
+        """Bind a chunk's per-pixel slots (per_pixel mode)."""
+        if self.mode == "per_pixel":
+            self.index = self.ctx.scratch_buffer("texture.contrib_index", count * CONTRIB_SLOTS * 4)
+            self.weight = self.ctx.scratch_buffer("texture.contrib_weight",
+                                                  count * CONTRIB_SLOTS * 4)
+            self.index.bind_to_storage_buffer(9)
+            self.weight.bind_to_storage_buffer(10)
+
+    def add(self, count: int, g_rows: np.ndarray) -> None:
+        """After a chunk ran: its (texel, weight) slots times g (count, C) into the totals
+        (per_pixel mode), in float64 and pixel order."""
+        if self.mode != "per_pixel" or not self.needed:
+            return
+        index = _read(self.index, count * CONTRIB_SLOTS, np.int32).reshape(count, -1)
+        weight = _read(self.weight, count * CONTRIB_SLOTS).reshape(count, -1)
+        live = index >= 0
+        keys = index[live]
+        w = weight[live].astype(np.float64)
+        g = g_rows.astype(np.float64)
+        rows = np.broadcast_to(np.arange(count)[:, None], index.shape)[live]
+        for c in range(self.channels):
+            self.totals[:, c] += np.bincount(keys, weights=w * g[rows, c], minlength=self.total)
+
+    def levels(self, args: TextureArgs, firsts, images) -> np.ndarray:
+        """(texels, C) float32: every level's texel gradients, base first, a built (or own)
+        pyramid's pulled back into the base (then only the base's rows are read back)."""
+        if self.mode == "per_pixel":
+            flat = self.totals.astype(np.float32)
+            if not args.pulls_pyramid:
+                return flat
+            self.buffer = self.ctx.storage_buffer("texture.grad_tex", flat)
+        if not args.pulls_pyramid:
+            return _read(self.buffer, self.total * self.channels).reshape(-1, self.channels)
+        _pyramid_passes(self.ctx, self.buffer, args, firsts, images, backward=True)
+        return _read(self.buffer, firsts[1] * self.channels).reshape(-1, self.channels)
 
 
-def backward(saved: TextureSaved, grad_out, *, deterministic: bool = False,
+def _split_levels(args: TextureArgs, flat: np.ndarray, firsts, total: int, want):
+    """(grad_tex, [grad of each mip input]) from :meth:`_TexelGradients.levels`' rows."""
+    grad_tex = None
+    if want[0]:
+        stop = firsts[1] if args.levels > 1 else total
+        grad_tex = np.array(flat[:stop].reshape(args.tex.shape))
+    grad_mip = [None] * len(args.mip or ())
+    if args.mipmapped:
+        for k, m in enumerate(args.user_mips):
+            if not want[4 + k]:
+                continue
+            if k + 1 < args.levels:
+                start, stop = firsts[k + 1], (firsts[k + 2] if k + 2 < args.levels else total)
+                grad_mip[k] = np.array(flat[start:stop].reshape(m.shape))
+            else:
+                grad_mip[k] = np.zeros(m.shape, np.float32)
+    return grad_tex, grad_mip
+
+
+def backward(saved: TextureSaved, grad_out, *, needs=None, deterministic: bool = False,
              accumulate: str | None = None):
     """Gradients of :func:`forward`, on the GPU.
 
     Args:
         saved: the second value :func:`forward` returned.
-        grad_out: (B, H, W, C) dL/d out.
+        grad_out: (B, H, W, C) dL/d out, or None (zero).
+        needs: None (all) or one bool per input (tex, uv, uv_da, mip_level_bias, *mip).
+            Without tex or mip levels wanted the texel sums are neither summed on the host
+            nor read back (nor pulled through the pyramid); the coordinates' gradients are
+            read back only where wanted; nothing runs when nothing is wanted.
         deterministic: bit-identical results from run to run (the texel gradients summed per
             texel in pixel order in float64 on the host; the pyramid pass is a gather).
         accumulate: force one of :data:`glraster.diff.compute.ACCUMULATIONS`.
 
     Returns:
-        ``(grad_tex, grad_uv, grad_uv_da, grad_mip_level_bias, grad_mip)``, float32:
-        grad_tex of tex's shape (every level's gradient; a built pyramid's pulled back into
-        the base; summed over the batch where tex broadcast); grad_uv of uv's; grad_uv_da and
-        grad_mip_level_bias of theirs or None when not given (zeros unless the mode is
-        linear-mipmap-linear); grad_mip the user's mip levels' gradients (a list) or None.
+        ``(grad_tex, grad_uv, grad_uv_da, grad_mip_level_bias, *grad_mip)``, float32, None
+        where not wanted or not given, as the reference's
+        (:func:`glraster.diff.texture_reference.backward`).
     """
     args, ctx = saved.args, saved.ctx
-    want = args.uv.shape[:3] + (args.channels,)
-    grad_out = layout.image("grad_out", grad_out, shape=want, dtype=np.float32)
-    n, uv_f, da, bias = _pixel_inputs(args)
-    channels = args.channels
-    coords = uv_f.shape[1]
-    g_flat = grad_out.reshape(n, channels)
+    mips = len(args.mip or ())
+    want = wanted(needs, 4 + mips)
+    want[2] &= args.uv_da is not None
+    want[3] &= args.bias is not None
+    texels = want[0] or (args.mipmapped and any(want[4:4 + len(args.user_mips)]))
     mode = accumulation(ctx, deterministic, accumulate)
+    shape = args.uv.shape[:3] + (args.channels,)
+    grad_out = (np.zeros(shape, np.float32) if grad_out is None
+                else layout.image("grad_out", grad_out, shape=shape, dtype=np.float32))
+    if not (texels or any(want[1:4])):
+        return (None,) * (4 + mips)
+    n, uv_f, da, bias = _pixel_inputs(args)
+    channels, coords = args.channels, uv_f.shape[1]
+    g_flat = grad_out.reshape(n, channels)
     defines = dict(_defines(args), BACKWARD=None, **{_DEFINES[mode]: None})
-    grad_uv = np.empty((n, coords), np.float32)
-    grad_da = np.zeros((n, 2 * coords), np.float32) if args.uv_da is not None else None
-    grad_bias = np.zeros(n, np.float32) if args.bias is not None else None
+    grad_uv = np.empty((n, coords), np.float32) if want[1] else None
+    grad_da = np.zeros((n, 2 * coords), np.float32) if want[2] else None
+    grad_bias = np.zeros(n, np.float32) if want[3] else None
     per_pixel = 4 * (3 * coords + 1 + 2 * channels + 3 * coords + 1) + (
         8 * CONTRIB_SLOTS if mode == "per_pixel" else 0)
     with ctx:
         program = ctx.compute_program(shader_path(_SHADER), defines)
         levels, info, firsts, total, images = _upload_levels(ctx, args)
         levels.bind_to_storage_buffer(0)
-        if mode == "per_pixel":
-            totals = np.zeros((total, channels))
-        else:
-            grad = _zeroed(ctx, "texture.grad_tex", total * channels * 4)
-            grad.bind_to_storage_buffer(9)
+        sums = _TexelGradients(ctx, mode, total, channels, texels)
         for first, count in _chunks(n, per_pixel):
             part = slice(first, first + count)
             _bind_common(ctx, program, args, defines, part, uv_f, da, bias, info, count, first)
             ctx.storage_buffer("texture.grad_out", g_flat[part]).bind_to_storage_buffer(5)
-            out_uv = ctx.scratch_buffer("texture.grad_uv", count * coords * 4)
-            out_uv.bind_to_storage_buffer(6)
-            if "HAS_DA" in defines:
-                out_da = ctx.scratch_buffer("texture.grad_uv_da", count * 2 * coords * 4)
-                out_da.bind_to_storage_buffer(7)
-            if "HAS_BIAS" in defines:
-                out_bias = ctx.scratch_buffer("texture.grad_bias", count * 4)
-                out_bias.bind_to_storage_buffer(8)
-            if mode == "per_pixel":
-                c_index = ctx.scratch_buffer("texture.contrib_index", count * CONTRIB_SLOTS * 4)
-                c_weight = ctx.scratch_buffer("texture.contrib_weight",
-                                              count * CONTRIB_SLOTS * 4)
-                c_index.bind_to_storage_buffer(9)
-                c_weight.bind_to_storage_buffer(10)
+            outs = _bind_coordinate_outputs(ctx, defines, count, coords)
+            sums.bind(count)
             _run(ctx, program, count)
-            grad_uv[part] = _read(out_uv, count * coords).reshape(count, coords)
-            if "HAS_DA" in defines:
-                grad_da[part] = _read(out_da, count * 2 * coords).reshape(count, 2 * coords)
-            if "HAS_BIAS" in defines:
-                grad_bias[part] = _read(out_bias, count)
-            if mode == "per_pixel":
-                index = _read(c_index, count * CONTRIB_SLOTS, np.int32).reshape(count, -1)
-                weight = _read(c_weight, count * CONTRIB_SLOTS).reshape(count, -1)
-                live = index >= 0
-                keys = index[live]
-                w = weight[live].astype(np.float64)
-                g_rows = g_flat[part].astype(np.float64)
-                rows = np.broadcast_to(np.arange(count)[:, None], index.shape)[live]
-                for c in range(channels):
-                    totals[:, c] += np.bincount(keys, weights=w * g_rows[rows, c],
-                                                minlength=total)
-        if mode == "per_pixel":
-            flat = totals.astype(np.float32)
-            if args.levels > 1 and (args.mip is None or args.own_mips):
-                grad = ctx.storage_buffer("texture.grad_tex", flat)
-        if args.levels > 1 and (args.mip is None or args.own_mips):
-            _pyramid_backward(ctx, grad, args, firsts, images)
-            flat = _read(grad, firsts[1] * channels).reshape(-1, channels)
-        elif mode != "per_pixel":
-            flat = _read(grad, total * channels).reshape(-1, channels)
-    grad_tex = np.array(flat[:firsts[1] if args.levels > 1 else total].reshape(args.tex.shape))
-    grad_mip = None
-    if args.mip is not None and not args.own_mips:
-        grad_mip = []
-        for k, m in enumerate(args.mip):
-            if k + 1 < args.levels:
-                start, stop = firsts[k + 1], (firsts[k + 2] if k + 2 < args.levels else total)
-                grad_mip.append(np.array(flat[start:stop].reshape(m.shape)))
-            else:
-                grad_mip.append(np.zeros(m.shape, np.float32))
+            for target, (buffer, width) in zip((grad_uv, grad_da, grad_bias), outs):
+                if target is not None and buffer is not None:
+                    target[part] = _read(buffer, count * width).reshape(target[part].shape)
+            sums.add(count, g_flat[part])
+        flat = sums.levels(args, firsts, images) if texels else None
+    grad_tex, grad_mip = (_split_levels(args, flat, firsts, total, want) if texels
+                          else (None, [None] * mips))
     shape3 = args.uv.shape[:3]
-    return (grad_tex, grad_uv.reshape(args.uv.shape),
+    return (grad_tex, None if grad_uv is None else grad_uv.reshape(args.uv.shape),
             None if grad_da is None else grad_da.reshape(shape3 + (2 * coords,)),
-            None if grad_bias is None else grad_bias.reshape(shape3), grad_mip)
+            None if grad_bias is None else grad_bias.reshape(shape3), *grad_mip)
+
+
+def _bind_coordinate_outputs(ctx: Context, defines, count: int, coords: int):
+    """Bind a chunk's gradient outputs for uv (6), uv_da (7) and the bias (8); returns
+    ((buffer, values per pixel) or (None, 0)) for each."""
+    out_uv = ctx.scratch_buffer("texture.grad_uv", count * coords * 4)
+    out_uv.bind_to_storage_buffer(6)
+    outs = [(out_uv, coords), (None, 0), (None, 0)]
+    if "HAS_DA" in defines:
+        outs[1] = (ctx.scratch_buffer("texture.grad_uv_da", count * 2 * coords * 4), 2 * coords)
+        outs[1][0].bind_to_storage_buffer(7)
+    if "HAS_BIAS" in defines:
+        outs[2] = (ctx.scratch_buffer("texture.grad_bias", count * 4), 1)
+        outs[2][0].bind_to_storage_buffer(8)
+    return outs
 
 
 def build_mips(tex, max_mip_level=None, *, boundary_mode="wrap", ctx: Context | None = None):
@@ -307,8 +350,8 @@ def build_mips(tex, max_mip_level=None, *, boundary_mode="wrap", ctx: Context | 
     batch = tex_arr.shape[0] if tex_arr.ndim in (4, 5) else 1
     dummy = np.zeros((batch, 1, 1, coords), np.float32)
     bias = np.zeros((batch, 1, 1), np.float32)
-    args = ref.check_arguments(tex_arr, dummy, None, bias, None, "linear-mipmap-linear",
-                               boundary_mode, max_mip_level, dtype=np.float32)
+    args = check(tex_arr, dummy, None, bias, filter_mode="linear-mipmap-linear",
+                 boundary_mode=boundary_mode, max_mip_level=max_mip_level, dtype=np.float32)
     channels = args.channels
     with ctx:
         buffer, _, firsts, total, _ = _upload_levels(ctx, args)
@@ -320,6 +363,22 @@ def build_mips(tex, max_mip_level=None, *, boundary_mode="wrap", ctx: Context | 
         h, w = args.shapes[k]
         out.append(np.array(flat[firsts[k]:stop].reshape(lead + (h, w, channels))))
     return out
+
+
+# the driver's sampler at an explicit level, one invocation per pixel (sampler_probe)
+_PROBE_SOURCE = """#version 450
+layout(local_size_x = 64) in;
+layout(std430, binding = 2) readonly buffer Uv { vec2 uv[]; };
+layout(std430, binding = 3) readonly buffer Lod { float lod[]; };
+layout(std430, binding = 4) writeonly buffer Out { vec4 result[]; };
+uniform sampler2D tex;
+uniform uint n_pixels;
+void main() {
+    uint i = gl_GlobalInvocationID.x;
+    if (i >= n_pixels) return;
+    result[i] = textureLod(tex, uv[i], lod[i]);
+}
+"""
 
 
 def sampler_probe(tex, uv, level, *, boundary_mode="wrap", ctx: Context | None = None):
@@ -339,25 +398,14 @@ def sampler_probe(tex, uv, level, *, boundary_mode="wrap", ctx: Context | None =
         raise ValueError(f"tex must have shape (1, Ht, Wt, C) with C <= 4, got {tex.shape}")
     if boundary_mode not in ("wrap", "clamp", "zero"):
         raise ValueError(f"boundary_mode must be 'wrap', 'clamp' or 'zero', got {boundary_mode!r}")
-    fetch, _ = forward(tex, uv, None, level, None, "linear-mipmap-linear", boundary_mode,
-                       ctx=ctx)
+    args = check(tex, uv, None, level, filter_mode="linear-mipmap-linear",
+                 boundary_mode=boundary_mode, dtype=np.float32)
+    (fetch,), _ = forward(args.tex, args.uv, None, args.bias, filter_mode=args.filter_mode,
+                          boundary_mode=boundary_mode, ctx=ctx)
     mips = build_mips(tex, ctx=ctx)
     channels = tex.shape[-1]
     levels = [tex[0], *[m[0] for m in mips]]
     n = int(np.prod(uv.shape[:3]))
-    source = """#version 450
-layout(local_size_x = 64) in;
-layout(std430, binding = 2) readonly buffer Uv { vec2 uv[]; };
-layout(std430, binding = 3) readonly buffer Lod { float lod[]; };
-layout(std430, binding = 4) writeonly buffer Out { vec4 result[]; };
-uniform sampler2D tex;
-uniform uint n_pixels;
-void main() {
-    uint i = gl_GlobalInvocationID.x;
-    if (i >= n_pixels) return;
-    result[i] = textureLod(tex, uv[i], lod[i]);
-}
-"""
     with ctx:
         mgl = ctx.mgl
         h, w = levels[0].shape[:2]
@@ -374,7 +422,7 @@ void main() {
                                   filter=(mgl.LINEAR_MIPMAP_LINEAR, mgl.LINEAR))
             if boundary_mode == "zero":           # CLAMP_TO_BORDER, border (0, 0, 0, 0)
                 sampler.border_color = (0.0, 0.0, 0.0, 0.0)
-            program = mgl.compute_shader(source)
+            program = mgl.compute_shader(_PROBE_SOURCE)
             sampler.use(location=0)
             program["tex"].value = 0
             program["n_pixels"].value = n

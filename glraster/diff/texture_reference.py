@@ -1,20 +1,11 @@
-"""Texture sampling with mipmaps: argument checks, the mip pyramid and the float64 reference
-of the forward and backward (NumPy only; seed 003, "texture"; docs/differentiable.md,
-"Texture").
+"""The texture op's float64 reference core: the mip pyramid and filtered lookups, forward
+and backward, in NumPy (seed 003, "texture"; docs/differentiable.md, "Texture").
 
-Layouts (nvdiffrast's documented ones; B the batch, H x W the image, rows [y, x]):
-
-    tex            (Bt, Ht, Wt, C)        2-D texture, Bt = 1 (broadcast) or B;
-                   (Bt, 6, N, N, C)       cube map (boundary_mode="cube"), faces +x, -x,
-                                          +y, -y, +z, -z
-    uv             (B, H, W, 2)           (s, t): texel (i, j) = tex[b, j, i] has its centre
-                                          at ((i + 0.5) / Wt, (j + 0.5) / Ht);
-                   (B, H, W, 3)           cube: a direction (x, y, z), any length > 0
-    uv_da          (B, H, W, 4)           (ds/dX, ds/dY, dt/dX, dt/dY) per image pixel;
-                   (B, H, W, 6)           cube: (dx/dX, dx/dY, dy/dX, dy/dY, dz/dX, dz/dY)
-    mip_level_bias (B, H, W)              added to the level
-    mip            [level 1, level 2, ...] each (Bt, Ht_k, Wt_k, C) (cube (Bt, 6, N_k, N_k, C))
-    out            (B, H, W, C)
+The core signature of :mod:`glraster.diff.op` (the same as the GPU core,
+:mod:`glraster.diff.texture`): ``forward(tex, uv, uv_da, mip_level_bias, *mip, filter_mode,
+boundary_mode, max_mip_level, own_mips, ctx) -> ((out,), saved)`` on arrays checked by
+:func:`glraster.diff.texture_args.check` (layouts there), and ``backward(saved, grad_out,
+needs=None) -> (grad_tex, grad_uv, grad_uv_da, grad_mip_level_bias, *grad_mip)``.
 
 The level (mipmap modes) is seed 003's: with J the Jacobian of the texel position
 (s Wt, t Ht) with respect to the image pixel (X, Y), a = Wt ds/dX, b = Wt ds/dY,
@@ -33,24 +24,15 @@ every finer texel counts and the texel-centre convention holds at every level.
 from __future__ import annotations
 
 import math
-import numbers
 from dataclasses import dataclass
 
 import numpy as np
 
 from glraster.diff import layout
+from glraster.diff.texture_args import TextureArgs, TextureSaved, level_shapes, wanted
 
-__all__ = [
-    "BOUNDARY_MODES", "FILTER_MODES", "OwnMips", "TextureArgs", "TextureSaved", "backward",
-    "build_mips", "check_arguments", "forward", "level_shapes", "lookup_geometry",
-    "mips_backward", "texel_sums",
-]
-
-FILTER_MODES = ("auto", "nearest", "linear", "linear-mipmap-nearest", "linear-mipmap-linear")
-BOUNDARY_MODES = ("wrap", "clamp", "zero", "cube")
-MIP_MODES = ("linear-mipmap-nearest", "linear-mipmap-linear")
-FILTER_CODE = {"nearest": 0, "linear": 1, "linear-mipmap-nearest": 2, "linear-mipmap-linear": 3}
-BOUNDARY_CODE = {"wrap": 0, "clamp": 1, "zero": 2, "cube": 3}
+__all__ = ["backward", "build_mips", "forward", "level_shapes", "lookup_geometry",
+           "mips_backward", "texel_sums"]
 
 # cube faces (+x, -x, +y, -y, +z, -z), GL's table 8.19: s_c = sigma_s d[axis_s],
 # t_c = sigma_t d[axis_t], m = sigma_m d[axis_m] > 0, s = (s_c / m + 1) / 2 (t alike)
@@ -65,175 +47,6 @@ CUBE_FACES = np.array([
 ], np.int64)
 
 LN2 = math.log(2.0)
-
-
-# --------------------------------------------------------------------------- arguments
-
-
-@dataclass(frozen=True)
-class TextureArgs:
-    """Checked arguments of a texture call (arrays C-contiguous, of one float dtype).
-
-    ``shapes`` lists (H_k, W_k) of every level used (base first); ``mip`` the given levels
-    1 .. (all given, checked; the first ``levels - 1`` are used; None when the pyramid is
-    built or the mode has no mipmaps); ``own_mips``: ``mip`` is tex's own pyramid built
-    earlier (:class:`OwnMips`), whose level gradients the backward pulls back into the base
-    as for a pyramid built in the call; ``filter_mode`` is resolved ('auto' replaced);
-    ``levels`` = len(shapes)."""
-
-    tex: np.ndarray
-    uv: np.ndarray
-    uv_da: np.ndarray | None
-    bias: np.ndarray | None
-    mip: tuple | None
-    filter_mode: str
-    boundary_mode: str
-    shapes: tuple
-    own_mips: bool = False
-
-    @property
-    def cube(self) -> bool:
-        return self.boundary_mode == "cube"
-
-    @property
-    def levels(self) -> int:
-        return len(self.shapes)
-
-    @property
-    def mipmapped(self) -> bool:
-        return self.filter_mode in MIP_MODES
-
-    @property
-    def channels(self) -> int:
-        return self.tex.shape[-1]
-
-
-@dataclass(frozen=True)
-class OwnMips:
-    """Levels 1, 2, ... of tex's own pyramid, built earlier by :func:`build_mips` (or the
-    GPU's :func:`glraster.diff.texture.build_mips`), passed as ``mip`` to skip building
-    them again. Unlike a user's mip stack (a list), they get no gradient of their own: their
-    gradients are pulled back into tex through the box filter, as for a pyramid built in
-    the call, so tex's gradient is the same as with ``mip=None``."""
-
-    levels: tuple
-
-
-def level_shapes(height: int, width: int, max_mip_level=None) -> list[tuple[int, int]]:
-    """(H_k, W_k) of the base and every mip level: halved (floor, at least 1) down to 1 x 1,
-    at most ``max_mip_level`` levels after the base (None: all)."""
-    shapes = [(int(height), int(width))]
-    while shapes[-1] != (1, 1) and (max_mip_level is None or len(shapes) <= max_mip_level):
-        h, w = shapes[-1]
-        shapes.append((max(1, h // 2), max(1, w // 2)))
-    return shapes
-
-
-def _float_array(name, value, dtype, ndim_text):
-    arr = layout.real_array(name, value)
-    with np.errstate(over="ignore"):
-        out = np.ascontiguousarray(arr, dtype=dtype)
-    return arr, out
-
-
-def _finite(name, arr, out):
-    bad = ~np.isfinite(out)
-    if bad.any():
-        where = tuple(int(i) for i in np.argwhere(bad)[0])
-        raise ValueError(f"{name} must be finite, got NaN or Inf (or a value beyond "
-                         f"{out.dtype}) at index {where}")
-    return out
-
-
-def check_arguments(tex, uv, uv_da=None, mip_level_bias=None, mip=None, filter_mode="auto",
-                    boundary_mode="wrap", max_mip_level=None, dtype=np.float64) -> TextureArgs:
-    """Every argument of :func:`forward` checked (ValueError naming it) and converted."""
-    if not isinstance(boundary_mode, str) or boundary_mode not in BOUNDARY_MODES:
-        raise ValueError(f"boundary_mode must be one of {BOUNDARY_MODES}, got {boundary_mode!r}")
-    if not isinstance(filter_mode, str) or filter_mode not in FILTER_MODES:
-        raise ValueError(f"filter_mode must be one of {FILTER_MODES}, got {filter_mode!r}")
-    if max_mip_level is not None and (isinstance(max_mip_level, (bool, np.bool_)) or not
-                                      isinstance(max_mip_level, numbers.Integral)
-                                      or max_mip_level < 0):
-        raise ValueError(f"max_mip_level must be None or an integer >= 0, got {max_mip_level!r}")
-    cube = boundary_mode == "cube"
-
-    arr, tex_ = _float_array("tex", tex, dtype, None)
-    if cube:
-        if arr.ndim != 5 or arr.shape[1] != 6 or arr.shape[2] != arr.shape[3]:
-            raise ValueError("tex must have shape (B, 6, N, N, C) (a cube map of square faces)"
-                             f" with boundary_mode='cube', got {arr.shape}")
-    elif arr.ndim != 4:
-        more = " (a 5-D tex is a cube map: pass boundary_mode='cube')" if arr.ndim == 5 else ""
-        raise ValueError(f"tex must have shape (B, Ht, Wt, C), got {arr.shape}{more}")
-    if min(arr.shape) < 1:
-        raise ValueError(f"tex must have every extent >= 1, got shape {arr.shape}")
-    tex_ = _finite("tex", arr, tex_)
-
-    coords = 3 if cube else 2
-    arr, uv_ = _float_array("uv", uv, dtype, None)
-    if arr.ndim != 4 or arr.shape[-1] != coords:
-        what = "a direction (x, y, z) per pixel with boundary_mode='cube'" if cube else "(s, t)"
-        raise ValueError(f"uv must have shape (B, H, W, {coords}) ({what}), got {arr.shape}")
-    if arr.shape[0] < 1:
-        raise ValueError(f"uv must have a batch of at least 1, got shape {arr.shape}")
-    uv_ = _finite("uv", arr, uv_)
-    batch = uv_.shape[0]
-    if tex_.shape[0] not in (1, batch):
-        raise ValueError(f"tex has a batch of {tex_.shape[0]}, uv of {batch}: they must match "
-                         "(or tex's be 1)")
-
-    da = None
-    if uv_da is not None:
-        arr, da = _float_array("uv_da", uv_da, dtype, None)
-        want = uv_.shape[:3] + (2 * coords,)
-        if arr.shape != want:
-            raise ValueError(f"uv_da must have shape {want} (uv's with the last axis twice as "
-                             f"long), got {arr.shape}")
-        da = _finite("uv_da", arr, da)
-    bias = None
-    if mip_level_bias is not None:
-        arr, bias = _float_array("mip_level_bias", mip_level_bias, dtype, None)
-        if arr.shape != uv_.shape[:3]:
-            raise ValueError(f"mip_level_bias must have shape {uv_.shape[:3]} (B, H, W), "
-                             f"got {arr.shape}")
-        bias = _finite("mip_level_bias", arr, bias)
-
-    if filter_mode == "auto":
-        filter_mode = "linear-mipmap-linear" if (da is not None or bias is not None) else "linear"
-    height, width = tex_.shape[-3], tex_.shape[-2]
-    if filter_mode not in MIP_MODES:
-        shapes = ((height, width),)
-        mip_ = None
-    elif mip is None:
-        shapes = tuple(level_shapes(height, width, max_mip_level))
-        mip_ = None
-    else:
-        own = isinstance(mip, OwnMips)
-        if own:
-            mip = mip.levels
-        if isinstance(mip, np.ndarray) or not isinstance(mip, (list, tuple)):
-            raise ValueError(f"mip must be None or a list of mip levels 1, 2, ... (arrays), "
-                             f"got {type(mip).__name__}")
-        full = level_shapes(height, width)
-        if len(mip) > len(full) - 1:
-            raise ValueError(f"mip has {len(mip)} levels, more than the {len(full) - 1} a "
-                             f"{height}x{width} texture has below its base")
-        used = len(mip) if max_mip_level is None else min(len(mip), int(max_mip_level))
-        levels = []
-        for k in range(len(mip)):
-            name = f"mip[{k}]"
-            arr, level = _float_array(name, mip[k], dtype, None)
-            h, w = full[k + 1]
-            want = tex_.shape[:-3] + (h, w, tex_.shape[-1])
-            if arr.shape != want:
-                raise ValueError(f"{name} (mip level {k + 1}) must have shape {want}, got "
-                                 f"{arr.shape}")
-            levels.append(_finite(name, arr, level))
-        shapes = tuple(full[:used + 1])
-        mip_ = tuple(levels)
-        return TextureArgs(tex_, uv_, da, bias, mip_, filter_mode, boundary_mode, shapes, own)
-    return TextureArgs(tex_, uv_, da, bias, mip_, filter_mode, boundary_mode, shapes)
 
 
 # --------------------------------------------------------------------------- mip pyramid
@@ -301,17 +114,6 @@ def mips_backward(grad_levels, shapes) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- sampling
-
-
-@dataclass
-class TextureSaved:
-    """What :func:`backward` needs from :func:`forward`: the checked arguments and every
-    level (base first, float64)."""
-
-    args: TextureArgs
-    levels: list
-
-
 def _cube_face(d):
     """Face index (N,), s, t in [0, 1] (N,) and ds/dd, dt/dd (N, 3) of directions d (N, 3).
     The major axis is the largest |component| (ties: x before y before z)."""
@@ -541,117 +343,172 @@ def _level_of(args: TextureArgs, uv, da, bias, face_data):
     return level, dda, duv
 
 
-def _evaluate(args: TextureArgs, levels, grad_out=None, touch=False):
-    """Forward (and, with grad_out, backward) on flattened pixels. ``touch``: every texel
-    read counts with weight 1 (for error bounds: sums over the pixels reading a texel)."""
-    cube = args.cube
+
+# --------------------------------------------------------------------------- the lookup
+
+
+def _pixels(args: TextureArgs):
+    """Flattened per-pixel inputs: uv (N, 2|3), uv_da (N, 4|6) or None, bias (N,) or None
+    and the texture image each pixel reads (N,) (0 where tex broadcasts)."""
     batch, height, width, _ = args.uv.shape
     n = batch * height * width
-    channels = args.channels
     uv = args.uv.reshape(n, -1)
     da = None if args.uv_da is None else args.uv_da.reshape(n, -1)
     bias = None if args.bias is None else args.bias.reshape(n)
     image = np.arange(n) // (height * width)
-    tex_batch = args.tex.shape[0]
-    if tex_batch == 1:
+    if args.tex.shape[0] == 1:
         image = np.zeros_like(image)
-    faces = 6 if cube else 1
-    offsets, total = _level_geometry(args.shapes, faces, tex_batch)
-    flat = np.concatenate([lv.reshape(-1, channels) for lv in levels], axis=0)
+    return uv, da, bias, image
 
-    face_data = None
-    if cube:
+
+@dataclass
+class _Lookup:
+    """The texels every pixel reads and what the gradients need (N flattened pixels).
+
+    taps        : the texels read (global index over every level), weights, d weight/ds,dt
+    total       : texels over every level
+    ok          : (N,) bool, the direction samples (cube; all True in 2-D)
+    face_data   : :func:`_cube_face`'s result (cube), else None
+    level_weights : linear-mipmap-linear: the two levels' bilinear weights (N, K), (N, K)
+    live_level  : (N,) bool, the level is inside (0, top), so that its gradient flows
+    dlevel_dda, dlevel_duv : d level / d uv_da (N, 4|6), d level / d direction (N, 3)
+    """
+
+    taps: _Taps
+    total: int
+    ok: np.ndarray
+    face_data: tuple | None
+    level_weights: tuple | None = None
+    live_level: np.ndarray | None = None
+    dlevel_dda: np.ndarray | None = None
+    dlevel_duv: np.ndarray | None = None
+
+
+def _lookup(args: TextureArgs, touch: bool = False) -> _Lookup:
+    """The taps of every pixel for ``args.filter_mode``. ``touch``: every texel read counts
+    with weight 1 (for error bounds: sums over the pixels reading a texel)."""
+    uv, da, bias, image = _pixels(args)
+    n = len(uv)
+    offsets, total = _level_geometry(args.shapes, 6 if args.cube else 1, args.tex.shape[0])
+    if args.cube:
         face_data = _cube_face(uv)
-        face, s, t, ds_duv, dt_duv, ok = face_data
+        face, s, t, _, _, ok = face_data
     else:
-        face, ok = None, np.ones(n, bool)
+        face_data, face, ok = None, None, np.ones(n, bool)
         s, t = uv[:, 0], uv[:, 1]
+    lk = _Lookup(_Taps(n), total, ok, face_data)
 
-    taps = _Taps(n)
-    level = np.zeros(n)
-    frac = np.zeros(n)
-    live_level = np.zeros(n, bool)
-    mode = args.filter_mode
-    if mode == "nearest":
+    def bilinear(level):
+        return _bilinear(level, s, t, image, args.shapes, offsets, args.boundary_mode, face)
+
+    if args.filter_mode == "nearest":
         idx = _nearest(s, t, image, args.shapes, args.boundary_mode, face)
-        taps.add(idx[:, None], np.where(idx >= 0, 1.0, 0.0)[:, None], np.zeros((n, 1)),
-                 np.zeros((n, 1)))
-    elif mode == "linear":
-        taps.add(*_bilinear(np.zeros(n, np.int64), s, t, image, args.shapes, offsets,
-                            args.boundary_mode, face))
+        lk.taps.add(idx[:, None], np.where(idx >= 0, 1.0, 0.0)[:, None], np.zeros((n, 1)),
+                    np.zeros((n, 1)))
+    elif args.filter_mode == "linear":
+        lk.taps.add(*bilinear(np.zeros(n, np.int64)))
     else:
-        top = args.levels - 1
-        raw, dlevel_dda, dlevel_duv = _level_of(args, uv, da, bias, face_data)
-        level = np.clip(raw, 0.0, top)
-        if mode == "linear-mipmap-nearest":
-            l0 = np.floor(level + 0.5).astype(np.int64)
-            l0 = np.minimum(l0, top)
-            taps.add(*_bilinear(l0, s, t, image, args.shapes, offsets, args.boundary_mode, face))
-        else:
-            l0 = np.minimum(np.floor(level).astype(np.int64), top)
-            frac = level - l0
-            l1 = np.minimum(l0 + 1, top)
-            live_level = (raw > 0) & (raw < top)
-            t0 = _bilinear(l0, s, t, image, args.shapes, offsets, args.boundary_mode, face)
-            t1 = _bilinear(l1, s, t, image, args.shapes, offsets, args.boundary_mode, face)
-            raw0, raw1 = t0[1], t1[1]
-            w0, w1 = (1 - frac)[:, None], frac[:, None]
-            taps.add(t0[0], t0[1] * w0, t0[2] * w0, t0[3] * w0)
-            taps.add(t1[0], t1[1] * w1, t1[2] * w1, t1[3] * w1)
-    valid = taps.index >= 0
-    if cube:
+        _mip_taps(args, lk, bilinear, uv, da, bias)
+    taps = lk.taps
+    if args.cube:
         taps.weight[~ok] = 0.0
     if touch:
-        taps.weight = np.where(valid & ((taps.weight != 0) | (np.abs(taps.ds) + np.abs(taps.dt)
-                                                              > 0)), 1.0, 0.0)
-    gathered = np.where(valid[..., None], flat[np.where(valid, taps.index, 0)], 0.0)  # (N,K,C)
-    out = np.einsum("nk,nkc->nc", taps.weight, gathered).reshape(batch, height, width, channels)
-    if grad_out is None:
-        return out, None
+        read = (taps.weight != 0) | (np.abs(taps.ds) + np.abs(taps.dt) > 0)
+        taps.weight = np.where((taps.index >= 0) & read, 1.0, 0.0)
+    return lk
 
-    g = grad_out.reshape(n, channels)
-    # texture
-    grad_flat = np.zeros((total, channels))
+
+def _mip_taps(args: TextureArgs, lk: _Lookup, bilinear, uv, da, bias) -> None:
+    """The mipmap modes' taps at the pixel's level, clamped to the pyramid: the nearest
+    level's bilinear taps, or both neighbouring levels' blended by the level's fraction."""
+    top = args.levels - 1
+    raw, lk.dlevel_dda, lk.dlevel_duv = _level_of(args, uv, da, bias, lk.face_data)
+    level = np.clip(raw, 0.0, top)
+    if args.filter_mode == "linear-mipmap-nearest":
+        lk.taps.add(*bilinear(np.minimum(np.floor(level + 0.5).astype(np.int64), top)))
+        return
+    l0 = np.minimum(np.floor(level).astype(np.int64), top)
+    frac = level - l0
+    lk.live_level = (raw > 0) & (raw < top)
+    t0, t1 = bilinear(l0), bilinear(np.minimum(l0 + 1, top))
+    lk.level_weights = (t0[1], t1[1])
+    for (index, weight, ds, dt), w in ((t0, (1 - frac)[:, None]), (t1, frac[:, None])):
+        lk.taps.add(index, weight * w, ds * w, dt * w)
+
+
+def _gathered(lk: _Lookup, levels, channels: int) -> np.ndarray:
+    """(N, K, C) the values of the texels each pixel reads (0 for no texel)."""
+    flat = np.concatenate([lv.reshape(-1, channels) for lv in levels], axis=0)
+    valid = lk.taps.index >= 0
+    return np.where(valid[..., None], flat[np.where(valid, lk.taps.index, 0)], 0.0)
+
+
+def _texel_gradients(args: TextureArgs, lk: _Lookup, g: np.ndarray, levels) -> list:
+    """dL/d every level read (base first, each of its level's shape) from g (N, C):
+    each tap's weight times g, summed per texel."""
+    taps = lk.taps
+    valid = taps.index >= 0
+    index = np.where(valid, taps.index, 0).ravel()
     contrib = taps.weight[..., None] * g[:, None, :]
-    for c in range(channels):
-        grad_flat[:, c] = np.bincount(np.where(valid, taps.index, 0).ravel(),
-                                      weights=np.where(valid, contrib[..., c], 0.0).ravel(),
-                                      minlength=total)
-    grad_levels = []
-    for k, (h, w) in enumerate(args.shapes):
-        part = grad_flat[offsets[k]:offsets[k] + tex_batch * faces * h * w]
-        grad_levels.append(part.reshape(levels[k].shape))
-    # coordinates
-    tg = np.einsum("nkc,nc->nk", gathered, g)                  # dL/d weight per tap
-    gs = (taps.ds * tg).sum(axis=1)
-    gt = (taps.dt * tg).sum(axis=1)
-    grad_da = grad_bias = None
-    grad_level = np.zeros(n)
-    if mode == "linear-mipmap-linear":
-        # d out / d frac = sample(l1) - sample(l0)
-        base_w = np.concatenate([-raw0, raw1], axis=1)
-        if cube:
-            base_w[~ok] = 0.0
-        grad_level = np.where(live_level, (base_w * tg).sum(axis=1), 0.0)
-        if args.uv_da is not None:
-            grad_da = (grad_level[:, None] * dlevel_dda).reshape(args.uv_da.shape)
-        if args.bias is not None:
-            grad_bias = grad_level.reshape(args.bias.shape)
-    if args.uv_da is not None and grad_da is None:
-        grad_da = np.zeros(args.uv_da.shape)
-    if args.bias is not None and grad_bias is None:
-        grad_bias = np.zeros(args.bias.shape)
-    if cube:
-        grad_uv = gs[:, None] * ds_duv + gt[:, None] * dt_duv
-        if mode == "linear-mipmap-linear" and args.uv_da is not None:
-            grad_uv = grad_uv + grad_level[:, None] * dlevel_duv
-        grad_uv[~ok] = 0.0
-    else:
-        grad_uv = np.stack([gs, gt], axis=1)
-    if mode == "nearest":
-        grad_uv = np.zeros_like(grad_uv)
-    grads = (grad_levels, grad_uv.reshape(args.uv.shape), grad_da, grad_bias)
-    return out, grads
+    grad_flat = np.zeros((lk.total, args.channels))
+    for c in range(args.channels):
+        grad_flat[:, c] = np.bincount(index, weights=np.where(valid, contrib[..., c], 0.0).ravel(),
+                                      minlength=lk.total)
+    out, first = [], 0
+    for level in levels:
+        out.append(grad_flat[first:first + level.size // args.channels].reshape(level.shape))
+        first += level.size // args.channels
+    return out
+
+
+def _level_gradient(args: TextureArgs, lk: _Lookup, tap_grads: np.ndarray) -> np.ndarray:
+    """dL/d level (N,) in linear-mipmap-linear: d out / d frac = sample(l1) - sample(l0),
+    zero where the level is clamped."""
+    raw0, raw1 = lk.level_weights
+    base_w = np.concatenate([-raw0, raw1], axis=1)
+    if args.cube:
+        base_w[~lk.ok] = 0.0
+    return np.where(lk.live_level, (base_w * tap_grads).sum(axis=1), 0.0)
+
+
+def _coordinate_gradients(args: TextureArgs, lk: _Lookup, gathered, g, want):
+    """(grad_uv, grad_uv_da, grad_mip_level_bias) from g (N, C), each None where not
+    wanted (``want``: three bools) or not given; uv_da and the bias have zero gradients
+    except in linear-mipmap-linear (the other modes are piecewise constant in the level)."""
+    want_uv, want_da, want_bias = want
+    want_da &= args.uv_da is not None
+    want_bias &= args.bias is not None
+    tap_grads = np.einsum("nkc,nc->nk", gathered, g)          # dL/d weight per tap
+    trilinear = args.filter_mode == "linear-mipmap-linear"
+    level_into_uv = args.cube and args.uv_da is not None
+    grad_level = None
+    if trilinear and (want_da or want_bias or (want_uv and level_into_uv)):
+        grad_level = _level_gradient(args, lk, tap_grads)
+    grad_da = grad_bias = grad_uv = None
+    if want_da:
+        grad_da = (np.zeros(args.uv_da.shape) if grad_level is None
+                   else (grad_level[:, None] * lk.dlevel_dda).reshape(args.uv_da.shape))
+    if want_bias:
+        grad_bias = (np.zeros(args.bias.shape) if grad_level is None
+                     else grad_level.reshape(args.bias.shape))
+    if want_uv and args.filter_mode == "nearest":
+        grad_uv = np.zeros(args.uv.shape)
+    elif want_uv:
+        gs = (lk.taps.ds * tap_grads).sum(axis=1)
+        gt = (lk.taps.dt * tap_grads).sum(axis=1)
+        if args.cube:
+            _, _, _, ds_duv, dt_duv, ok = lk.face_data
+            grad_uv = gs[:, None] * ds_duv + gt[:, None] * dt_duv
+            if grad_level is not None:
+                grad_uv = grad_uv + grad_level[:, None] * lk.dlevel_duv
+            grad_uv[~ok] = 0.0
+        else:
+            grad_uv = np.stack([gs, gt], axis=1)
+        grad_uv = grad_uv.reshape(args.uv.shape)
+    return grad_uv, grad_da, grad_bias
+
+
+# --------------------------------------------------------------------------- the core
 
 
 def lookup_geometry(args: TextureArgs) -> dict:
@@ -679,53 +536,80 @@ def texel_sums(saved: TextureSaved, values) -> np.ndarray:
     pixels that read the texel, at any level, with weight 1, a built pyramid's levels pulled
     back through its (nonnegative) box filter. For error bounds."""
     args = saved.args
-    values = np.asarray(values, np.float64).reshape(args.uv.shape[:3] + (args.channels,))
-    _, (grad_levels, *_rest) = _evaluate(args, saved.levels, values, touch=True)
-    if args.levels > 1 and (args.mip is None or args.own_mips):
-        return mips_backward(grad_levels, args.shapes)
-    return grad_levels[0]
+    values = np.asarray(values, np.float64).reshape(-1, args.channels)
+    grad_levels = _texel_gradients(args, _lookup(args, touch=True), values, saved.levels)
+    return mips_backward(grad_levels, args.shapes) if args.pulls_pyramid else grad_levels[0]
 
 
-def forward(tex, uv, uv_da=None, mip_level_bias=None, mip=None, filter_mode="auto",
-            boundary_mode="wrap", max_mip_level=None):
-    """Filtered texture lookups in float64 (see the module docstring for the layouts).
+def _levels(args: TextureArgs) -> list:
+    """Every level read, base first: the given ones, or the pyramid built in float64."""
+    if args.levels == 1:
+        return [args.tex]
+    if args.mip is not None:
+        return [args.tex, *args.mip[:args.levels - 1]]
+    return [args.tex, *build_mips(args.tex, args.shapes)]
 
-    Returns ``(out, saved)``: out (B, H, W, C) float64, saved a :class:`TextureSaved`.
+
+def forward(tex, uv, uv_da=None, mip_level_bias=None, *mip, filter_mode="auto",
+            boundary_mode="wrap", max_mip_level=None, own_mips=False, ctx=None):
+    """Filtered texture lookups in float64, on checked arrays (layouts and arguments:
+    :mod:`glraster.diff.texture_args`; ``ctx`` is ignored).
+
+    Returns ``((out,), saved)``: out (B, H, W, C) float64, saved a
+    :class:`~glraster.diff.texture_args.TextureSaved` holding every level read.
     A cube-map direction (0, 0, 0) samples nothing (0, zero gradients).
     """
-    args = check_arguments(tex, uv, uv_da, mip_level_bias, mip, filter_mode, boundary_mode,
-                           max_mip_level)
-    if args.levels == 1:
-        levels = [args.tex]
-    elif args.mip is not None:
-        levels = [args.tex, *args.mip[:args.levels - 1]]
-    else:
-        levels = [args.tex, *build_mips(args.tex, args.shapes)]
-    out, _ = _evaluate(args, levels)
-    return out, TextureSaved(args, levels)
+    args = TextureArgs.of(tex, uv, uv_da, mip_level_bias, mip, filter_mode, boundary_mode,
+                          max_mip_level, own_mips)
+    levels = _levels(args)
+    lk = _lookup(args)
+    out = np.einsum("nk,nkc->nc", lk.taps.weight, _gathered(lk, levels, args.channels))
+    return (out.reshape(args.uv.shape[:3] + (args.channels,)),), TextureSaved(args, levels)
 
 
-def backward(saved: TextureSaved, grad_out):
-    """Gradients of :func:`forward`.
+def backward(saved: TextureSaved, grad_out, *, needs=None, deterministic: bool = False,
+             accumulate: str | None = None):
+    """Gradients of :func:`forward` in float64.
 
-    Returns ``(grad_tex, grad_uv, grad_uv_da, grad_mip_level_bias, grad_mip)`` in float64:
-    grad_tex of tex's shape (a built pyramid's level gradients pulled back into the base
-    through its box filter; summed over the batch where tex broadcast); grad_uv of uv's;
-    grad_uv_da / grad_mip_level_bias of theirs, or None when not given (zeros unless the
-    mode is linear-mipmap-linear: the other modes are piecewise constant in the level);
-    grad_mip a list of the user's mip levels' gradients, or None without ``mip`` (or with
-    :class:`OwnMips`, whose gradients go into grad_tex).
+    Args:
+        saved: the second value :func:`forward` returned.
+        grad_out: (B, H, W, C) dL/d out, or None (zero).
+        needs: None (all) or one bool per input (tex, uv, uv_da, mip_level_bias, *mip): the
+            gradients to compute; the texel sums are skipped when neither tex nor a mip
+            level needs one, the coordinates' when uv, uv_da and the bias need none.
+        deterministic, accumulate: the GPU core's options, accepted for the one signature
+            (the reference always sums in a fixed order in float64).
+
+    Returns:
+        ``(grad_tex, grad_uv, grad_uv_da, grad_mip_level_bias, *grad_mip)``, float64, None
+        where not wanted or not given: grad_tex of tex's shape (a built pyramid's or own
+        mips' level gradients pulled back into the base through its box filter; summed
+        over the batch where tex broadcast); grad_uv_da / grad_mip_level_bias zeros unless
+        the mode is linear-mipmap-linear; each of a user's mip levels its own gradient
+        (zeros for levels beyond ``max_mip_level``; None without mipmapping, or with
+        ``own_mips``).
     """
     args = saved.args
-    want = args.uv.shape[:3] + (args.channels,)
-    grad_out = layout.image("grad_out", grad_out, shape=want)
-    _, (grad_levels, grad_uv, grad_da, grad_bias) = _evaluate(args, saved.levels, grad_out)
-    grad_mip = None
-    if args.mip is not None and not args.own_mips:
-        grad_tex = grad_levels[0]
-        grad_mip = list(grad_levels[1:]) + [np.zeros(m.shape) for m in args.mip[args.levels - 1:]]
-    elif args.levels == 1:
-        grad_tex = grad_levels[0]
-    else:
-        grad_tex = mips_backward(grad_levels, args.shapes)
-    return grad_tex, grad_uv, grad_da, grad_bias, grad_mip
+    mips = len(args.mip or ())
+    want = wanted(needs, 4 + mips)
+    shape = args.uv.shape[:3] + (args.channels,)
+    grad_out = (np.zeros(shape) if grad_out is None
+                else layout.image("grad_out", grad_out, shape=shape))
+    g = grad_out.reshape(-1, args.channels)
+    lk = _lookup(args)
+    grad_tex, grad_mip = None, [None] * mips
+    user = len(args.user_mips) if args.mipmapped else 0
+    if want[0] or any(want[4:4 + user]):
+        grad_levels = _texel_gradients(args, lk, g, saved.levels)
+        if want[0]:
+            grad_tex = (mips_backward(grad_levels, args.shapes) if args.pulls_pyramid
+                        else grad_levels[0])
+        for k in range(user):
+            if want[4 + k]:
+                grad_mip[k] = (grad_levels[k + 1] if k + 1 < args.levels
+                               else np.zeros(args.mip[k].shape))
+    grad_coords = (None, None, None)
+    if any(want[1:4]):
+        gathered = _gathered(lk, saved.levels, args.channels)
+        grad_coords = _coordinate_gradients(args, lk, gathered, g, want[1:4])
+    return (grad_tex, *grad_coords, *grad_mip)

@@ -21,7 +21,7 @@ coverage); the background is 0. Methods (:func:`methods`), each giving an image 
 - ``MSAA S``: ``rasterize(samples=S)``, the mean of the values of the per-sample triangle
   ids (with every value 1, :attr:`glraster.types.Raster.coverage`), for every S > 1 the
   driver offers (``Context.sample_counts``);
-- ``analytic AA``: :func:`glraster.diff.antialias.antialias` applied to the 1-sample
+- ``analytic AA``: :func:`glraster.diff.antialias.forward` applied to the 1-sample
   image: the differentiable op's blend across silhouette edges, from one sample per pixel.
 
 The truth is the exact box-filtered image (:func:`exact_image`): the visible area of each
@@ -210,17 +210,18 @@ def _msaa(s):
 
 
 def _analytic(scene, resolution, ctx):
-    from glraster.diff import antialias as aa
-    from glraster.diff.ops import RASTERIZE
+    from glraster.diff.ops import ANTIALIAS, RASTERIZE
+    from glraster.diff.topology_hash import antialias_construct_topology_hash
 
-    topology = aa.antialias_construct_topology_hash(scene.tri)
+    topology = antialias_construct_topology_hash(scene.tri)
 
     def run():
         (rast, _), _ = RASTERIZE.forward(np.asarray(scene.pos, np.float32), tri=scene.tri,
                                          resolution=resolution, ctx=ctx, grad_db=False)
         ids = rast[..., 3].astype(np.int64) - 1           # id + 1 as a float, exact
         color = scene.shade(ids)[..., None].astype(np.float32)
-        out, _ = aa.antialias(color, rast, scene.pos, scene.tri, topology, ctx=ctx)
+        (out,), _ = ANTIALIAS.forward(color, rast, scene.pos, tri=scene.tri,
+                                      topology_hash=topology, ctx=ctx)
         return out[0, ..., 0].astype(np.float64)
     return run
 

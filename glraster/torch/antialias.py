@@ -1,6 +1,7 @@
 """``antialias`` and ``antialias_construct_topology_hash`` with nvdiffrast's signatures.
 
-One private :class:`torch.autograd.Function` around the NumPy cores: float32 tensors run
+One private :class:`torch.autograd.Function` around the cores of
+:data:`glraster.diff.ops.ANTIALIAS`: float32 tensors run
 :mod:`glraster.diff.antialias` (OpenGL compute shaders), float64 tensors the float64
 reference :mod:`glraster.diff.antialias_reference` (so ``torch.autograd.gradcheck`` checks
 the closed-form backward). Tensors live on the CPU.
@@ -18,50 +19,25 @@ import numpy as np
 import torch
 from torch.autograd.function import once_differentiable
 
-from glraster.diff import antialias_reference as _ref
+from glraster.diff import topology_hash as _topology
+from glraster.diff.ops import ANTIALIAS
 from glraster.torch import _checks
 from glraster.torch.context import RasterizeGLContext
 
 __all__ = ["antialias", "antialias_construct_topology_hash"]
 
 
-class _AntialiasOp:
-    def __init__(self, glctx, tri, topology_hash, boost, convex):
-        self.glctx = glctx
-        self.tri = tri
-        self.topology_hash = topology_hash
-        self.boost = boost
-        self.convex = convex
-
-    def forward(self, color, rast, pos):
-        if color.dtype == np.float64:
-            return _ref.antialias_forward(color, rast, pos, self.tri, self.topology_hash,
-                                          self.boost, convex=self.convex)
-        from glraster.diff import antialias as gpu_antialias
-
-        ctx = None if self.glctx is None else self.glctx.context
-        return gpu_antialias.antialias(color, rast, pos, self.tri, self.topology_hash,
-                                       self.boost, ctx=ctx, convex=self.convex)
-
-    def backward(self, saved, dtype, grad_out):
-        if dtype == np.float64:
-            return _ref.antialias_backward(saved, grad_out)
-        from glraster.diff import antialias as gpu_antialias
-
-        return gpu_antialias.backward(saved, grad_out)
-
-
 class _AntialiasFunction(torch.autograd.Function):
     @staticmethod
-    def forward(fctx, color, pos, rast, op):
-        color_np, pos_np, rast_np = _checks.numpy(color), _checks.numpy(pos), _checks.numpy(rast)
-        out, saved = op.forward(color_np, rast_np, pos_np)
+    def forward(fctx, color, pos, rast, checked):
+        inputs, params = checked   # from ANTIALIAS.check
+        dtype = inputs[0].dtype
+        (out,), saved = ANTIALIAS.core(dtype).forward(*inputs, **params)
         fctx.save_for_backward(color, pos, rast)  # in-place changes are then refused
-        fctx.op, fctx.saved = op, saved
-        fctx.dtype = color_np.dtype
-        fctx.shapes = (color_np.shape, pos_np.shape)
+        fctx.saved, fctx.dtype = saved, dtype
+        fctx.shapes = (inputs[0].shape, inputs[2].shape)
         fctx.set_materialize_grads(False)
-        return _checks.to_torch(np.asarray(out, color_np.dtype))
+        return _checks.to_torch(np.asarray(out, dtype))
 
     @staticmethod
     @once_differentiable
@@ -72,7 +48,8 @@ class _AntialiasFunction(torch.autograd.Function):
         fctx.saved_tensors  # raises if an input changed in place since the forward
         dtype = fctx.dtype
         g = _checks.numpy(grad_out).astype(dtype, copy=False)
-        grad_color, grad_pos = fctx.op.backward(fctx.saved, dtype, g)
+        grad_color, _, grad_pos = ANTIALIAS.core(dtype).backward(
+            fctx.saved, g, needs=(need_color, False, need_pos))
         color_shape, pos_shape = fctx.shapes
         return (_checks.to_torch(np.asarray(grad_color, dtype).reshape(color_shape))
                 if need_color else None,
@@ -90,14 +67,14 @@ def antialias_construct_topology_hash(tri, *, pos=None):
         weld vertices with exactly equal positions, so that duplicated vertices (texture
         seams) do not make every edge a silhouette.
 
-    Returns an opaque object (a :class:`glraster.diff.antialias_reference.TopologyHash`).
+    Returns an opaque object (a :class:`glraster.diff.topology_hash.TopologyHash`).
     """
     _checks.tensor("tri", tri, _checks.INT_DTYPES)
     pos_np = None
     if pos is not None:
         _checks.tensor("pos", pos, _checks.FLOAT_DTYPES)
         pos_np = _checks.numpy(pos)
-    return _ref.antialias_construct_topology_hash(_checks.numpy(tri), pos=pos_np)
+    return _topology.antialias_construct_topology_hash(_checks.numpy(tri), pos=pos_np)
 
 
 def antialias(color, rast, pos, tri, topology_hash=None, pos_gradient_boost=1.0, *,
@@ -137,9 +114,8 @@ def antialias(color, rast, pos, tri, topology_hash=None, pos_gradient_boost=1.0,
     _checks.same_dtype("rast", rast, "color", color.dtype)
     _checks.same_dtype("pos", pos, "color", color.dtype)
     _checks.tensor("tri", tri, _checks.INT_DTYPES)
-    dtype = _checks.numpy(color).dtype
-    _, _, _, tri_np, th, boost, convex = _ref.check_inputs(
-        _checks.numpy(color), _checks.numpy(rast), _checks.numpy(pos), _checks.numpy(tri),
-        topology_hash, pos_gradient_boost, convex, dtype=dtype)
-    op = _AntialiasOp(glctx, tri_np, th, boost, convex)
-    return _AntialiasFunction.apply(color, pos, rast, op)
+    checked = ANTIALIAS.check(
+        _checks.numpy(color), _checks.numpy(rast), _checks.numpy(pos), tri=_checks.numpy(tri),
+        topology_hash=topology_hash, pos_gradient_boost=pos_gradient_boost, convex=convex,
+        ctx=None if glctx is None else glctx.context)
+    return _AntialiasFunction.apply(color, pos, rast, checked)

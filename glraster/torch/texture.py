@@ -1,6 +1,7 @@
 """``texture`` with nvdiffrast's signature and layouts: one private autograd Function around
-:mod:`glraster.diff.texture` (float32, OpenGL compute shaders) and
-:mod:`glraster.diff.texture_reference` (float64, NumPy; for ``gradcheck``).
+:data:`glraster.diff.ops.TEXTURE`'s cores: :mod:`glraster.diff.texture` (float32, OpenGL
+compute shaders) and :mod:`glraster.diff.texture_reference` (float64, NumPy; for
+``gradcheck``).
 
 Layouts (B batch, H x W image):
 
@@ -30,12 +31,6 @@ from glraster.torch.context import RasterizeGLContext
 __all__ = ["TextureMip", "texture", "texture_construct_mip"]
 
 _log = logging.getLogger(__name__)
-
-
-def _reference():
-    from glraster.diff import texture_reference
-
-    return texture_reference
 
 
 def _source_key(tex: torch.Tensor) -> tuple:
@@ -74,16 +69,16 @@ class TextureMip:
         self._build(tex)
 
     def _build(self, tex: torch.Tensor) -> None:
-        from glraster.diff import texture_reference as ref
+        from glraster.diff import texture_args, texture_reference
 
         array = _checks.numpy(tex)
         boundary = "cube" if self.cube_mode else "wrap"
         if array.dtype == np.float64:
-            shapes = ref.level_shapes(array.shape[-3], array.shape[-2], self.max_mip_level)
-            ref.check_arguments(array, np.zeros((array.shape[0], 1, 1, 3 if self.cube_mode
-                                                 else 2)), None, None, None, "linear",
-                                boundary)
-            levels = ref.build_mips(array, shapes)
+            shapes = texture_args.level_shapes(array.shape[-3], array.shape[-2],
+                                               self.max_mip_level)
+            texture_args.check(array, np.zeros((array.shape[0], 1, 1, 3 if self.cube_mode
+                                                else 2)), boundary_mode=boundary)
+            levels = texture_reference.build_mips(array, shapes)
         else:
             from glraster.diff import texture as gpu_texture
 
@@ -152,51 +147,44 @@ def texture_construct_mip(tex, max_mip_level=None, cube_mode=False, *, glctx=Non
 class _TextureFunction(torch.autograd.Function):
     @staticmethod
     def forward(fctx, op, tex, uv, uv_da, bias, *mip):
+        from glraster.diff.ops import TEXTURE
+
         dtype = _checks.numpy(tex).dtype
         arrays = [None if t is None else _checks.numpy(t) for t in (tex, uv, uv_da, bias)]
-        mip_np = [_checks.numpy(m) for m in mip] if op["mip_given"] else op["own_mips"]
-        kwargs = dict(filter_mode=op["filter_mode"], boundary_mode=op["boundary_mode"],
-                      max_mip_level=op["max_mip_level"])
-        if dtype == np.float64:
-            out, saved = _reference().forward(*arrays, mip_np, **kwargs)
-        else:
-            from glraster.diff import texture as gpu_texture
-
-            glctx = op["glctx"]
-            out, saved = gpu_texture.forward(*arrays, mip_np, **kwargs,
-                                             ctx=None if glctx is None else glctx.context)
+        mip_np = [_checks.numpy(m) for m in mip] if op["mip_given"] else list(op["own_mips"])
+        glctx = op["glctx"]
+        inputs, params = TEXTURE.check(
+            *arrays, *mip_np, filter_mode=op["filter_mode"], boundary_mode=op["boundary_mode"],
+            max_mip_level=op["max_mip_level"], own_mips=not op["mip_given"] and bool(mip_np),
+            ctx=None if glctx is None else glctx.context)
+        (out,), saved = TEXTURE.core(dtype).forward(*inputs, **params)
         fctx.save_for_backward(tex, uv, uv_da, bias, *mip)  # in-place changes are refused
-        fctx.saved, fctx.dtype = saved, dtype
+        fctx.saved, fctx.dtype, fctx.core_inputs = saved, dtype, len(inputs)
         fctx.set_materialize_grads(False)
         return _checks.to_torch(np.asarray(out, dtype))
 
     @staticmethod
     @once_differentiable
     def backward(fctx, grad_out):
-        n_inputs = len(fctx.needs_input_grad)
-        if grad_out is None or not any(fctx.needs_input_grad[1:]):
+        from glraster.diff.ops import TEXTURE
+
+        need = fctx.needs_input_grad
+        n_inputs = len(need)
+        if grad_out is None or not any(need[1:]):
             return (None,) * n_inputs
         fctx.saved_tensors  # raises if an input changed in place since the forward
         dtype = fctx.dtype
         g = _checks.numpy(grad_out).astype(dtype, copy=False)
-        if dtype == np.float64:
-            grads = _reference().backward(fctx.saved, g)
-        else:
-            from glraster.diff import texture as gpu_texture
-
-            grads = gpu_texture.backward(fctx.saved, g)
-        grad_tex, grad_uv, grad_da, grad_bias, grad_mip = grads
-        need = fctx.needs_input_grad
+        # core inputs: tex, uv, uv_da, bias, then the mip tensors (or own mips: no grads)
+        needs = list(need[1:]) + [False] * (fctx.core_inputs - (n_inputs - 1))
+        grads = TEXTURE.core(dtype).backward(fctx.saved, g, needs=tuple(needs))
 
         def wrap(k, value):
             if not need[k] or value is None:
                 return None
             return _checks.to_torch(np.asarray(value, dtype))
 
-        out = [None, wrap(1, grad_tex), wrap(2, grad_uv), wrap(3, grad_da), wrap(4, grad_bias)]
-        for k in range(5, n_inputs):
-            out.append(wrap(k, None if grad_mip is None else grad_mip[k - 5]))
-        return tuple(out)
+        return (None, *(wrap(k + 1, grads[k]) for k in range(n_inputs - 1)))
 
 
 def texture(tex, uv, uv_da=None, mip_level_bias=None, mip=None, filter_mode="auto",
@@ -238,7 +226,7 @@ def texture(tex, uv, uv_da=None, mip_level_bias=None, mip=None, filter_mode="aut
                          f"{type(glctx).__name__}")
     _checks.tensor("tex", tex, _checks.FLOAT_DTYPES)
     named = [("uv", uv), ("uv_da", uv_da), ("mip_level_bias", mip_level_bias)]
-    own_mips = None
+    own_mips = ()
     if isinstance(mip, TextureMip):
         if mip.cube_mode != (boundary_mode == "cube"):
             raise ValueError(f"mip was built with cube_mode={mip.cube_mode}, which needs "
@@ -257,18 +245,14 @@ def texture(tex, uv, uv_da=None, mip_level_bias=None, mip=None, filter_mode="aut
             continue
         _checks.tensor(name, value, _checks.FLOAT_DTYPES)
         _checks.same_dtype(name, value, "tex", tex.dtype)
-    dtype = np.float64 if tex.dtype == torch.float64 else np.float32
-    # every shape and value check, before anything runs (ValueError naming the argument)
-    args = _reference().check_arguments(
-        _checks.numpy(tex), _checks.numpy(uv),
-        None if uv_da is None else _checks.numpy(uv_da),
-        None if mip_level_bias is None else _checks.numpy(mip_level_bias),
-        None if mip is None or isinstance(mip, TextureMip) else [_checks.numpy(m) for m in mip],
-        filter_mode, boundary_mode, max_mip_level, dtype=dtype)
     if isinstance(mip, TextureMip):
-        if args.mipmapped:   # the other modes read the base only
-            own_mips = _reference().OwnMips(tuple(_checks.numpy(m)
-                                                  for m in mip.levels_for(tex)))
+        from glraster.diff.texture_args import MIP_MODES
+
+        auto = ("linear-mipmap-linear" if uv_da is not None or mip_level_bias is not None
+                else "linear")
+        if (auto if filter_mode == "auto" else filter_mode) in MIP_MODES:
+            # the other modes read the base only
+            own_mips = tuple(_checks.numpy(m) for m in mip.levels_for(tex))
         mip = None
     op = {"filter_mode": filter_mode, "boundary_mode": boundary_mode,
           "max_mip_level": max_mip_level, "glctx": glctx, "mip_given": mip is not None,

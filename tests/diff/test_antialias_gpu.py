@@ -11,7 +11,13 @@ import pytest
 from glraster.diff import antialias as gaa
 from glraster.diff import antialias_reference as aar
 from glraster.diff.ops import INTERPOLATE, RASTERIZE
-from tests.diff.test_antialias_reference import behind_scene, mesh_scene, soup_scene
+from tests.diff.test_antialias_reference import (
+    antialias_backward,
+    antialias_forward,
+    behind_scene,
+    mesh_scene,
+    soup_scene,
+)
 
 U = 2.0 ** -24
 RES = (72, 96)
@@ -35,6 +41,11 @@ def scenes():
 
 
 SCENES = scenes()
+
+
+def gpu_antialias(*args, **kwargs):
+    """The GPU core through ANTIALIAS.check (float32)."""
+    return antialias_forward(*args, dtype=np.float32, **kwargs)
 
 
 def reference_records(p: aar.Pairs, shape) -> np.ndarray:
@@ -67,7 +78,7 @@ def out_bound(p: aar.Pairs, col, convex=True):
 def test_records_equal_the_reference_outside_the_decision_band(ctx):
     for name, (pos, tri, colors) in SCENES.items():
         rast, col = render(ctx, pos, tri, colors)
-        _, saved = aar.antialias_forward(col, rast, pos, tri)
+        _, saved = antialias_forward(col, rast, pos, tri)
         p = saved.pairs
         want = reference_records(p, col.shape)
         got = gaa.pair_records(col, rast, pos, tri, ctx=ctx)[..., :3].astype(np.int64)
@@ -92,8 +103,8 @@ def test_records_equal_the_reference_outside_the_decision_band(ctx):
 def test_output_within_the_float32_bound(ctx, convex):
     for name, (pos, tri, colors) in SCENES.items():
         rast, col = render(ctx, pos, tri, colors)
-        ref_out, saved = aar.antialias_forward(col, rast, pos, tri, convex=convex)
-        out, _ = gaa.antialias(col, rast, pos, tri, ctx=ctx, convex=convex)
+        ref_out, saved = antialias_forward(col, rast, pos, tri, convex=convex)
+        out, _ = gpu_antialias(col, rast, pos, tri, ctx=ctx, convex=convex)
         p = saved.pairs
         keep = ~p.ambiguous
         err = np.abs(out - ref_out)
@@ -130,12 +141,12 @@ def test_gradients_within_the_float32_bound(ctx, accumulate):
         pytest.skip("no GL_NV_shader_atomic_float")
     for name, (pos, tri, colors) in SCENES.items():
         rast, col = render(ctx, pos, tri, colors)
-        _, saved = aar.antialias_forward(col, rast, pos, tri)
+        _, saved = antialias_forward(col, rast, pos, tri)
         p = saved.pairs
         g = upstream(p, col.shape)
-        ref_gc, ref_gp = aar.antialias_backward(saved, g)
-        _, gsaved = gaa.antialias(col, rast, pos, tri, ctx=ctx)
-        gc, gp = gaa.backward(gsaved, g, accumulate=accumulate)
+        ref_gc, ref_gp = antialias_backward(saved, g)
+        _, gsaved = gpu_antialias(col, rast, pos, tri, ctx=ctx)
+        gc, gp = antialias_backward(gsaved, g, accumulate=accumulate)
         # colour: the same weight errors as the output, times |g|
         bound = gc_bound(p, col, g) + 8 * U * np.abs(ref_gc)
         assert (np.abs(gc - ref_gc) <= bound + 1e-30).all(), name
@@ -173,9 +184,9 @@ def _dl_dalpha(saved, g):
 def test_deterministic_backward_is_bit_identical(ctx):
     pos, tri, colors = SCENES["icosphere"]
     rast, col = render(ctx, pos, tri, colors)
-    _, saved = gaa.antialias(col, rast, pos, tri, ctx=ctx)
+    _, saved = gpu_antialias(col, rast, pos, tri, ctx=ctx)
     g = np.random.default_rng(3).normal(size=col.shape)
-    runs = [gaa.backward(saved, g, deterministic=True) for _ in range(3)]
+    runs = [antialias_backward(saved, g, deterministic=True) for _ in range(3)]
     for gc, gp in runs[1:]:
         assert np.array_equal(gc, runs[0][0]) and np.array_equal(gp, runs[0][1])
 
@@ -189,19 +200,19 @@ def test_batches_instanced_and_shared_pos(ctx):
     r1, c1 = render(ctx, pos1, tri, colors)
     rast, col = np.concatenate([r0, r1]), np.concatenate([c0, c1])
     g = np.random.default_rng(1).normal(size=col.shape)
-    out, saved = gaa.antialias(col, rast, np.stack([pos0, pos1]), tri, ctx=ctx)
-    o0, s0 = gaa.antialias(c0, r0, pos0, tri, ctx=ctx)
-    o1, s1 = gaa.antialias(c1, r1, pos1, tri, ctx=ctx)
+    out, saved = gpu_antialias(col, rast, np.stack([pos0, pos1]), tri, ctx=ctx)
+    o0, s0 = gpu_antialias(c0, r0, pos0, tri, ctx=ctx)
+    o1, s1 = gpu_antialias(c1, r1, pos1, tri, ctx=ctx)
     np.testing.assert_array_equal(out, np.concatenate([o0, o1]))
-    gc, gp = gaa.backward(saved, g, deterministic=True)
-    gc0, gp0 = gaa.backward(s0, g[:1], deterministic=True)
-    gc1, gp1 = gaa.backward(s1, g[1:], deterministic=True)
+    gc, gp = antialias_backward(saved, g, deterministic=True)
+    gc0, gp0 = antialias_backward(s0, g[:1], deterministic=True)
+    gc1, gp1 = antialias_backward(s1, g[1:], deterministic=True)
     np.testing.assert_array_equal(gc, np.concatenate([gc0, gc1]))
     np.testing.assert_allclose(gp, np.stack([gp0, gp1]), rtol=1e-6, atol=1e-6)
     # shared pos: both images drawn from pos0
     rast2, col2 = np.concatenate([r0, r0]), np.concatenate([c0, c0])
-    _, ssaved = gaa.antialias(col2, rast2, pos0, tri, ctx=ctx)
-    _, gps = gaa.backward(ssaved, np.concatenate([g[:1], g[:1]]), deterministic=True)
+    _, ssaved = gpu_antialias(col2, rast2, pos0, tri, ctx=ctx)
+    _, gps = antialias_backward(ssaved, np.concatenate([g[:1], g[:1]]), deterministic=True)
     np.testing.assert_allclose(gps, 2 * gp0, rtol=1e-6, atol=1e-5)
 
 
@@ -209,17 +220,17 @@ def test_pos_gradient_boost_and_welding_on_the_gpu(ctx):
     pos, tri, colors = SCENES["icosphere"]
     rast, col = render(ctx, pos, tri, colors)
     g = np.random.default_rng(2).normal(size=col.shape)
-    _, s1 = gaa.antialias(col, rast, pos, tri, ctx=ctx)
-    _, s4 = gaa.antialias(col, rast, pos, tri, ctx=ctx, pos_gradient_boost=4.0)
-    _, p1 = gaa.backward(s1, g, deterministic=True)
-    _, p4 = gaa.backward(s4, g, deterministic=True)
+    _, s1 = gpu_antialias(col, rast, pos, tri, ctx=ctx)
+    _, s4 = gpu_antialias(col, rast, pos, tri, ctx=ctx, pos_gradient_boost=4.0)
+    _, p1 = antialias_backward(s1, g, deterministic=True)
+    _, p4 = antialias_backward(s4, g, deterministic=True)
     np.testing.assert_allclose(p4, 4 * p1, rtol=1e-6)
     split_pos = pos[tri.ravel()]
     split_tri = np.arange(tri.size).reshape(-1, 3).astype(np.int32)
     welded = gaa.antialias_construct_topology_hash(split_tri, pos=split_pos)
-    out, _ = gaa.antialias(col, rast, pos, tri, ctx=ctx)
-    out_w, _ = gaa.antialias(col, rast, split_pos, split_tri, welded, ctx=ctx)
-    out_s, _ = gaa.antialias(col, rast, split_pos, split_tri, ctx=ctx)
+    out, _ = gpu_antialias(col, rast, pos, tri, ctx=ctx)
+    out_w, _ = gpu_antialias(col, rast, split_pos, split_tri, welded, ctx=ctx)
+    out_s, _ = gpu_antialias(col, rast, split_pos, split_tri, ctx=ctx)
     np.testing.assert_array_equal(out_w, out)
     assert np.abs(out_s - out).max() > 0.05
 
@@ -228,12 +239,12 @@ def test_gpu_bad_input(ctx):
     pos, tri, colors = SCENES["soup"]
     rast, col = render(ctx, pos, tri, colors)
     with pytest.raises(ValueError, match="color must have shape"):
-        gaa.antialias(col[..., :0], rast, pos, tri, ctx=ctx)
+        gpu_antialias(col[..., :0], rast, pos, tri, ctx=ctx)
     with pytest.raises(ValueError, match="topology_hash was built for a different tri"):
-        gaa.antialias(col, rast, pos, tri, gaa.antialias_construct_topology_hash(tri[1:]),
+        gpu_antialias(col, rast, pos, tri, gaa.antialias_construct_topology_hash(tri[1:]),
                       ctx=ctx)
-    _, saved = gaa.antialias(col, rast, pos, tri, ctx=ctx)
+    _, saved = gpu_antialias(col, rast, pos, tri, ctx=ctx)
     with pytest.raises(ValueError, match="grad_out must have shape"):
-        gaa.backward(saved, col[:, 1:])
+        antialias_backward(saved, col[:, 1:])
     with pytest.raises(ValueError, match="accumulate must be one of"):
-        gaa.backward(saved, col, accumulate="sum")
+        antialias_backward(saved, col, accumulate="sum")

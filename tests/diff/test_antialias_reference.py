@@ -1,6 +1,7 @@
 """The float64 reference of antialias (no GL): the topology hash, the blend against closed
 forms and box coverage, its gradients against central differences, the range-keeping
-weights, w <= 0, welding, and the ValueErrors. Scenes here are shared with the GPU tests."""
+weights, w <= 0, welding, and the ValueErrors, called through glraster.diff.ops.ANTIALIAS
+as a front end calls it. Scenes here are shared with the GPU tests."""
 
 from __future__ import annotations
 
@@ -8,10 +9,36 @@ import numpy as np
 import pytest
 
 from glraster.diff import antialias_reference as aar
-from glraster.diff.ops import INTERPOLATE, RASTERIZE
+from glraster.diff import topology_hash as topo
+from glraster.diff.ops import ANTIALIAS, INTERPOLATE, RASTERIZE
+from glraster.errors import ArgumentError
 from glraster.geometry import camera, shapes
 
 RES = (48, 64)
+
+
+# --------------------------------------------------------------------------- the op
+
+
+def antialias_forward(color, rast, pos, tri, topology_hash=None, pos_gradient_boost=1.0, *,
+                      convex=True, dtype=np.float64, ctx=None):
+    """The antialias op as a front end runs it: ANTIALIAS.check, then the core of ``dtype``
+    (float64: the reference, float32: the GPU); returns (out, saved)."""
+    if isinstance(color, np.ndarray) and np.issubdtype(color.dtype, np.floating):
+        color = color.astype(dtype)
+    inputs, params = ANTIALIAS.check(color, rast, pos, tri=tri, topology_hash=topology_hash,
+                                     pos_gradient_boost=pos_gradient_boost, convex=convex,
+                                     ctx=ctx)
+    (out,), saved = ANTIALIAS.core(dtype).forward(*inputs, **params)
+    return out, saved
+
+
+def antialias_backward(saved, grad_out, **options):
+    """(grad_color, grad_pos) from the core that made ``saved``."""
+    grad_color, grad_rast, grad_pos = ANTIALIAS.core(saved.color.dtype).backward(
+        saved, grad_out, **options)
+    assert grad_rast is None
+    return grad_color, grad_pos
 
 
 # --------------------------------------------------------------------------- scenes
@@ -96,10 +123,10 @@ def relative_error(analytic, numeric):
 def probe(table: np.ndarray, lo: int, hi: int):
     """The GPU's lookup, in Python: linear probing from the hash slot."""
     mask = len(table) - 1
-    s = int(aar._hash(np.array([lo]), np.array([hi]), mask)[0])
+    s = int(topo._hash(np.array([lo]), np.array([hi]), mask)[0])
     for _ in range(len(table)):
         row = table[s]
-        if row[0] == aar.HASH_EMPTY:
+        if row[0] == topo.HASH_EMPTY:
             return None
         if row[0] == lo and row[1] == hi:
             return int(row[2]), int(row[3])
@@ -165,7 +192,7 @@ def test_alpha_is_half_minus_the_crossing_distance():
     pairs; y likewise for vertical ones)."""
     pos, tri, colors = mesh_scene()
     rast, col = shade(pos, tri, colors)
-    _, saved = aar.antialias_forward(col, rast, pos, tri)
+    _, saved = antialias_forward(col, rast, pos, tri)
     p = saved.pairs
     assert len(p.tau) > 100
     xy = window_xy(pos, RES)
@@ -202,10 +229,10 @@ def test_antialiased_mask_follows_the_covered_area():
     tri = np.array([[0, 1, 2]], np.int32)
     (rast, _), _ = RASTERIZE.forward(pos, tri=tri, resolution=RES)
     mask = (rast[..., 3:4] > 0).astype(np.float64)
-    out, saved = aar.antialias_forward(mask, rast, pos, tri)
+    out, saved = antialias_forward(mask, rast, pos, tri)
     area = coverage_area(pos, RES)
     assert abs(out.sum() - area) < 0.25 * abs(mask.sum() - area) + 0.05
-    _, grad = aar.antialias_backward(saved, np.ones_like(out))
+    _, grad = antialias_backward(saved, np.ones_like(out))
     step = clip_px(pos, RES) * 1e-4
     true = np.zeros_like(pos)
     for v in range(3):
@@ -227,16 +254,16 @@ def test_shared_edges_are_not_blended_unless_the_vertices_are_split():
     (rast, _), _ = RASTERIZE.forward(pos, tri=tri, resolution=RES)
     ids = rast[..., 3:4]
     col = np.where(ids == 1, [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]) * (ids > 0)
-    out, saved = aar.antialias_forward(col, rast, pos, tri)
+    out, saved = antialias_forward(col, rast, pos, tri)
     edges = {frozenset(r) for r in saved.pairs.rows.tolist()}
     assert len(saved.pairs.tau) > 40 and frozenset((0, 2)) not in edges
     split_pos = pos[tri.ravel()]
     split_tri = np.arange(6).reshape(2, 3).astype(np.int32)
-    split, ssaved = aar.antialias_forward(col, rast, split_pos, split_tri)
+    split, ssaved = antialias_forward(col, rast, split_pos, split_tri)
     split_edges = [frozenset(r) for r in ssaved.pairs.rows.tolist()]
     shared = sum(e in (frozenset((0, 2)), frozenset((3, 5))) for e in split_edges)
     assert shared > 10 and np.abs(split - out).max() > 0.1
-    welded, _ = aar.antialias_forward(
+    welded, _ = antialias_forward(
         col, rast, split_pos, split_tri,
         aar.antialias_construct_topology_hash(split_tri, pos=split_pos))
     np.testing.assert_array_equal(welded, out)
@@ -259,12 +286,12 @@ def test_convex_weights_keep_the_output_within_the_inputs_range():
     assert rast[0, 4, 4, 3] == 0 and rast[0, 4, 3, 3] == 1 and rast[0, 4, 5, 3] == 2
     assert rast[0, 3, 4, 3] == 3
     col = np.where(rast[..., 3:4] > 0, 0.0, 1.0)          # black shapes, white background
-    plain, saved = aar.antialias_forward(col, rast, pos, tri, convex=False)
+    plain, saved = antialias_forward(col, rast, pos, tri, convex=False)
     p = saved.pairs
     at_p = (p.modified == [4, 4]).all(-1)
     np.testing.assert_allclose(np.sort(p.alpha[at_p]), [0.4, 0.4, 0.4], atol=1e-6)
     assert plain[0, 4, 4, 0] == pytest.approx(1 - 1.2, abs=1e-5)      # overshoots below 0
-    convex, _ = aar.antialias_forward(col, rast, pos, tri)
+    convex, _ = antialias_forward(col, rast, pos, tri)
     assert convex.min() >= 0.0 and convex.max() <= 1.0
     assert convex[0, 4, 4, 0] == pytest.approx(0.0, abs=1e-12)
 
@@ -310,7 +337,7 @@ def test_gradients_match_central_differences(name):
         rast, col = shade(pos, tri, colors)
         res = RES
     g = rng.normal(size=col.shape)
-    out, saved = aar.antialias_forward(col, rast, pos, tri, convex=convex)
+    out, saved = antialias_forward(col, rast, pos, tri, convex=convex)
     p = saved.pairs
     assert len(p.tau) > 3
     # pixels of ambiguous pairs (counted: a decision within the band, e.g. an edge through
@@ -325,11 +352,11 @@ def test_gradients_match_central_differences(name):
     if name == "three_sided":
         mod = p.modified[(p.modified == [4, 4]).all(-1)]
         assert len(mod) == 3                           # the normalised case is exercised
-    grad_color, grad_pos = aar.antialias_backward(saved, g)
+    grad_color, grad_pos = antialias_backward(saved, g)
     assert np.abs(grad_pos).max() > 0
 
     def loss(q):
-        return float((aar.antialias_forward(col, rast, q, tri, convex=convex)[0] * g).sum())
+        return float((antialias_forward(col, rast, q, tri, convex=convex)[0] * g).sum())
 
     rows = np.unique(p.rows)                           # the vertices that get a gradient
     numeric = central_differences(loss, pos, clip_px(pos, res) * 1e-5, rows)
@@ -343,7 +370,7 @@ def test_gradients_match_central_differences(name):
     assert err.max() < 1e-6, (name, err.max())
     # colours: the forward is linear in them
     e = rng.normal(size=col.shape)
-    lin = (aar.antialias_forward(col + e, rast, pos, tri, convex=convex)[0] * g).sum() \
+    lin = (antialias_forward(col + e, rast, pos, tri, convex=convex)[0] * g).sum() \
         - (out * g).sum()
     assert lin == pytest.approx(float((grad_color * e).sum()), rel=1e-9)
 
@@ -352,10 +379,10 @@ def test_pos_gradient_boost_scales_the_position_gradient_only():
     pos, tri, colors = mesh_scene(level=1)
     rast, col = shade(pos, tri, colors)
     g = np.random.default_rng(2).normal(size=col.shape)
-    _, s1 = aar.antialias_forward(col, rast, pos, tri)
-    _, s3 = aar.antialias_forward(col, rast, pos, tri, pos_gradient_boost=3.0)
-    c1, p1 = aar.antialias_backward(s1, g)
-    c3, p3 = aar.antialias_backward(s3, g)
+    _, s1 = antialias_forward(col, rast, pos, tri)
+    _, s3 = antialias_forward(col, rast, pos, tri, pos_gradient_boost=3.0)
+    c1, p1 = antialias_backward(s1, g)
+    c3, p3 = antialias_backward(s3, g)
     np.testing.assert_array_equal(c1, c3)
     np.testing.assert_allclose(p3, 3 * p1, rtol=1e-15)
 
@@ -363,11 +390,11 @@ def test_pos_gradient_boost_scales_the_position_gradient_only():
 def test_w_nonpositive_vertices_stay_finite_and_blend_the_visible_edges():
     pos, tri, colors = behind_scene()
     rast, col = shade(pos, tri, colors)
-    out, saved = aar.antialias_forward(col, rast, pos, tri)
+    out, saved = antialias_forward(col, rast, pos, tri)
     assert np.isfinite(out).all()
     rows = np.unique(saved.pairs.rows)
     assert 2 in rows        # the edges to the vertex behind the eye are silhouettes too
-    _, grad = aar.antialias_backward(saved, np.ones_like(out))
+    _, grad = antialias_backward(saved, np.ones_like(out))
     assert np.isfinite(grad).all() and np.abs(grad[2]).max() > 0
 
 
@@ -377,7 +404,7 @@ def test_w_nonpositive_vertices_stay_finite_and_blend_the_visible_edges():
 def test_bad_input_raises_value_errors_naming_the_argument():
     pos, tri, colors = mesh_scene(level=1)
     rast, col = shade(pos, tri, colors)
-    fwd = aar.antialias_forward
+    fwd = antialias_forward
     with pytest.raises(ValueError, match="color must have shape"):
         fwd(col[:, :-1], rast, pos, tri)
     with pytest.raises(ValueError, match="rast must have shape"):
@@ -404,7 +431,7 @@ def test_bad_input_raises_value_errors_naming_the_argument():
         fwd(col, rast, pos, tri[:5])
     _, saved = fwd(col, rast, pos, tri)
     with pytest.raises(ValueError, match="grad_out must have shape"):
-        aar.antialias_backward(saved, col[..., :2])
+        antialias_backward(saved, col[..., :2])
     with pytest.raises(ValueError, match="tri must have an integer dtype"):
         aar.antialias_construct_topology_hash(tri.astype(float))
     with pytest.raises(ValueError, match="tri must have shape"):
@@ -413,3 +440,24 @@ def test_bad_input_raises_value_errors_naming_the_argument():
         aar.antialias_construct_topology_hash(tri - 1)
     with pytest.raises(ValueError, match="pos for welding must have shape"):
         aar.antialias_construct_topology_hash(tri, pos=pos[:3])
+
+
+def test_bad_input_error_carries_the_argument_name():
+    pos, tri, colors = mesh_scene(level=1)
+    rast, col = shade(pos, tri, colors)
+    cases = [
+        ("color", lambda: antialias_forward(col[:, :-1], rast, pos, tri)),
+        ("pos", lambda: antialias_forward(col, rast, np.stack([pos, pos]), tri)),
+        ("topology_hash", lambda: antialias_forward(
+            col, rast, pos, tri, aar.antialias_construct_topology_hash(tri[:-1]))),
+        ("topology_hash", lambda: antialias_forward(col, rast, pos, tri, {"edges": 3})),
+        ("pos_gradient_boost", lambda: antialias_forward(col, rast, pos, tri,
+                                                         pos_gradient_boost=True)),
+        ("convex", lambda: antialias_forward(col, rast, pos, tri, convex=1)),
+        ("tri", lambda: aar.antialias_construct_topology_hash(tri[:, :2])),
+        ("pos", lambda: aar.antialias_construct_topology_hash(tri, pos=pos[:3])),
+    ]
+    for argument, call in cases:
+        with pytest.raises(ArgumentError) as info:
+            call()
+        assert info.value.argument == argument

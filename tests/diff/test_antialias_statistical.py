@@ -17,7 +17,12 @@ from glraster.diff import antialias as gaa
 from glraster.diff import interpolate as ginterp
 from glraster.diff import rasterize as grast
 from glraster.diff.ops import INTERPOLATE, RASTERIZE
-from tests.diff.test_antialias_reference import mesh_scene, soup_scene
+from tests.diff.test_antialias_reference import (
+    antialias_backward,
+    antialias_forward,
+    mesh_scene,
+    soup_scene,
+)
 
 RES = (96, 128)
 STEPS_PX = (0.1, 0.25, 0.5)
@@ -39,7 +44,8 @@ class Pipeline:
         (rast, _), rsaved = RASTERIZE.forward(pos, tri=self.tri, resolution=self.resolution,
                                               ctx=self.ctx)
         (col, _), isaved = INTERPOLATE.forward(self.colors, rast, tri=self.tri, ctx=self.ctx)
-        out, asaved = gaa.antialias(col, rast, pos, self.tri, self.th, ctx=self.ctx)
+        out, asaved = antialias_forward(col, rast, pos, self.tri, self.th, dtype=np.float32,
+                                        ctx=self.ctx)
         return rsaved, out, isaved, asaved
 
     def loss(self, pos) -> float:
@@ -47,7 +53,7 @@ class Pipeline:
 
     def gradient(self) -> np.ndarray:
         rsaved, _, isaved, asaved = self.render(self.pos)
-        g_col, g_pos_aa = gaa.backward(asaved, self.weights, deterministic=True)
+        g_col, g_pos_aa = antialias_backward(asaved, self.weights, deterministic=True)
         _, g_rast, _ = ginterp.backward(isaved, g_col, deterministic=True)
         (g_pos,) = grast.backward(rsaved, g_rast, deterministic=True)
         return g_pos_aa.astype(np.float64) + g_pos, g_pos_aa.astype(np.float64)

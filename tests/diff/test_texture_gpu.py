@@ -1,4 +1,5 @@
-"""The GPU texture op (glraster.diff.texture) against the float64 reference, per pixel,
+"""The GPU texture op (glraster.diff.texture, through glraster.diff.ops.TEXTURE) against
+the float64 reference, per pixel,
 within a float32 error bound; the GPU pyramid; accumulation modes; the GL sampler probe.
 
 Per-pixel bound (u = 2^-24, K = 4 for GLSL's division and log2 (2.5 / 3 ulp), fma
@@ -36,8 +37,16 @@ import pytest
 
 from glraster.diff import compute as bg
 from glraster.diff import texture as tx
+from glraster.diff import texture_args as ta
 from glraster.diff import texture_reference as tr
-from tests.diff.test_texture_reference import BOUNDARIES_2D, MODES_2D, make_inputs, safe
+from tests.diff.test_texture_reference import (
+    BOUNDARIES_2D,
+    MODES_2D,
+    make_inputs,
+    safe,
+    texture_backward,
+    texture_forward,
+)
 
 U = 2.0 ** -24
 K = 4.0
@@ -54,16 +63,17 @@ def compare(ctx, tex, uv, da, bias, mode, boundary, mip=None, max_mip_level=None
     tex, uv, da, bias = _f32(tex, uv, da, bias)
     mip = None if mip is None else _f32(*mip)
     rng = np.random.default_rng(seed + 7)
-    ref_out, saved64 = tr.forward(tex, uv, da, bias, mip, mode, boundary, max_mip_level)
-    out, saved = tx.forward(tex, uv, da, bias, mip, mode, boundary, max_mip_level, ctx=ctx)
+    ref_out, saved64 = texture_forward(tex, uv, da, bias, mip, mode, boundary, max_mip_level)
+    out, saved = texture_forward(tex, uv, da, bias, mip, mode, boundary, max_mip_level,
+                                 dtype=np.float32, ctx=ctx)
     assert out.dtype == np.float32 and out.shape == ref_out.shape
     args = saved64.args
     mask = safe(args, 1e-4)
     assert mask.mean() >= 0.5, f"only {mask.sum()} of {mask.size} pixels are comparable"
     g = rng.normal(size=out.shape).astype(np.float32)
     g.reshape(mask.size, -1)[~mask] = 0.0
-    ref = tr.backward(saved64, g)
-    gpu = tx.backward(saved, g, deterministic=deterministic, accumulate=accumulate)
+    ref = texture_backward(saved64, g)
+    gpu = texture_backward(saved, g, deterministic=deterministic, accumulate=accumulate)
 
     geo = tr.lookup_geometry(args)
     h0, w0 = args.shapes[0]
@@ -151,7 +161,7 @@ def test_batched_odd_texture_user_mips_and_max_mip_level(ctx):
     tex, uv, da, bias = make_inputs(23, "clamp", tex_size=(13, 7), tex_batch=2, channels=5)
     compare(ctx, tex, uv, da, bias, "linear-mipmap-linear", "clamp")
     rng = np.random.default_rng(24)
-    shapes = tr.level_shapes(13, 7)
+    shapes = ta.level_shapes(13, 7)
     mip = [rng.normal(size=(2,) + s + (5,)) for s in shapes[1:]]
     compare(ctx, tex, uv, da, bias, "linear-mipmap-linear", "clamp", mip=mip)
     tex, uv, da, bias = make_inputs(31, "clamp", tex_size=(13, 7), tex_batch=2, channels=5,
@@ -171,11 +181,11 @@ def test_every_accumulation_is_within_the_bound(ctx, accumulate):
 
 def test_deterministic_backward_is_bit_identical(ctx):
     tex, uv, da, bias = _f32(*make_inputs(27, "wrap", batch=2, image=(32, 32), tex_size=(8, 8)))
-    out, saved = tx.forward(tex, uv, da, bias, ctx=ctx)
+    out, saved = texture_forward(tex, uv, da, bias, dtype=np.float32, ctx=ctx)
     g = np.random.default_rng(28).normal(size=out.shape).astype(np.float32)
-    first = tx.backward(saved, g, deterministic=True)
+    first = texture_backward(saved, g, deterministic=True)
     for _ in range(2):
-        again = tx.backward(saved, g, deterministic=True)
+        again = texture_backward(saved, g, deterministic=True)
         for a, b in zip(first[:4], again[:4]):
             assert a.tobytes() == b.tobytes()
 
@@ -186,7 +196,7 @@ def test_gpu_pyramid_matches_the_reference(ctx):
         tex = rng.normal(size=shape).astype(np.float32)
         boundary = "cube" if len(shape) == 5 else "wrap"
         gpu = tx.build_mips(tex, boundary_mode=boundary, ctx=ctx)
-        ref = tr.build_mips(tex, tr.level_shapes(shape[-3], shape[-2]))
+        ref = tr.build_mips(tex, ta.level_shapes(shape[-3], shape[-2]))
         assert len(gpu) == len(ref)
         for k, (a, b) in enumerate(zip(gpu, ref)):
             # k + 1 levels of 3 x 3 taps: (9 + 2) roundings per level on values <= max |tex|
@@ -195,12 +205,14 @@ def test_gpu_pyramid_matches_the_reference(ctx):
 
 def test_bad_input_raises_before_the_gpu_runs(ctx):
     with pytest.raises(ValueError, match="uv must have shape"):
-        tx.forward(np.zeros((1, 4, 4, 3)), np.zeros((1, 2, 2, 3)), ctx=ctx)
-    _, saved = tx.forward(np.zeros((1, 4, 4, 3)), np.zeros((1, 2, 2, 2)), ctx=ctx)
+        texture_forward(np.zeros((1, 4, 4, 3)), np.zeros((1, 2, 2, 3)), dtype=np.float32,
+                        ctx=ctx)
+    _, saved = texture_forward(np.zeros((1, 4, 4, 3)), np.zeros((1, 2, 2, 2)),
+                               dtype=np.float32, ctx=ctx)
     with pytest.raises(ValueError, match="grad_out must have shape"):
-        tx.backward(saved, np.zeros((1, 2, 2, 4)))
+        texture_backward(saved, np.zeros((1, 2, 2, 4)))
     with pytest.raises(ValueError, match="accumulate must be one of"):
-        tx.backward(saved, np.zeros((1, 2, 2, 3)), accumulate="sum")
+        texture_backward(saved, np.zeros((1, 2, 2, 3)), accumulate="sum")
 
 
 def test_gl_sampler_matches_fetches_except_repeat_on_npot_textures(ctx):

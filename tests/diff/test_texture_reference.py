@@ -1,4 +1,5 @@
-"""The float64 texture reference (glraster.diff.texture_reference) against central
+"""The float64 texture reference (glraster.diff.texture_reference, called through
+glraster.diff.ops.TEXTURE as a front end calls it) against central
 differences, the level formula against an eigenvalue solver, the pyramid's box filter, the
 cube map's seams, and the argument checks (no OpenGL).
 
@@ -18,12 +19,39 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from glraster.diff import texture_args as ta
 from glraster.diff import texture_reference as tr
+from glraster.diff.ops import TEXTURE
+from glraster.errors import ArgumentError
 
 REL = 1e-6
 MARGIN = 1e-3
 MODES_2D = ["nearest", "linear", "linear-mipmap-nearest", "linear-mipmap-linear"]
 BOUNDARIES_2D = ["wrap", "clamp", "zero"]
+
+
+# --------------------------------------------------------------------------- the op
+
+
+def texture_forward(tex, uv, uv_da=None, mip_level_bias=None, mip=None, filter_mode="auto",
+                    boundary_mode="wrap", max_mip_level=None, *, own_mips=False,
+                    dtype=np.float64, ctx=None):
+    """The texture op as a front end runs it: TEXTURE.check, then the core of ``dtype``
+    (float64: the reference, float32: the GPU); returns (out, saved)."""
+    if isinstance(tex, np.ndarray) and np.issubdtype(tex.dtype, np.floating):
+        tex = tex.astype(dtype)
+    inputs, params = TEXTURE.check(tex, uv, uv_da, mip_level_bias, *(mip or ()),
+                                   filter_mode=filter_mode, boundary_mode=boundary_mode,
+                                   max_mip_level=max_mip_level, own_mips=own_mips, ctx=ctx)
+    (out,), saved = TEXTURE.core(dtype).forward(*inputs, **params)
+    return out, saved
+
+
+def texture_backward(saved, grad_out, **options):
+    """(grad_tex, grad_uv, grad_uv_da, grad_mip_level_bias, grad_mip) from the core that
+    made ``saved``; grad_mip a list, None without mip levels."""
+    grads = TEXTURE.core(saved.args.tex.dtype).backward(saved, grad_out, **options)
+    return (*grads[:4], list(grads[4:]) or None)
 
 
 # --------------------------------------------------------------------------- inputs
@@ -45,7 +73,7 @@ def make_inputs(seed, boundary, *, batch=2, image=(5, 6), tex_size=(9, 12), chan
         h, w = tex_size
         tex = rng.normal(size=(tex_batch, h, w, channels))
         uv = rng.uniform(-0.3, 1.3, size=shape + (2,))
-    top = len(tr.level_shapes(h, w)) - 1
+    top = len(ta.level_shapes(h, w)) - 1
     lo, hi = level_range or (0.2, top - 0.2)
     lam = rng.uniform(lo, hi, size=shape)
     theta = rng.uniform(0, 2 * np.pi, size=shape)
@@ -75,7 +103,7 @@ def _cell_margin(pos):
     return np.abs(pos - np.round(pos))
 
 
-def safe(args: tr.TextureArgs, margin=MARGIN):
+def safe(args: ta.TextureArgs, margin=MARGIN):
     """Flattened mask of pixels away from every kink of the lookup (module docstring)."""
     geo = tr.lookup_geometry(args)
     s, t, raw, level = geo["s"], geo["t"], geo["raw_level"], geo["level"]
@@ -119,10 +147,10 @@ def _loss_pixels(out, g):
 def check_gradients(tex, uv, da, bias, mode, boundary, mip=None, max_mip_level=None, seed=0):
     """Every derivative against central differences; returns {name: (max rel error, n)}."""
     rng = np.random.default_rng(seed + 100)
-    run = lambda *a, mip_=mip: tr.forward(*a, mip_, mode, boundary, max_mip_level)[0]
-    out, saved = tr.forward(tex, uv, da, bias, mip, mode, boundary, max_mip_level)
+    run = lambda *a, mip_=mip: texture_forward(*a, mip_, mode, boundary, max_mip_level)[0]
+    out, saved = texture_forward(tex, uv, da, bias, mip, mode, boundary, max_mip_level)
     g = rng.normal(size=out.shape)
-    grad_tex, grad_uv, grad_da, grad_bias, grad_mip = tr.backward(saved, g)
+    grad_tex, grad_uv, grad_da, grad_bias, grad_mip = texture_backward(saved, g)
     mask = safe(saved.args)
     assert mask.sum() >= 0.3 * mask.size, f"only {mask.sum()} of {mask.size} pixels are safe"
     report = {}
@@ -242,13 +270,13 @@ def test_cube_gradients_through_the_level_and_a_batched_cube():
 
 def test_level_is_half_log2_of_the_largest_eigenvalue_of_jtj():
     tex, uv, da, bias = make_inputs(10, "wrap", tex_size=(64, 32), batch=1, image=(8, 8))
-    args = tr.check_arguments(tex, uv, da, None, None, "linear-mipmap-linear", "wrap")
+    args = ta.check(tex, uv, da, None, filter_mode="linear-mipmap-linear")
     geo = tr.lookup_geometry(args)
     j = da.reshape(-1, 2, 2) * np.array([[32.0], [64.0]])     # rows (s W, t H), cols (X, Y)
     eig = np.linalg.eigvalsh(np.transpose(j, (0, 2, 1)) @ j)[:, -1]
     np.testing.assert_allclose(geo["raw_level"], 0.5 * np.log2(eig), rtol=0, atol=1e-12)
     # bias adds; clamping to [0, levels - 1]
-    args_b = tr.check_arguments(tex, uv, da, bias, None, "linear-mipmap-linear", "wrap")
+    args_b = ta.check(tex, uv, da, bias, filter_mode="linear-mipmap-linear")
     geo_b = tr.lookup_geometry(args_b)
     np.testing.assert_allclose(geo_b["raw_level"], geo["raw_level"] + bias.reshape(-1),
                                atol=1e-12)
@@ -259,10 +287,10 @@ def test_level_without_uv_da_is_the_bias_and_auto_mode():
     tex = np.arange(16.0).reshape(1, 4, 4, 1)
     uv = np.full((1, 1, 3, 2), 0.5)
     bias = np.array([[[-1.0, 0.25, 7.0]]])
-    args = tr.check_arguments(tex, uv, None, bias)
+    args = ta.check(tex, uv, None, bias)
     assert args.filter_mode == "linear-mipmap-linear"
     np.testing.assert_array_equal(tr.lookup_geometry(args)["level"], [0.0, 0.25, 2.0])
-    assert tr.check_arguments(tex, uv).filter_mode == "linear"
+    assert ta.check(tex, uv).filter_mode == "linear"
 
 
 # --------------------------------------------------------------------------- values
@@ -273,24 +301,24 @@ def test_texel_centres_and_boundary_modes():
     centres = np.array([[[[(i + 0.5) / 4, (j + 0.5) / 3] for i in range(4)] for j in range(3)]])
     for mode in ("nearest", "linear"):
         for boundary in BOUNDARIES_2D:
-            out, _ = tr.forward(tex, centres, filter_mode=mode, boundary_mode=boundary)
+            out, _ = texture_forward(tex, centres, filter_mode=mode, boundary_mode=boundary)
             np.testing.assert_allclose(out[0, ..., 0], tex[0, ..., 0], atol=1e-12)
     # half a texel beyond the left edge: wrap blends with the last column, clamp repeats the
     # first, zero blends with 0
     uv = np.array([[[[0.0, 0.5 / 3]]]])
-    wrap = tr.forward(tex, uv, boundary_mode="wrap")[0].item()
-    clamp = tr.forward(tex, uv, boundary_mode="clamp")[0].item()
-    zero = tr.forward(tex, uv, boundary_mode="zero")[0].item()
+    wrap = texture_forward(tex, uv, boundary_mode="wrap")[0].item()
+    clamp = texture_forward(tex, uv, boundary_mode="clamp")[0].item()
+    zero = texture_forward(tex, uv, boundary_mode="zero")[0].item()
     assert (wrap, clamp, zero) == (1.5, 0.0, 0.0)
     uv = np.array([[[[1.0 - 0.125 / 4, 0.5 / 3]]]])  # 3/8 texel right of the last centre
-    assert tr.forward(tex, uv, boundary_mode="zero")[0].item() == pytest.approx(3 * 0.625)
+    assert texture_forward(tex, uv, boundary_mode="zero")[0].item() == pytest.approx(3 * 0.625)
 
 
 def test_pyramid_is_the_footprint_mean_and_its_transpose_is_the_adjoint():
     rng = np.random.default_rng(11)
     for h, w in [(8, 8), (7, 5), (1, 6), (9, 2), (3, 3)]:
         tex = rng.normal(size=(2, h, w, 3))
-        shapes = tr.level_shapes(h, w)
+        shapes = ta.level_shapes(h, w)
         assert shapes[-1] == (1, 1)
         levels = tr.build_mips(tex, shapes)
         for lv, (hl, wl) in zip(levels, shapes[1:]):
@@ -307,14 +335,14 @@ def test_pyramid_is_the_footprint_mean_and_its_transpose_is_the_adjoint():
         assert (pulled * tex).sum() == pytest.approx(lhs, rel=1e-12)
     # odd extent 5 -> 2: weights (2, 2, 1)/5 and (1, 2, 2)/5
     row = np.arange(5.0).reshape(1, 1, 5, 1)
-    level = tr.build_mips(row, tr.level_shapes(1, 5))[0]
+    level = tr.build_mips(row, ta.level_shapes(1, 5))[0]
     np.testing.assert_allclose(level[0, 0, :, 0], [(0 * 2 + 1 * 2 + 2) / 5, (2 + 3 * 2 + 4 * 2) / 5])
 
 
 def test_max_mip_level_limits_the_pyramid():
-    assert tr.level_shapes(16, 4) == [(16, 4), (8, 2), (4, 1), (2, 1), (1, 1)]
-    assert tr.level_shapes(16, 4, 2) == [(16, 4), (8, 2), (4, 1)]
-    assert tr.level_shapes(16, 4, 0) == [(16, 4)]
+    assert ta.level_shapes(16, 4) == [(16, 4), (8, 2), (4, 1), (2, 1), (1, 1)]
+    assert ta.level_shapes(16, 4, 2) == [(16, 4), (8, 2), (4, 1)]
+    assert ta.level_shapes(16, 4, 0) == [(16, 4)]
 
 
 def test_cube_lookups_are_continuous_across_edges_and_corners():
@@ -328,7 +356,7 @@ def test_cube_lookups_are_continuous_across_edges_and_corners():
              ((1, 1.3, 1), (1, 0.7, 1))]
     for start, end in paths:
         d = (1 - t) * np.array(start) + t * np.array(end)
-        out, _ = tr.forward(tex, d[None, None], boundary_mode="cube")
+        out, _ = texture_forward(tex, d[None, None], boundary_mode="cube")
         steps = np.abs(np.diff(out[0, 0], axis=0)).max()
         # a bilinear filter moving 1/4000 of the path (< 0.01 texel per step)
         assert steps < 0.02, f"jump {steps} along {start} -> {end}"
@@ -343,7 +371,7 @@ def test_cube_face_selection_and_face_coordinates_follow_gl():
              ((0.5, 1, 0.5), 2, 0.75, 0.75), ((0.5, -1, 0.5), 3, 0.75, 0.25),
              ((0.5, -0.5, 1), 4, 0.75, 0.75), ((0.5, -0.5, -1), 5, 0.25, 0.75)]
     for d, face, s, t in cases:
-        out = tr.forward(tex, np.array(d, float).reshape(1, 1, 1, 3), filter_mode="nearest",
+        out = texture_forward(tex, np.array(d, float).reshape(1, 1, 1, 3), filter_mode="nearest",
                          boundary_mode="cube")[0].item()
         assert out == 10 * face + 2 * int(t * 2) + int(s * 2), (d, face)
 
@@ -367,7 +395,10 @@ def test_cube_face_selection_and_face_coordinates_follow_gl():
     ({"boundary_mode": "mirror"}, "boundary_mode must be one of"),
     ({"max_mip_level": -1}, "max_mip_level must be None or an integer >= 0"),
     ({"max_mip_level": 1.5}, "max_mip_level must be None or an integer >= 0"),
-    ({"mip": np.zeros((1, 2, 2, 3)), "filter_mode": "linear-mipmap-linear"}, "mip must be None or a list"),
+    ({"mip": [[["a"]]], "filter_mode": "linear-mipmap-linear"}, "mip[0] must hold real numbers"),
+    ({"mip": [np.full((1, 2, 2, 3), np.nan)], "filter_mode": "linear-mipmap-linear"},
+     "mip[0] must be finite"),
+    ({"own_mips": 1}, "own_mips must be True or False"),
     ({"mip": [np.zeros((1, 2, 3, 3))], "filter_mode": "linear-mipmap-linear"},
      "mip[0] (mip level 1) must have shape (1, 2, 2, 3)"),
     ({"mip": [np.zeros((1, 2, 2, 3))] * 3, "filter_mode": "linear-mipmap-linear"},
@@ -378,11 +409,31 @@ def test_bad_input_raises_value_error_naming_the_argument(kwargs, message):
     args = {"tex": np.zeros((1, 4, 4, 3)), "uv": np.zeros((2, 3, 3, 2))}
     args.update(kwargs)
     with pytest.raises(ValueError) as info:
-        tr.forward(**args)
+        texture_forward(**args)
     assert message in str(info.value)
 
 
 def test_bad_grad_out_raises():
-    _, saved = tr.forward(np.zeros((1, 4, 4, 3)), np.zeros((2, 3, 3, 2)))
+    _, saved = texture_forward(np.zeros((1, 4, 4, 3)), np.zeros((2, 3, 3, 2)))
     with pytest.raises(ValueError, match=r"grad_out must have shape \(2, 3, 3, 3\)"):
-        tr.backward(saved, np.zeros((2, 3, 3, 2)))
+        texture_backward(saved, np.zeros((2, 3, 3, 2)))
+
+
+@pytest.mark.parametrize("kwargs, argument", [
+    ({"filter_mode": "cubic"}, "filter_mode"),
+    ({"boundary_mode": "mirror"}, "boundary_mode"),
+    ({"max_mip_level": -1}, "max_mip_level"),
+    ({"own_mips": "yes"}, "own_mips"),
+    ({"tex": np.zeros((4, 4, 3))}, "tex"),
+    ({"tex": np.zeros((3, 4, 4, 3))}, "tex"),
+    ({"uv": np.zeros((2, 3, 3, 3))}, "uv"),
+    ({"uv_da": np.zeros((2, 3, 3, 2))}, "uv_da"),
+    ({"mip_level_bias": np.zeros((2, 3, 3, 1))}, "mip_level_bias"),
+    ({"mip": [np.zeros((1, 2, 3, 3))], "filter_mode": "linear-mipmap-linear"}, "mip"),
+])
+def test_bad_input_error_carries_the_argument_name(kwargs, argument):
+    args = {"tex": np.zeros((1, 4, 4, 3)), "uv": np.zeros((2, 3, 3, 2))}
+    args.update(kwargs)
+    with pytest.raises(ArgumentError) as info:
+        texture_forward(**args)
+    assert info.value.argument == argument

@@ -16,7 +16,7 @@ import pytest
 import torch
 
 import glraster.torch as dr
-from glraster.diff import texture_reference as tr
+from glraster.diff import texture_args as ta
 from tests.diff.test_texture_reference import BOUNDARIES_2D, MODES_2D, make_inputs, safe
 
 ATOL, RTOL, EPS = 1e-5, 1e-4, 1e-6
@@ -25,7 +25,7 @@ ATOL, RTOL, EPS = 1e-5, 1e-4, 1e-6
 def smooth_inputs(seed, boundary, mode, count=12, **kwargs):
     """(tex, uv, uv_da, bias) as float64 tensors of ``count`` smooth pixels, (1, 3, 4, .)."""
     tex, uv, da, bias = make_inputs(seed, boundary, batch=1, image=(16, 16), **kwargs)
-    args = tr.check_arguments(tex, uv, da, bias, None, mode, boundary)
+    args = ta.check(tex, uv, da, bias, filter_mode=mode, boundary_mode=boundary)
     keep = np.nonzero(safe(args, 0.02))[0][:count]
     assert len(keep) == count, "not enough smooth pixels"
     pick = lambda a: a.reshape(256, -1)[keep].reshape((1, 3, 4) + a.shape[3:])
@@ -54,7 +54,7 @@ def test_gradcheck_user_mip_stack_and_auto_mode():
                                       channels=2)
     rng = np.random.default_rng(43)
     mip = [torch.tensor(rng.normal(size=(1,) + s + (2,)), requires_grad=True)
-           for s in tr.level_shapes(6, 8)[1:]]
+           for s in ta.level_shapes(6, 8)[1:]]
     fn = lambda t, u, d, b, *m: dr.texture(t, u, d, b, mip=list(m),
                                            boundary_mode="clamp")
     assert torch.autograd.gradcheck(fn, (tex, uv, da, bias, *mip), eps=EPS, atol=ATOL,
