@@ -27,10 +27,8 @@ import sys
 import numpy as np
 import pytest
 
-from glraster.diff import interpolate as ginterp
-from glraster.diff import rasterize as grast
 from glraster.diff.antialias_args import AntialiasSaved
-from glraster.diff.ops import ANTIALIAS, TEXTURE
+from glraster.diff.ops import ANTIALIAS, INTERPOLATE, RASTERIZE, TEXTURE
 from glraster.diff.texture_args import TextureSaved, level_shapes
 from tests.diff.test_antialias_reference import mesh_scene
 from tests.diff.test_texture_reference import make_inputs, safe
@@ -126,8 +124,8 @@ def _antialias_call(ctx):
     res = (48, 64)
     pos, tri, colors = mesh_scene(res, level=2)
     pos = pos.astype(np.float32)
-    rast, _, _ = grast.forward(pos, tri, res, ctx=ctx)
-    col, _, _ = ginterp.forward(colors.astype(np.float32), rast, tri, ctx=ctx)
+    (rast, _), _ = RASTERIZE.forward(pos, tri=tri, resolution=res, ctx=ctx)
+    (col, _), _ = INTERPOLATE.forward(colors.astype(np.float32), rast, tri=tri, ctx=ctx)
     return ANTIALIAS.check(col, rast, pos, tri=tri, ctx=ctx)
 
 
