@@ -17,7 +17,7 @@ rasterize (NumPy core, :mod:`glraster.diff.rasterize`, :mod:`glraster.diff.backw
     ``rasterize_deterministic_over_atomic``.
 interpolate (A float32 attributes, ``diff_attrs="all"``)
     forward + backward of :func:`glraster.torch.interpolate` and of
-    :func:`glraster.torch.baseline.interpolate` (gather + autograd) on the same leaf tensors
+    :func:`glraster.studies.torch_interpolate_baseline.interpolate` (gather + autograd) on the same leaf tensors
     (attr, rast, rast_db all requiring grad; the same random upstream gradients), each
     call's forward also timed on its own; the baseline twice, with torch's intra-op
     threads as set and with one thread (on cores shared with other work, OpenMP's
@@ -128,7 +128,7 @@ class _Cell:
         from glraster.diff import interpolate as core_interpolate
         from glraster.diff import rasterize as core_rasterize
         import glraster.torch as dr
-        from glraster.torch import baseline
+        from glraster.studies import torch_interpolate_baseline as baseline
 
         self.ctx, self.size = ctx, size
         self.resolution = (size, size)
@@ -286,7 +286,7 @@ def run(preset: str = "quick", *, backend: str = "egl", progress=None, **overrid
         raise ValueError(f"unknown settings {sorted(unknown)}; choose from "
                          f"{sorted(PRESETS[preset])}")
     settings = dict(PRESETS[preset], **overrides)
-    from glraster.torch import baseline
+    from glraster.studies import torch_interpolate_baseline as baseline
 
     grid = [(s, c) for s in settings["resolutions"] for c in settings["counts"]]
     profiled = [tuple(p) for p in settings["profile"] or ()]

@@ -1,10 +1,12 @@
 """Timing of glraster.diff.antialias (GPU, forward + backward) against its float64 reference
 (glraster.diff.antialias_reference) at 256², 512² and 1024² (docs/differentiable.md,
-"Antialias"). Usage: python scripts/diff_antialias_figures.py [--repeat N]"""
+"Antialias").
+
+    glraster study diff-antialias-figures [--repeat N]
+"""
 
 from __future__ import annotations
 
-import argparse
 import functools
 import time
 
@@ -16,6 +18,7 @@ from glraster.diff import antialias_reference as aar
 from glraster.diff import interpolate as ginterp
 from glraster.diff import rasterize as grast
 from glraster.geometry import camera, shapes
+from glraster.studies.registry import argument_parser
 
 
 def scene(size: int, level: int = 4):
@@ -41,9 +44,11 @@ def reference(color, rast, pos, tri, th, g):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--repeat", type=int, default=5)
+    parser = argument_parser("diff-antialias-figures", __doc__)
+    parser.add_argument("--repeat", type=int, default=5, help="timed calls; the best is shown")
     args = parser.parse_args(argv)
+    if args.repeat < 1:
+        parser.error(f"--repeat must be at least 1, got {args.repeat}")
     ctx = gr.Context()
     print(f"renderer: {ctx.renderer}")
     print("| frame | triangles | blended pairs | GPU fwd ms | GPU bwd ms (atomic) | "
@@ -70,7 +75,8 @@ def main(argv=None):
         both = fwd + bwd
         print(f"| {size}² | {len(tri)} | {len(s.pairs.tau)} | {fwd * 1e3:.1f} | {bwd * 1e3:.1f} | "
               f"{bwd_det * 1e3:.1f} | {both * 1e3:.1f} | {ref * 1e3:.0f} | {ref / both:.1f} |")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

@@ -2,28 +2,46 @@
 (glraster.diff.rasterize) against float64 on catalog scenes, and its speed with and
 without rast_db.
 
-    .venv/bin/python scripts/diff_rasterize_figures.py [--accuracy] [--timing] [--batches]
+    glraster study diff-rasterize-figures [--accuracy] [--timing] [--batches]
+
+``--accuracy`` judges the GPU against the per-pixel error bounds of the test suite
+(tests/diff/test_rasterize_gpu.py: ``float64_forward`` and ``compare``), so it runs in a
+source checkout of glraster only.
 """
 
 from __future__ import annotations
 
-import argparse
+import importlib
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
 import glraster as gr
 from glraster.conformance.scenes import list_scenes, load_scene
 from glraster.diff import rasterize as dr
 from glraster.studies.bench import make_bench_scene
-from tests.diff.test_rasterize_gpu import compare, float64_forward
+from glraster.studies.registry import argument_parser
+
+# the source tree this module is in: glraster/studies/ -> the checkout's root
+TREE = Path(__file__).resolve().parents[2]
+
+
+def _test_bounds():
+    """``(float64_forward, compare)`` of the test suite's rasterize checks (the per-pixel
+    error bounds live with the tests), importable from a source checkout only."""
+    if not (TREE / "tests" / "diff" / "test_rasterize_gpu.py").is_file():
+        raise FileNotFoundError(f"--accuracy needs a glraster source checkout (its tests/diff "
+                                f"error bounds); none at {TREE}")
+    if str(TREE) not in sys.path:
+        sys.path.insert(0, str(TREE))
+    module = importlib.import_module("tests.diff.test_rasterize_gpu")
+    return module.float64_forward, module.compare
 
 
 def accuracy(ctx, names):
+    float64_forward, compare = _test_bounds()
     total = {"uv": [], "z": [], "db": [], "db_rel": []}
     worst = {"ratio": 0.0, "ratio_db": 0.0}
     mism = amb = pixels = 0
@@ -129,15 +147,17 @@ def batches(ctx, repeat):
                   f"{ta / tb:19.2f}")
 
 
-def main():
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--accuracy", action="store_true")
-    ap.add_argument("--timing", action="store_true")
-    ap.add_argument("--batches", action="store_true")
+def main(argv=None) -> int:
+    ap = argument_parser("diff-rasterize-figures", __doc__)
+    ap.add_argument("--accuracy", action="store_true", help="float64 comparison on the catalog")
+    ap.add_argument("--timing", action="store_true", help="forward with and without rast_db")
+    ap.add_argument("--batches", action="store_true", help="instanced batches against one draw")
     ap.add_argument("--scenes", default=None, help="fnmatch pattern(s), default all")
-    ap.add_argument("--repeat", type=int, default=7)
-    ap.add_argument("--backend", default="egl")
-    args = ap.parse_args()
+    ap.add_argument("--repeat", type=int, default=7, help="timed rounds (minima shown)")
+    ap.add_argument("--backend", default="egl", choices=("egl", "osmesa"))
+    args = ap.parse_args(argv)
+    if args.repeat < 1:
+        ap.error(f"--repeat must be at least 1, got {args.repeat}")
     everything = not (args.accuracy or args.timing or args.batches)
     ctx = gr.Context(backend=args.backend)
     print(ctx.backend, ctx.renderer)
@@ -147,7 +167,8 @@ def main():
         timing(ctx, args.repeat)
     if args.batches or everything:
         batches(ctx, args.repeat)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())
