@@ -17,10 +17,10 @@ rasterize (NumPy core, :mod:`glraster.diff.rasterize`, :mod:`glraster.diff.backw
     ``rasterize_deterministic_over_atomic``.
 interpolate (A float32 attributes, ``diff_attrs="all"``)
     forward + backward of :func:`glraster.torch.interpolate` and of
-    :func:`glraster.studies.torch_interpolate_baseline.interpolate` (gather + autograd) on the same leaf tensors
-    (attr, rast, rast_db all requiring grad; the same random upstream gradients), each
-    call's forward also timed on its own; the baseline twice, with torch's intra-op
-    threads as set and with one thread (on cores shared with other work, OpenMP's
+    :func:`glraster.studies.torch_interpolate_baseline.interpolate` (gather + autograd) on
+    the same leaf tensors (attr, rast, rast_db all requiring grad; the same random upstream
+    gradients), each call's forward also timed on its own; the baseline twice, with
+    torch's intra-op threads as set and with one thread (on cores shared with other work, OpenMP's
     spinning threads can make two threads several times slower than one), and each round
     compares glraster with the faster of the two; and the NumPy core's
     :func:`glraster.diff.interpolate.backward` with atomics and deterministic:

@@ -32,8 +32,8 @@ def load_module_at(rev: str, path: str, name: str) -> ModuleType:
         raise ArgumentError("REV", "REV needs git on PATH to read an earlier revision") \
             from None
     if proc.returncode != 0:
-        raise ArgumentError("REV", f"REV {rev!r}: git cannot show {path} in {TREE} "
-                            f"({proc.stderr.strip().splitlines()[-1] if proc.stderr else 'no git checkout'})")
+        why = proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else "no checkout"
+        raise ArgumentError("REV", f"REV {rev!r}: git cannot show {path} in {TREE} ({why})")
     folder = Path(tempfile.mkdtemp(prefix="glraster-rev-"))
     file = folder / f"{name}.py"
     file.write_text(proc.stdout)

@@ -1,5 +1,5 @@
-"""glraster.studies.diff_bench and its yardstick glraster.studies.torch_interpolate_baseline: a tiny grid gives
-every field, and the plain-PyTorch interpolate computes the same thing as glraster's (out
+"""glraster.studies.diff_bench and its yardstick glraster.studies.torch_interpolate_baseline:
+a tiny grid gives every field, and the plain-PyTorch interpolate computes the same thing as glraster's (out
 and out_da bit for bit, gradients within float32 summation order). No timing is judged
 here (timings are benchmark figures, docs/differentiable.md "Speed")."""
 
