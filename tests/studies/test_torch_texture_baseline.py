@@ -1,5 +1,5 @@
-"""glraster.studies.torch_texture_baseline (the plain-PyTorch texture that glraster.torch.texture
-is timed against) computes the same filters as glraster's float64 texture reference: forward
+"""glraster.studies.torch_texture_baseline (the plain-PyTorch texture that
+glraster.torch.texture is timed against) computes the same filters as glraster's float64 texture reference: forward
 and gradients, every filter mode and boundary it supports, on power-of-two textures.
 
 The reference is reached through glraster.diff.ops.TEXTURE with float64 inputs (the op
