@@ -15,8 +15,7 @@ import numpy as np
 import glraster as gr
 from glraster.diff import antialias as gaa
 from glraster.diff import antialias_reference as aar
-from glraster.diff import interpolate as ginterp
-from glraster.diff import rasterize as grast
+from glraster.diff.ops import INTERPOLATE, RASTERIZE
 from glraster.geometry import camera, shapes
 from glraster.studies.registry import argument_parser
 
@@ -56,8 +55,8 @@ def main(argv=None):
     print("|---|---|---|---|---|---|---|---|---|")
     for size in (256, 512, 1024):
         pos, tri, colors = scene(size)
-        rast, _, _ = grast.forward(pos, tri, (size, size), ctx=ctx)
-        col, _, _ = ginterp.forward(colors, rast, tri, ctx=ctx)
+        (rast, _), _ = RASTERIZE.forward(pos, tri=tri, resolution=(size, size), ctx=ctx)
+        (col, _), _ = INTERPOLATE.forward(colors, rast, tri=tri, ctx=ctx)
         g = np.random.default_rng(1).normal(size=col.shape).astype(np.float32)
         th = gaa.antialias_construct_topology_hash(tri)
         th.table()

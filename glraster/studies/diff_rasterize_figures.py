@@ -1,6 +1,6 @@
 """Figures for docs/differentiable.md ("GPU"): the differentiable rasterize's forward
-(glraster.diff.rasterize) against float64 on catalog scenes, and its speed with and
-without rast_db.
+(the float32 core of glraster.diff.ops.RASTERIZE) against float64 on catalog scenes, and its
+speed with and without rast_db.
 
     glraster study diff-rasterize-figures [--accuracy] [--timing] [--batches]
 
@@ -20,12 +20,22 @@ import numpy as np
 
 import glraster as gr
 from glraster.conformance.scenes import list_scenes, load_scene
-from glraster.diff import rasterize as dr
+from glraster.diff.ops import RASTERIZE
 from glraster.studies.bench import make_bench_scene
 from glraster.studies.registry import argument_parser
 
 # the source tree this module is in: glraster/studies/ -> the checkout's root
 TREE = Path(__file__).resolve().parents[2]
+
+
+def gpu_forward(pos, tri, resolution, ctx, grad_db=True):
+    """A call of the float32 (GPU) rasterize core on inputs checked once: ``call()`` ->
+    (rast, rast_db), each (B, H, W, 4) float32 (rast_db (B, H, W, 0) without ``grad_db``).
+    The call runs the core only, which is what the timings measure."""
+    inputs, params = RASTERIZE.check(np.asarray(pos, np.float32), tri=tri,
+                                     resolution=resolution, grad_db=grad_db, ctx=ctx)
+    core = RASTERIZE.core(np.float32)
+    return lambda: core.forward(*inputs, **params)[0]
 
 
 def _test_bounds():
@@ -50,7 +60,7 @@ def accuracy(ctx, names):
     for name in names:
         s = load_scene(name)
         t0 = time.perf_counter()
-        rast, db, _ = dr.forward(s.pos, s.tri, s.resolution, ctx=ctx)
+        rast, db = gpu_forward(s.pos, s.tri, s.resolution, ctx)()
         got = compare(rast[0], db[0], float64_forward(s.pos, s.tri, s.resolution, ctx=ctx))
         for k in total:
             total[k].append(got[k])
@@ -94,8 +104,8 @@ def timing(ctx, repeat):
             # process CPU time includes llvmpipe's rasterizer threads and is less disturbed
             # by other processes on shared cores than wall time
             a, b, ca, cb = [], [], [], []
-            nodb = lambda: dr.forward(pos, tri, res, ctx=ctx, grad_db=False)
-            db = lambda: dr.forward(pos, tri, res, ctx=ctx)
+            nodb = gpu_forward(pos, tri, res, ctx, grad_db=False)
+            db = gpu_forward(pos, tri, res, ctx)
             for _ in range(repeat):
                 a.append(_median_time(nodb, 1))
                 b.append(_median_time(db, 1))
@@ -137,11 +147,12 @@ def batches(ctx, repeat):
             jitter = rng.normal(0, 0.01, (B, 1, 4)) * [1, 1, 0, 0]
             batch = (pos[None] + jitter).astype(np.float32)
             apos, atri = _atlas(batch, tri, size)
+            per_item = gpu_forward(batch, tri, (size, size), ctx)
+            one_draw = gpu_forward(apos, atri, (B * size, size), ctx)
             a, b = [], []
             for _ in range(repeat):
-                a.append(_median_time(lambda: dr.forward(batch, tri, (size, size), ctx=ctx), 1))
-                b.append(_median_time(
-                    lambda: dr.forward(apos, atri, (B * size, size), ctx=ctx), 1))
+                a.append(_median_time(per_item, 1))
+                b.append(_median_time(one_draw, 1))
             ta, tb = np.min(a), np.min(b)  # minima: the machine's cores are shared
             print(f"{size:6d} {len(tri):6d} {B:3d} {1e3 * ta:11.1f} {1e3 * tb:11.1f} "
                   f"{ta / tb:19.2f}")
