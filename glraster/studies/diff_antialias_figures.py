@@ -8,7 +8,6 @@
 from __future__ import annotations
 
 import functools
-import time
 
 import numpy as np
 
@@ -18,6 +17,7 @@ from glraster.diff import antialias_reference as aar
 from glraster.diff.ops import INTERPOLATE, RASTERIZE
 from glraster.geometry import camera, shapes
 from glraster.studies.registry import argument_parser
+from glraster.studies.timing import best_seconds as best
 
 
 def scene(size: int, level: int = 4):
@@ -26,15 +26,6 @@ def scene(size: int, level: int = 4):
     pos = (np.concatenate([verts, np.ones((len(verts), 1))], 1) @ mvp.T).astype(np.float32)
     colors = np.random.default_rng(0).uniform(0, 1, (len(verts), 3)).astype(np.float32)
     return pos, faces.astype(np.int32), colors
-
-
-def best(fn, repeat: int) -> float:
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return min(times)
 
 
 def reference(color, rast, pos, tri, th, g):

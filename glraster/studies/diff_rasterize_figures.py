@@ -23,6 +23,7 @@ from glraster.conformance.scenes import list_scenes, load_scene
 from glraster.diff.ops import RASTERIZE
 from glraster.studies.bench import make_bench_scene
 from glraster.studies.registry import argument_parser
+from glraster.studies.timing import median_seconds
 
 # the source tree this module is in: glraster/studies/ -> the checkout's root
 TREE = Path(__file__).resolve().parents[2]
@@ -83,16 +84,6 @@ def accuracy(ctx, names):
     print(f"  worst error / bound: rast {worst['ratio']:.3f}, rast_db {worst['ratio_db']:.3f}")
 
 
-def _median_time(fn, repeat, clock=time.perf_counter):
-    fn()
-    times = []
-    for _ in range(repeat):
-        t0 = clock()
-        fn()
-        times.append(clock() - t0)
-    return float(np.median(times))
-
-
 def timing(ctx, repeat):
     print(f"\n{'size':>6s} {'tris':>6s} {'no db ms':>9s} {'db ms':>9s} {'ratio':>6s} "
           f"{'cpu no db':>9s} {'cpu db':>9s} {'ratio':>6s} {'gr.rasterize hw ms':>18s}")
@@ -107,12 +98,13 @@ def timing(ctx, repeat):
             nodb = gpu_forward(pos, tri, res, ctx, grad_db=False)
             db = gpu_forward(pos, tri, res, ctx)
             for _ in range(repeat):
-                a.append(_median_time(nodb, 1))
-                b.append(_median_time(db, 1))
-                ca.append(_median_time(nodb, 1, time.process_time))
-                cb.append(_median_time(db, 1, time.process_time))
-            hw = min(_median_time(lambda: gr.rasterize(pos, tri, res, ctx=ctx,
-                                                       outputs=("persp", "depth", "tri_id")), 1)
+                a.append(median_seconds(nodb, 1, warmup=1))
+                b.append(median_seconds(db, 1, warmup=1))
+                ca.append(median_seconds(nodb, 1, warmup=1, clock=time.process_time))
+                cb.append(median_seconds(db, 1, warmup=1, clock=time.process_time))
+            hw = min(median_seconds(lambda: gr.rasterize(pos, tri, res, ctx=ctx,
+                                                         outputs=("persp", "depth", "tri_id")),
+                                    1, warmup=1)
                      for _ in range(repeat))
             ta, tb = np.min(a), np.min(b)  # minima: the machine's cores are shared
             tca, tcb = np.median(ca), np.median(cb)
@@ -151,8 +143,8 @@ def batches(ctx, repeat):
             one_draw = gpu_forward(apos, atri, (B * size, size), ctx)
             a, b = [], []
             for _ in range(repeat):
-                a.append(_median_time(per_item, 1))
-                b.append(_median_time(one_draw, 1))
+                a.append(median_seconds(per_item, 1, warmup=1))
+                b.append(median_seconds(one_draw, 1, warmup=1))
             ta, tb = np.min(a), np.min(b)  # minima: the machine's cores are shared
             print(f"{size:6d} {len(tri):6d} {B:3d} {1e3 * ta:11.1f} {1e3 * tb:11.1f} "
                   f"{ta / tb:19.2f}")

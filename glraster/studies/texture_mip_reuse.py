@@ -15,22 +15,13 @@ the ratio, not the milliseconds.
 from __future__ import annotations
 
 import statistics
-import time
 
 import torch
 
 import glraster.torch as dr
 from glraster.studies.registry import argument_parser
+from glraster.studies.timing import median_seconds
 from glraster.studies.torch_texture_baseline import perspective_inputs
-
-
-def _median_call(fn, calls: int) -> float:
-    times = []
-    for _ in range(calls):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
 
 
 def measure(size: int, tex_grad: bool, rounds: int, calls: int, glctx):
@@ -39,7 +30,7 @@ def measure(size: int, tex_grad: bool, rounds: int, calls: int, glctx):
     uv.requires_grad_()
     uv_da.requires_grad_()
     mip = dr.texture_construct_mip(tex, glctx=glctx)
-    build = _median_call(lambda: dr.texture_construct_mip(tex, glctx=glctx), calls)
+    build = median_seconds(lambda: dr.texture_construct_mip(tex, glctx=glctx), calls)
 
     def step(m):
         out = dr.texture(tex, uv, uv_da, mip=m, filter_mode="linear-mipmap-linear",
@@ -53,7 +44,7 @@ def measure(size: int, tex_grad: bool, rounds: int, calls: int, glctx):
     for r in range(rounds):
         order = list(variants) if r % 2 == 0 else list(variants)[::-1]
         for name in order:
-            results[name].append(_median_call(variants[name], calls))
+            results[name].append(median_seconds(variants[name], calls))
     return {name: statistics.median(v) for name, v in results.items()}, build
 
 

@@ -20,7 +20,6 @@ Inputs are not validated (pass what glraster.torch.texture accepts, 2-D, power-o
 from __future__ import annotations
 
 import math
-import time
 
 import torch
 import torch.nn.functional as F
@@ -113,20 +112,11 @@ def perspective_inputs(size: int, channels: int = 4, seed: int = 0):
     return tex, uv, uv_da.contiguous()
 
 
-def _time(fn, repeat: int) -> float:
-    fn()
-    times = []
-    for _ in range(repeat):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return sorted(times)[len(times) // 2]
-
-
 def benchmark(sizes=(512, 1024), repeat: int = 5, boundary_mode: str = "wrap"):
     """Rows (size, filter_mode, glraster ms, plain PyTorch ms, max |difference|) of forward
     + backward (gradients to tex and uv, and uv_da in linear-mipmap-linear)."""
     import glraster.torch as dr
+    from glraster.studies.timing import median_seconds
 
     rows = []
     for size in sizes:
@@ -143,8 +133,8 @@ def benchmark(sizes=(512, 1024), repeat: int = 5, boundary_mode: str = "wrap"):
                 out.backward(torch.ones_like(out))
                 results[key] = out.detach()
 
-            ms_gl = 1e3 * _time(lambda: run(dr.texture, "gl"), repeat)
-            ms_pt = 1e3 * _time(lambda: run(texture, "pt"), repeat)
+            ms_gl = 1e3 * median_seconds(lambda: run(dr.texture, "gl"), repeat, warmup=1)
+            ms_pt = 1e3 * median_seconds(lambda: run(texture, "pt"), repeat, warmup=1)
             diff = (results["gl"] - results["pt"]).abs()
             rows.append((size, mode, ms_gl, ms_pt, float(diff.max()),
                          float(diff.flatten().kthvalue(max(1, math.ceil(0.999 * diff.numel())))
