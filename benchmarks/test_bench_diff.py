@@ -18,7 +18,7 @@ from glraster.diff import interpolate as core_interpolate  # noqa: E402
 from glraster.diff import rasterize as core_rasterize  # noqa: E402
 from glraster.diff.ops import INTERPOLATE, RASTERIZE  # noqa: E402
 from glraster.studies.bench import make_bench_scene  # noqa: E402
-from glraster.torch import baseline  # noqa: E402
+from glraster.studies import torch_interpolate_baseline as baseline  # noqa: E402
 
 RESOLUTION = (1024, 1024)
 ATTRIBUTES = 4

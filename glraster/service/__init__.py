@@ -16,7 +16,8 @@ API only (``glraster.Context``, ``glraster.rasterize``, ``glraster.reference.ras
 - :mod:`~glraster.service.metrics`  Prometheus text metrics
 - :mod:`~glraster.service.openapi`  the OpenAPI schema, generated from the models
                                     (docs/openapi.json)
-- :mod:`~glraster.service.loadtest` the loopback load test (``glraster serve-bench``)
+
+The loopback load test (``glraster serve-bench``) is a study: :mod:`glraster.studies.loadtest`.
 """
 
 from glraster.service.config import Limits, ServiceConfig  # noqa: F401

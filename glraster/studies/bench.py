@@ -444,6 +444,73 @@ def skips(*, backend="egl", repeats=5, resolution=(1024, 1024), count=20000) -> 
     return out
 
 
+EPS32, EPS64 = 2.0**-24, 2.0**-53     # float32 and float64 rounding, the error axis' marks
+
+
+class _ParetoCases:
+    """What the Pareto figure shows, apart from how it is drawn: the cases with a warm time
+    and a persp error, their methods, scenes, resolutions and triangle counts, the error
+    axis' range, and which case is Pareto-optimal."""
+
+    def __init__(self, result: dict):
+        import math
+
+        self.cases = [c for c in result["cases"]
+                      if (c.get("error") or {}).get("persp") and c.get("warm_ms") is not None]
+        cases, settings = self.cases, result.get("settings", {})
+        self.methods = [m for m in METHODS if any(c["method"] == m for c in cases)]
+        self.methods += sorted({c["method"] for c in cases} - set(self.methods))
+        self.scenes = [s for s in settings.get("scenes", []) if any(c["scene"] == s for c in cases)]
+        self.scenes += sorted({c["scene"] for c in cases} - set(self.scenes))
+        self.sizes = sorted({tuple(c["resolution"]) for c in cases},
+                            key=lambda r: (r[0] * r[1], r))
+        self._requested = sorted(settings.get("counts") or [])
+        self.counts = sorted({self.count_key(c["triangles"]) for c in cases})
+        self.errors = np.array([c["error"]["persp"]["max"] for c in cases], dtype=float)
+        finite = self.errors[np.isfinite(self.errors)]
+        positive = finite[finite > 0]
+        self.lo = 10.0 ** (math.floor(math.log10(min([EPS32, *positive]))) - 1)
+        self.hi = 10.0 ** (math.ceil(math.log10(max([1e-2, *finite]))) + 0.3)
+        self.zero_at, self._top_at = self.lo * 2, self.hi / 2
+        self._by_case = {}                      # (scene, resolution, count) -> its cases
+        for c in cases:
+            self._by_case.setdefault(self.case_key(c), []).append(c)
+
+    def count_key(self, n: int) -> int:
+        """The requested count a case was built for (scenes round it)."""
+        import math
+
+        if not self._requested:
+            return n
+        return min(self._requested,
+                   key=lambda r: abs(math.log(max(n, 1)) - math.log(max(r, 1))))
+
+    def case_key(self, c) -> tuple:
+        return (c["scene"], tuple(c["resolution"]), self.count_key(c["triangles"]))
+
+    def shown(self, c) -> float:
+        """The case's max persp error where it is drawn: non-finite at the top, an exact 0
+        near the bottom."""
+        import math
+
+        e = c["error"]["persp"]["max"]
+        return self._top_at if not math.isfinite(e) else (self.zero_at if e <= 0 else e)
+
+    def pareto_optimal(self, c) -> bool:
+        """No other method is both faster and at least as accurate on the same case."""
+        t, e = c["warm_ms"], self.shown(c)
+        return not any(o is not c and o["warm_ms"] <= t and self.shown(o) <= e
+                       and (o["warm_ms"] < t or self.shown(o) < e)
+                       for o in self._by_case[self.case_key(c)])
+
+
+def _count_label(n: int) -> str:
+    for div, unit in ((10**6, "M"), (10**3, "k")):
+        if n >= div:
+            return f"{n / div:g}{unit}"
+    return f"{n}"
+
+
 def pareto_plot(result: dict, path: str) -> None:
     """Warm time against max persp error, log-log, one panel per scene and resolution.
 
@@ -454,64 +521,14 @@ def pareto_plot(result: dict, path: str) -> None:
     dotted lines mark 2^-24 (float32) and 2^-53 (float64); an exact 0 is drawn at the
     bottom. No text labels inside the panels (legends only), so nothing overlaps.
     Written through :func:`glraster.io.figures.figure` (Agg, atomic, with metadata)."""
-    import math
-
-    from matplotlib.lines import Line2D
-    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
-
     from glraster.io import figures
 
-    cases = [c for c in result["cases"]
-             if (c.get("error") or {}).get("persp") and c.get("warm_ms") is not None]
-    settings = result.get("settings", {})
-    methods = [m for m in METHODS if any(c["method"] == m for c in cases)]
-    methods += sorted({c["method"] for c in cases} - set(methods))
-    scenes = [s for s in settings.get("scenes", []) if any(c["scene"] == s for c in cases)]
-    scenes += sorted({c["scene"] for c in cases} - set(scenes))
-    sizes = sorted({tuple(c["resolution"]) for c in cases}, key=lambda r: (r[0] * r[1], r))
-    requested = sorted(settings.get("counts") or [])
-
-    def count_key(n):  # the requested count a case was built for (scenes round it)
-        if not requested:
-            return n
-        return min(requested, key=lambda r: abs(math.log(max(n, 1)) - math.log(max(r, 1))))
-
-    def fmt_count(n):
-        for div, unit in ((10**6, "M"), (10**3, "k")):
-            if n >= div:
-                return f"{n / div:g}{unit}"
-        return f"{n}"
-
-    counts = sorted({count_key(c["triangles"]) for c in cases})
-    markers = dict(zip(counts, "osD^vPX*<>" * (1 + len(counts) // 10)))
+    pc = _ParetoCases(result)
+    markers = dict(zip(pc.counts, "osD^vPX*<>" * (1 + len(pc.counts) // 10)))
     color = figures.colors(METHODS)
     color.update({m: figures.PALETTE[(len(METHODS) + i) % len(figures.PALETTE)]
-                  for i, m in enumerate(m for m in methods if m not in color)})
-
-    eps32, eps64 = 2.0**-24, 2.0**-53
-    errors = np.array([c["error"]["persp"]["max"] for c in cases], dtype=float)
-    finite = errors[np.isfinite(errors)]
-    positive = finite[finite > 0]
-    lo = 10.0 ** (math.floor(math.log10(min([eps32, *positive]))) - 1)
-    hi = 10.0 ** (math.ceil(math.log10(max([1e-2, *finite]))) + 0.3)
-    zero_at, top_at = lo * 2, hi / 2
-
-    def shown(e):
-        return top_at if not math.isfinite(e) else (zero_at if e <= 0 else e)
-
-    # Pareto optimality per case (scene, resolution, count) across methods
-    by_case = {}
-    for c in cases:
-        key = (c["scene"], tuple(c["resolution"]), count_key(c["triangles"]))
-        by_case.setdefault(key, []).append(c)
-
-    def dominated(c, others):
-        t, e = c["warm_ms"], shown(c["error"]["persp"]["max"])
-        return any(o is not c and o["warm_ms"] <= t and shown(o["error"]["persp"]["max"]) <= e
-                   and (o["warm_ms"] < t or shown(o["error"]["persp"]["max"]) < e)
-                   for o in others)
-
-    nrows, ncols = max(1, len(scenes)), max(1, len(sizes))
+                  for i, m in enumerate(m for m in pc.methods if m not in color)})
+    nrows, ncols = max(1, len(pc.scenes)), max(1, len(pc.sizes))
     title = "glraster methods: warm time per call against max persp error (llvmpipe)"
     legend_width = 0.0 if ncols >= 3 else 3.6
     with figures.figure(path, figsize=(0.8 + 4.0 * ncols + legend_width, 1.6 + 3.3 * nrows),
@@ -519,75 +536,95 @@ def pareto_plot(result: dict, path: str) -> None:
                         title=title, description="one panel per scene and resolution; "
                         "filled markers are Pareto-optimal for their case") as fig:
         axes = fig.subplots(nrows, ncols, squeeze=False, sharey=True, sharex="col")
-        for row, scene in enumerate(scenes):
-            for col, size in enumerate(sizes):
-                ax = axes[row, col]
-                here = [c for c in cases if c["scene"] == scene and tuple(c["resolution"]) == size]
-                nonfinite = 0
-                for method in methods:
-                    pts = sorted((c for c in here if c["method"] == method),
-                                 key=lambda c: c["triangles"])
-                    if not pts:
-                        continue
-                    x = [c["warm_ms"] for c in pts]
-                    y = [shown(c["error"]["persp"]["max"]) for c in pts]
-                    nonfinite += sum(not math.isfinite(c["error"]["persp"]["max"]) for c in pts)
-                    ax.plot(x, y, "-", color=color[method], lw=1.0, alpha=0.55, zorder=2)
-                    for c, xi, yi in zip(pts, x, y):
-                        key = (scene, size, count_key(c["triangles"]))
-                        front = not dominated(c, by_case[key])
-                        ax.plot(xi, yi, markers[key[2]], ms=6.5, mew=1.3, color=color[method],
-                                mfc=color[method] if front else "white", zorder=3)
-                for level, ls in ((eps32, ":"), (eps64, "-.")):
-                    if level > lo:
-                        ax.axhline(level, color="0.35", lw=0.8, ls=ls, zorder=1)
-                ax.set_xscale("log")
-                ax.set_yscale("log")
-                ax.set_ylim(lo, hi)
-                ax.grid(True, which="major", alpha=0.3)
-                h, w = size
-                res = f"{w}²" if w == h else f"{h}x{w} (HxW)"
-                ax.set_title(f"{scene}, {res}" + (f" ({nonfinite} non-finite, at top)"
-                                                   if nonfinite else ""))
+        for row, scene in enumerate(pc.scenes):
+            for col, size in enumerate(pc.sizes):
+                _pareto_panel(axes[row, col], pc, scene, size, color, markers)
                 if row == nrows - 1:
-                    ax.set_xlabel("warm time per call (ms, median)")
+                    axes[row, col].set_xlabel("warm time per call (ms, median)")
                 if col == 0:
-                    ax.set_ylabel("max |persp - reference|")
-                ax.margins(x=0.12)
-        for ax in axes[-1]:  # plain tick labels; 1-2-5 ticks when a column spans < 2 decades
-            x0, x1 = ax.get_xlim()
-            subs = (1.0,) if math.log10(x1 / x0) > 2 else (1.0, 2.0, 5.0)
-            ax.xaxis.set_major_locator(LogLocator(base=10, subs=subs))
-            ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-            ax.xaxis.set_minor_formatter(NullFormatter())
-        for ax in axes.flat[len(scenes) * len(sizes):]:
+                    axes[row, col].set_ylabel("max |persp - reference|")
+        _pareto_ticks(axes[-1])
+        for ax in axes.flat[len(pc.scenes) * len(pc.sizes):]:
             ax.set_visible(False)
-        # three groups (methods, counts, what the lines and fills mean), each filling
-        # whole legend columns of ``rows`` entries
-        blank = Line2D([], [], ls="", label=" ")
-        groups = [[Line2D([], [], color=color[m], marker="o", lw=1.0, label=m)
-                   for m in methods],
-                  [Line2D([], [], color="0.3", marker=markers[n], ls="", mfc="0.3",
-                          label=f"{fmt_count(n)} triangle{'' if n == 1 else 's'}")
-                   for n in counts],
-                  [Line2D([], [], color="0.3", marker="o", ls="", mfc="0.3",
-                          label="Pareto-optimal for its case"),
-                   Line2D([], [], color="0.3", marker="o", ls="", mfc="white",
-                          label="dominated: another method is faster and as accurate")]]
-        groups[2] += [Line2D([], [], color="0.35", ls=ls, lw=0.8, label=label)
-                      for level, ls, label in ((eps32, ":", "$2^{-24}$ (float32 rounding)"),
-                                               (eps64, "-.", "$2^{-53}$ (float64 rounding)"))
-                      if level > lo]
-        if (errors == 0).any():
-            groups[2].append(Line2D([], [], ls="", label=f"exact 0: drawn at {zero_at:.0e}"))
-        if ncols >= 3:  # below the panels, one group per pair of columns
-            rows = 3
-            handles = []
-            for g in groups:
-                handles += g + [blank] * (-len(g) % rows)
-            fig.legend(handles=handles, loc="outside lower center", ncol=len(handles) // rows,
-                       frameon=False, columnspacing=1.6)
-        else:  # narrow figure: one column on the right
-            handles = groups[0] + [blank] + groups[1] + [blank] + groups[2]
-            fig.legend(handles=handles, loc="outside right center", frameon=False)
+        _pareto_legend(fig, pc, color, markers, ncols)
         fig.suptitle(title)
+
+
+def _pareto_panel(ax, pc: _ParetoCases, scene: str, size: tuple, color: dict,
+                  markers: dict) -> None:
+    """One scene at one resolution: a line per method through its cases, filled markers for
+    the Pareto-optimal ones, the float32 / float64 rounding levels."""
+    import math
+
+    here = [c for c in pc.cases if c["scene"] == scene and tuple(c["resolution"]) == size]
+    nonfinite = 0
+    for method in pc.methods:
+        pts = sorted((c for c in here if c["method"] == method), key=lambda c: c["triangles"])
+        if not pts:
+            continue
+        x = [c["warm_ms"] for c in pts]
+        y = [pc.shown(c) for c in pts]
+        nonfinite += sum(not math.isfinite(c["error"]["persp"]["max"]) for c in pts)
+        ax.plot(x, y, "-", color=color[method], lw=1.0, alpha=0.55, zorder=2)
+        for c, xi, yi in zip(pts, x, y):
+            ax.plot(xi, yi, markers[pc.count_key(c["triangles"])], ms=6.5, mew=1.3,
+                    color=color[method], mfc=color[method] if pc.pareto_optimal(c) else "white",
+                    zorder=3)
+    for level, ls in ((EPS32, ":"), (EPS64, "-.")):
+        if level > pc.lo:
+            ax.axhline(level, color="0.35", lw=0.8, ls=ls, zorder=1)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_ylim(pc.lo, pc.hi)
+    ax.grid(True, which="major", alpha=0.3)
+    h, w = size
+    res = f"{w}²" if w == h else f"{h}x{w} (HxW)"
+    ax.set_title(f"{scene}, {res}" + (f" ({nonfinite} non-finite, at top)" if nonfinite else ""))
+    ax.margins(x=0.12)
+
+
+def _pareto_ticks(bottom_axes) -> None:
+    """Plain tick labels; 1-2-5 ticks when a column spans less than 2 decades."""
+    import math
+
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
+    for ax in bottom_axes:
+        x0, x1 = ax.get_xlim()
+        subs = (1.0,) if math.log10(x1 / x0) > 2 else (1.0, 2.0, 5.0)
+        ax.xaxis.set_major_locator(LogLocator(base=10, subs=subs))
+        ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        ax.xaxis.set_minor_formatter(NullFormatter())
+
+
+def _pareto_legend(fig, pc: _ParetoCases, color: dict, markers: dict, ncols: int) -> None:
+    """Three groups (methods, counts, what the lines and fills mean): below the panels,
+    each group filling whole legend columns of 3 entries, or one column on the right of a
+    narrow figure."""
+    from matplotlib.lines import Line2D
+
+    blank = Line2D([], [], ls="", label=" ")
+    groups = [[Line2D([], [], color=color[m], marker="o", lw=1.0, label=m) for m in pc.methods],
+              [Line2D([], [], color="0.3", marker=markers[n], ls="", mfc="0.3",
+                      label=f"{_count_label(n)} triangle{'' if n == 1 else 's'}")
+               for n in pc.counts],
+              [Line2D([], [], color="0.3", marker="o", ls="", mfc="0.3",
+                      label="Pareto-optimal for its case"),
+               Line2D([], [], color="0.3", marker="o", ls="", mfc="white",
+                      label="dominated: another method is faster and as accurate")]]
+    groups[2] += [Line2D([], [], color="0.35", ls=ls, lw=0.8, label=label)
+                  for level, ls, label in ((EPS32, ":", "$2^{-24}$ (float32 rounding)"),
+                                           (EPS64, "-.", "$2^{-53}$ (float64 rounding)"))
+                  if level > pc.lo]
+    if (pc.errors == 0).any():
+        groups[2].append(Line2D([], [], ls="", label=f"exact 0: drawn at {pc.zero_at:.0e}"))
+    if ncols >= 3:
+        rows = 3
+        handles = []
+        for g in groups:
+            handles += g + [blank] * (-len(g) % rows)
+        fig.legend(handles=handles, loc="outside lower center", ncol=len(handles) // rows,
+                   frameon=False, columnspacing=1.6)
+    else:
+        handles = groups[0] + [blank] + groups[1] + [blank] + groups[2]
+        fig.legend(handles=handles, loc="outside right center", frameon=False)

@@ -17,10 +17,10 @@ rasterize (the GPU core, :mod:`glraster.diff.rasterize`, on checked inputs)
     ``rasterize_deterministic_over_atomic``.
 interpolate (A float32 attributes, ``diff_attrs="all"``)
     forward + backward of :func:`glraster.torch.interpolate` and of
-    :func:`glraster.torch.baseline.interpolate` (gather + autograd) on the same leaf tensors
-    (attr, rast, rast_db all requiring grad; the same random upstream gradients), each
-    call's forward also timed on its own; the baseline twice, with torch's intra-op
-    threads as set and with one thread (on cores shared with other work, OpenMP's
+    :func:`glraster.studies.torch_interpolate_baseline.interpolate` (gather + autograd) on
+    the same leaf tensors (attr, rast, rast_db all requiring grad; the same random upstream
+    gradients), each call's forward also timed on its own; the baseline twice, with
+    torch's intra-op threads as set and with one thread (on cores shared with other work, OpenMP's
     spinning threads can make two threads several times slower than one), and each round
     compares glraster with the faster of the two; and the NumPy core's
     :func:`glraster.diff.interpolate.backward` with atomics and deterministic:
@@ -128,7 +128,7 @@ class _Cell:
         from glraster.diff import interpolate as core_interpolate
         from glraster.diff import rasterize as core_rasterize
         from glraster.diff.ops import INTERPOLATE, RASTERIZE
-        from glraster.torch import baseline
+        from glraster.studies import torch_interpolate_baseline as baseline
 
         self.ctx, self.size = ctx, size
         self.resolution = (size, size)
@@ -286,7 +286,7 @@ def run(preset: str = "quick", *, backend: str = "egl", progress=None, **overrid
         raise ValueError(f"unknown settings {sorted(unknown)}; choose from "
                          f"{sorted(PRESETS[preset])}")
     settings = dict(PRESETS[preset], **overrides)
-    from glraster.torch import baseline
+    from glraster.studies import torch_interpolate_baseline as baseline
 
     grid = [(s, c) for s in settings["resolutions"] for c in settings["counts"]]
     profiled = [tuple(p) for p in settings["profile"] or ()]

@@ -32,9 +32,10 @@ def test_texture_baseline_help_does_not_run_the_benchmark():
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO),
                                                         os.environ.get("PYTHONPATH", "")])}
     for args, code in ((["--help"], 0), (["--sizes", "3"], 2)):
-        result = subprocess.run([sys.executable, "-m", "glraster.torch.texture_baseline", *args],
+        result = subprocess.run([sys.executable, "-m", "glraster.cli", "study",
+                                 "texture-baseline", *args],
                                 capture_output=True, text=True, env=env, timeout=120)
         assert result.returncode == code, result.stderr
         assert "| image and texture |" not in result.stdout, "the benchmark ran"
-    assert "usage: python -m glraster.torch.texture_baseline" in result.stderr
+    assert "usage: glraster study texture-baseline" in result.stderr
     assert "--sizes must be powers of two >= 2, got 3" in result.stderr

@@ -747,7 +747,7 @@ def test_results_held_by_slow_clients_keep_their_cells_and_the_rest_use_the_pipe
 def test_shutdown_under_load_drains_in_flight_requests(gl_backend, tmp_path, ctx):
     """SIGTERM with requests in flight and queued: every accepted request is answered 200,
     then the server exits 0, its workers are gone and the port is closed."""
-    from glraster.service.loadtest import make_scene
+    from glraster.studies.loadtest import make_scene
 
     s = Server(gl_backend, "--workers", "2", "--queue", "16", log=tmp_path / "stderr.log")
     pos, tri, res = make_scene("1024")

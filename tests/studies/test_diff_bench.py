@@ -1,5 +1,5 @@
-"""glraster.studies.diff_bench and its yardstick glraster.torch.baseline: a tiny grid gives
-every field, and the plain-PyTorch interpolate computes the same thing as glraster's (out
+"""glraster.studies.diff_bench and its yardstick glraster.studies.torch_interpolate_baseline:
+a tiny grid gives every field, and the plain-PyTorch interpolate computes the same thing as glraster's (out
 and out_da bit for bit, gradients within float32 summation order). No timing is judged
 here (timings are benchmark figures, docs/differentiable.md "Speed")."""
 
@@ -16,7 +16,7 @@ import glraster.torch as dr  # noqa: E402
 from glraster.diff import layout  # noqa: E402
 from glraster.studies import diff_bench  # noqa: E402
 from glraster.studies.bench import make_bench_scene  # noqa: E402
-from glraster.torch import baseline  # noqa: E402
+from glraster.studies import torch_interpolate_baseline as baseline  # noqa: E402
 
 # Gradients: float32 sums over the pixels of a vertex (atomics in any order against
 # index_add_'s order) and, for dL/du, sum_k g_k (a0 - a2)_k against autograd's

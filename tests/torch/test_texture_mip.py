@@ -182,7 +182,7 @@ def test_bad_input_raises_value_error_naming_the_argument(call, message):
 
 def test_the_reuse_benchmark_runs_its_short_form(ctx, capsys):
     # docs/differentiable.md quotes the long form (minutes); this is its 16² single round
-    from benchmarks import texture_mip_reuse
+    from glraster.studies import texture_mip_reuse
 
     assert texture_mip_reuse.main(["--sizes", "16", "--rounds", "1", "--calls", "1"]) == 0
     rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| 16²")]

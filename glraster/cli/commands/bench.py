@@ -45,7 +45,7 @@ def register(subparsers) -> None:
                     "rasterize with and without rast_db, its backward (atomic and "
                     "deterministic) against the forward, and interpolate forward+backward "
                     "through glraster.torch against the same math in plain PyTorch "
-                    "(glraster.torch.baseline), as medians of interleaved rounds, with the "
+                    "(glraster.studies.torch_interpolate_baseline), as medians of interleaved rounds, with the "
                     "goals met or missed. Needs the [torch] extra. The quick preset "
                     "(256/1024 px, 1k/20k triangles) takes about a minute, the full one "
                     "(256/512/1024 px, 1k/20k/100k triangles, plus a cProfile breakdown of "

@@ -157,6 +157,6 @@ def bind_error(host: str, port: int, exc: OSError) -> str:
 
 
 def run_bench(args) -> int:
-    from glraster.service import loadtest
+    from glraster.studies import loadtest
 
-    return loadtest.main(args)
+    return loadtest.run(args)

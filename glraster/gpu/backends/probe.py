@@ -20,7 +20,7 @@ Verdicts are cached per environment: the driver variables
   never stored on disk, so fixing the environment takes effect at once. Where the folder
   cannot be written, memory alone is used.
 
-Cost, measured with ``python benchmarks/backend_probe.py`` (docs/drivers.md has the
+Cost, measured with ``glraster study backend-probe`` (docs/drivers.md has the
 figures): the probe is one Python start plus one context creation, paid by the first
 Context() of an environment on this machine and then read from disk.
 """

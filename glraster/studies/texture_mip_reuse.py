@@ -2,7 +2,7 @@
 pyramid built in the call (``mip=None``) against a pyramid built once by
 ``texture_construct_mip`` (``mip=``), in one process.
 
-    python benchmarks/texture_mip_reuse.py --sizes 256 1024 --rounds 7 --calls 5
+    glraster study texture-mip-reuse --sizes 256 1024 --rounds 7 --calls 5
 
 An N x N image of an N x N RGBA texture seen in perspective (levels ~0 .. 3, wrap), float32
 on OpenGL, gradients to uv and uv_da (a constant texture: what texture_construct_mip is
@@ -14,32 +14,23 @@ the ratio, not the milliseconds.
 
 from __future__ import annotations
 
-import argparse
 import statistics
-import time
 
 import torch
 
 import glraster.torch as dr
-from glraster.torch.texture_baseline import _inputs
-
-
-def _median_call(fn, calls: int) -> float:
-    times = []
-    for _ in range(calls):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
+from glraster.studies.registry import argument_parser
+from glraster.studies.timing import median_seconds
+from glraster.studies.torch_texture_baseline import perspective_inputs
 
 
 def measure(size: int, tex_grad: bool, rounds: int, calls: int, glctx):
-    tex, uv, uv_da = _inputs(size)
+    tex, uv, uv_da = perspective_inputs(size)
     tex.requires_grad_(tex_grad)
     uv.requires_grad_()
     uv_da.requires_grad_()
     mip = dr.texture_construct_mip(tex, glctx=glctx)
-    build = _median_call(lambda: dr.texture_construct_mip(tex, glctx=glctx), calls)
+    build = median_seconds(lambda: dr.texture_construct_mip(tex, glctx=glctx), calls)
 
     def step(m):
         out = dr.texture(tex, uv, uv_da, mip=m, filter_mode="linear-mipmap-linear",
@@ -53,16 +44,22 @@ def measure(size: int, tex_grad: bool, rounds: int, calls: int, glctx):
     for r in range(rounds):
         order = list(variants) if r % 2 == 0 else list(variants)[::-1]
         for name in order:
-            results[name].append(_median_call(variants[name], calls))
+            results[name].append(median_seconds(variants[name], calls))
     return {name: statistics.median(v) for name, v in results.items()}, build
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argument_parser("texture-mip-reuse", __doc__)
     parser.add_argument("--sizes", type=int, nargs="+", default=[256, 1024])
     parser.add_argument("--rounds", type=int, default=7)
     parser.add_argument("--calls", type=int, default=5)
     args = parser.parse_args(argv)
+    for size in args.sizes:
+        if size < 2 or size & (size - 1):
+            parser.error(f"--sizes must be powers of two >= 2, got {size}")
+    for name in ("rounds", "calls"):
+        if getattr(args, name) < 1:
+            parser.error(f"--{name} must be at least 1, got {getattr(args, name)}")
     glctx = dr.RasterizeGLContext()
     print(f"renderer: {glctx.context.renderer}; torch {torch.__version__}, "
           f"{torch.get_num_threads()} threads; medians of {args.rounds} interleaved rounds "

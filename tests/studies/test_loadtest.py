@@ -1,10 +1,16 @@
-"""The load test runs end to end (a smoke run with tiny counts; figures are never judged)."""
+"""glraster.studies.loadtest (`glraster serve-bench`) runs end to end (a smoke run with tiny
+counts; figures are never judged) and refuses a URL that is not loopback."""
 
 from __future__ import annotations
 
 import json
 import subprocess
 import sys
+
+import pytest
+
+for _module in ("starlette", "uvicorn", "uvloop"):  # the [service] extra
+    pytest.importorskip(_module)
 
 
 def test_serve_bench_quick_run_writes_its_figures(gl_backend, tmp_path):

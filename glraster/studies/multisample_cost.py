@@ -1,7 +1,7 @@
 """Multisampling cost, in one run: ``samples=1`` against the previous commit's rasterize
 (the single-sample path must be no slower), and S samples against 1.
 
-    python benchmarks/multisample_cost.py --base /path/to/checkout/of/the/previous/commit
+    glraster study multisample-cost --base /path/to/checkout/of/the/previous/commit
 
 Each measurement is a fresh interpreter (``PYTHONPATH`` = one source tree) that warms up
 and prints the median of ``--calls`` calls of ``glraster.rasterize`` on the benchmark
@@ -12,13 +12,17 @@ read the ratio, not the milliseconds.
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import statistics
 import subprocess
 import sys
 from pathlib import Path
+
+from glraster.studies.registry import argument_parser
+
+# the source tree this module is in (the "samples=" runs import glraster from it)
+TREE = Path(__file__).resolve().parents[2]
 
 TIMER = r"""
 import json, sys, time
@@ -50,7 +54,7 @@ def measure(tree: Path, samples: int, args, plain: bool = False) -> float:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argument_parser("multisample-cost", __doc__)
     parser.add_argument("--base", type=Path, required=True,
                         help="a checkout of the commit before multisampling")
     parser.add_argument("--rounds", type=int, default=5)
@@ -58,13 +62,18 @@ def main(argv=None) -> int:
     parser.add_argument("--size", type=int, default=512)
     parser.add_argument("--triangles", type=int, default=20000)
     args = parser.parse_args(argv)
-    here = Path(__file__).resolve().parent.parent
+    if not (args.base / "glraster" / "__init__.py").is_file():
+        parser.error(f"--base must be a glraster source tree (with glraster/__init__.py), "
+                     f"got {str(args.base)!r}")
+    for name in ("rounds", "calls", "size", "triangles"):
+        if getattr(args, name) < 1:
+            parser.error(f"--{name} must be at least 1, got {getattr(args, name)}")
     import glraster as gr
     counts = [s for s in gr.Context().sample_counts if s > 1]
     runs = {"base": [], "samples=1": [], **{f"samples={s}": [] for s in counts}}
     for number in range(args.rounds):
-        order = [("base", args.base, 1, True), ("samples=1", here, 1, False)]
-        order += [(f"samples={s}", here, s, False) for s in counts]
+        order = [("base", args.base, 1, True), ("samples=1", TREE, 1, False)]
+        order += [(f"samples={s}", TREE, s, False) for s in counts]
         if number % 2:
             order.reverse()
         for name, tree, samples, plain in order:

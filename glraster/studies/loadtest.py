@@ -1,5 +1,5 @@
-"""The loopback load test of the service (``glraster serve-bench``): a benchmark, never a
-pass/fail test.
+"""The loopback load test of the service (``glraster serve-bench``, ``glraster study
+serve-bench``): a benchmark, never a pass/fail test.
 
 What it measures (docs/service.md, "Measured"):
 
@@ -33,9 +33,13 @@ import sys
 import time
 import urllib.parse
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from glraster.client import encode_scene
+from glraster.errors import ArgumentError
+from glraster.io.atomic import write_text
 
 SCENES = {"256": (256, 256, 4096), "1024": (1024, 1024, 20_000)}
 
@@ -331,159 +335,204 @@ def memory(client) -> dict:
     return out
 
 
-def main(args) -> int:
+@dataclass
+class Target:
+    """The service under load: where it listens, its token, the client of its JSON
+    endpoints, and the server this run started (None for ``--url``)."""
+
+    host: str
+    port: int
+    token: str | None
+    client: object
+    server: StartedServer | None = None
+
+    def request(self, scene: str, accept: str) -> bytes:
+        """A prepared POST /v1/rasterize of ``make_scene(scene)`` as .npz, answered as
+        ``accept`` ("application/json" or "application/x-npz")."""
+        body = encode_scene(*make_scene(scene))
+        return http_request(self.host, self.port, "/v1/rasterize", body, "application/x-npz",
+                            accept, self.token)
+
+    def load(self, request: bytes, count: int, concurrency: int, time_limit: float) -> dict:
+        """:func:`run_load` against this service."""
+        return _run(run_load(self.host, self.port, request, count, concurrency, time_limit))
+
+    def close(self) -> None:
+        self.client.close()
+        if self.server is not None:
+            self.server.stop()
+
+
+def open_target(args) -> Target:
+    """The service of ``args``: ``--url`` (loopback only: an
+    :class:`~glraster.errors.ArgumentError` otherwise) or a started ``glraster serve``."""
     from glraster.client import Client
-    from glraster.service.config import is_loopback
+    from glraster.service.config import is_loopback, read_token_file
 
-    quick = args.quick
-    token = None
-    if args.token_file:
-        from glraster.service.config import read_token_file
-
-        token = read_token_file(args.token_file)[0]
-    server = None
+    token = read_token_file(args.token_file)[0] if args.token_file else None
     if args.url:
         parts = urllib.parse.urlsplit(args.url)
         if not parts.hostname or not is_loopback(parts.hostname):
-            print(f"glraster serve-bench: --url must be a loopback address (127.0.0.1, ::1, "
-                  f"localhost), got {args.url!r}", file=sys.stderr)
-            return 2
-        host, port = parts.hostname, parts.port or 80
-        url = args.url
-    else:
-        extra = ("--token-file", args.token_file) if args.token_file else ()
-        server = StartedServer(args.backend, args.workers, extra)
-        host, port, url = server.host, server.port, server.url
-    client = Client(url, token)
-    figures = {"quick": quick, "workers": args.workers, "scenes": {}, "machine": {
-        "cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()}}
+            raise ArgumentError("--url", f"--url must be a loopback address (127.0.0.1, ::1, "
+                                f"localhost), got {args.url!r}")
+        return Target(parts.hostname, parts.port or 80, token, Client(args.url, token))
+    extra = ("--token-file", args.token_file) if args.token_file else ()
+    server = StartedServer(args.backend, args.workers, extra)
     try:
-        client.wait_ready(120)
-        figures["renderer"] = client.info()["driver"].get("renderer")
-        limit = 15.0 if quick else 60.0
-        # 1. throughput and latency by concurrency, .npz results
-        for name in ("256", "1024"):
-            pos, tri, res = make_scene(name)
-            body = encode_scene(pos, tri, res)
-            req = http_request(host, port, "/v1/rasterize", body, "application/x-npz",
-                               "application/x-npz", token)
-            count = {"256": 12 if quick else 600, "1024": 4 if quick else 80}[name]
-            _run(run_load(host, port, req, min(count, 20), 2, limit))   # warm-up
-            rows = []
-            for c in (1, 4, 16):
-                rows.append(_run(run_load(host, port, req, count, c, limit)))
-                r = rows[-1]
-                print(f"{name}^2 npz  concurrency {c:>2}: {r['throughput']:8.1f} req/s  "
-                      f"p50 {r['p50_ms']:8.2f} ms  p99 {r['p99_ms']:8.2f} ms  {r['statuses']}",
-                      flush=True)
-            figures["scenes"][name] = {"resolution": list(res), "triangles": int(len(tri)),
-                                       "npz_bytes_request": len(body), "load": rows}
-        # 2. overhead per request over an in-process call, 256^2, no result transfer:
-        #    interleaved rounds (service block, in-process blocks), median of each round;
-        #    the in-process call with fresh arrays (what a plain loop does) and into the
-        #    previous call's arrays (what the workers do: the overhead of HTTP and the pipes)
-        rounds, per = (3, 10) if quick else (10, 100)
-        pos, tri, res = make_scene("256")
+        client = Client(server.url, token)
+    except BaseException:
+        server.stop()
+        raise
+    return Target(server.host, server.port, token, client, server)
+
+
+# -- the four measurements ------------------------------------------------------------------
+
+def measure_load(target: Target, quick: bool, limit: float) -> dict:
+    """1. Throughput and latency at concurrency 1, 4 and 16, .npz results, per scene."""
+    scenes = {}
+    for name in ("256", "1024"):
+        pos, tri, res = make_scene(name)
         body = encode_scene(pos, tri, res)
-        req = http_request(host, port, "/v1/rasterize", body, "application/x-npz",
-                           "application/json", token)
-        _run(run_load(host, port, req, 10 if quick else 50, 1, limit))
-        local = InProcess(args.backend, "256")
-        svc, plain, reuse = [], [], []
+        req = http_request(target.host, target.port, "/v1/rasterize", body,
+                           "application/x-npz", "application/x-npz", target.token)
+        count = {"256": 12 if quick else 600, "1024": 4 if quick else 80}[name]
+        target.load(req, min(count, 20), 2, limit)                    # warm-up
+        rows = []
+        for c in (1, 4, 16):
+            rows.append(r := target.load(req, count, c, limit))
+            print(f"{name}^2 npz  concurrency {c:>2}: {r['throughput']:8.1f} req/s  "
+                  f"p50 {r['p50_ms']:8.2f} ms  p99 {r['p99_ms']:8.2f} ms  {r['statuses']}",
+                  flush=True)
+        scenes[name] = {"resolution": list(res), "triangles": int(len(tri)),
+                        "npz_bytes_request": len(body), "load": rows}
+    return scenes
+
+
+def measure_overhead(target: Target, backend, quick: bool, limit: float) -> dict:
+    """2. The service's overhead per request over an in-process call at 256², JSON result
+    (no transfer of the result), in interleaved rounds (a service block, then in-process
+    blocks; the median of each): the in-process call with fresh arrays (what a plain loop
+    does) and into the previous call's arrays (what the workers do, so that the difference
+    is the cost of HTTP and the pipes)."""
+    rounds, per = (3, 10) if quick else (10, 100)
+    req = target.request("256", "application/json")
+    target.load(req, 10 if quick else 50, 1, limit)                    # warm-up
+    local = InProcess(backend, "256")
+    svc, plain, reuse = [], [], []
+    try:
+        for _ in range(rounds):
+            svc.append(target.load(req, per, 1, limit)["p50_ms"])
+            plain.append(statistics.median(local.times(per)) * 1e3)
+            reuse.append(statistics.median(local.times(per, reuse=True)) * 1e3)
+    finally:
+        local.close()
+    over_plain = [a - b for a, b in zip(svc, plain)]
+    over_reuse = [a - b for a, b in zip(svc, reuse)]
+    over = {"rounds": rounds, "requests_per_round": per,
+            "service_p50_ms": statistics.median(svc),
+            "in_process_p50_ms": statistics.median(plain),
+            "in_process_reuse_p50_ms": statistics.median(reuse),
+            "overhead_ms": statistics.median(over_plain),
+            "overhead_vs_reuse_ms": statistics.median(over_reuse),
+            "overhead_ms_rounds": over_plain, "overhead_vs_reuse_ms_rounds": over_reuse}
+    print(f"overhead at 256^2 (JSON result, {rounds} interleaved rounds, medians): service "
+          f"p50 {over['service_p50_ms']:.3f} ms; in process {over['in_process_p50_ms']:.3f} "
+          f"ms (into its own arrays {over['in_process_reuse_p50_ms']:.3f} ms): "
+          f"{over['overhead_ms']:+.3f} ms ({over['overhead_vs_reuse_ms']:+.3f} ms against "
+          f"the reusing call)", flush=True)
+    return over
+
+
+def measure_sustained(target: Target, backend, quick: bool, limit: float) -> dict:
+    """3. Sustained throughput of the 2-worker server against two in-process loops, per
+    scene, in interleaved rounds (loops, loops into their own arrays, service JSON, service
+    .npz), since the machine's load drifts between blocks; the medians of the rounds and
+    of the rounds' ratios."""
+    out = {}
+    rounds = 1 if quick else 5
+    for name, count in (("256", 40 if quick else 1500), ("1024", 6 if quick else 120)):
+        reqs = {"json": target.request(name, "application/json"),
+                "npz": target.request(name, "application/x-npz")}
+        for req in reqs.values():
+            target.load(req, 16, 8, limit)                              # warm-up
+        loops = {"plain": TwoLoops(backend, name), "reuse": TwoLoops(backend, name, reuse=True)}
+        per_round = []
         try:
             for _ in range(rounds):
-                svc.append(_run(run_load(host, port, req, per, 1, limit))["p50_ms"])
-                plain.append(statistics.median(local.times(per)) * 1e3)
-                reuse.append(statistics.median(local.times(per, reuse=True)) * 1e3)
+                row = {f"loops_{k}": v.run(count, limit)["throughput"] for k, v in loops.items()}
+                for label, req in reqs.items():
+                    row[f"service_{label}"] = target.load(req, count, 8, limit)["throughput"]
+                per_round.append(row)
         finally:
-            local.close()
-        over = {"rounds": rounds, "requests_per_round": per,
-                "service_p50_ms": statistics.median(svc),
-                "in_process_p50_ms": statistics.median(plain),
-                "in_process_reuse_p50_ms": statistics.median(reuse),
-                "overhead_ms": statistics.median(a - b for a, b in zip(svc, plain)),
-                "overhead_vs_reuse_ms": statistics.median(a - b for a, b in zip(svc, reuse)),
-                "overhead_ms_rounds": [a - b for a, b in zip(svc, plain)],
-                "overhead_vs_reuse_ms_rounds": [a - b for a, b in zip(svc, reuse)]}
-        figures["overhead_256"] = over
-        print(f"overhead at 256^2 (JSON result, {rounds} interleaved rounds, medians): service "
-              f"p50 {over['service_p50_ms']:.3f} ms; in process {over['in_process_p50_ms']:.3f} "
-              f"ms (into its own arrays {over['in_process_reuse_p50_ms']:.3f} ms): "
-              f"{over['overhead_ms']:+.3f} ms ({over['overhead_vs_reuse_ms']:+.3f} ms against "
-              f"the reusing call)", flush=True)
-        # 3. sustained throughput: 2 workers against two in-process loops, in interleaved
-        #    rounds (loops, loops into their own arrays, service JSON, service .npz), since
-        #    the machine's load drifts between blocks; the median of the rounds' ratios
-        if args.workers == 2 and server is not None:
-            figures["sustained"] = {}
-            rounds = 1 if quick else 5
-            for name, count in (("256", 40 if quick else 1500), ("1024", 6 if quick else 120)):
-                pos, tri, res = make_scene(name)
-                body = encode_scene(pos, tri, res)
-                reqs = {label: http_request(host, port, "/v1/rasterize", body,
-                                            "application/x-npz", accept, token)
-                        for label, accept in (("json", "application/json"),
-                                              ("npz", "application/x-npz"))}
-                for req in reqs.values():
-                    _run(run_load(host, port, req, 16, 8, limit))     # warm-up
-                loops = {"plain": TwoLoops(args.backend, name),
-                         "reuse": TwoLoops(args.backend, name, reuse=True)}
-                per_round = []
-                try:
-                    for _ in range(rounds):
-                        row = {f"loops_{k}": v.run(count, limit)["throughput"]
-                               for k, v in loops.items()}
-                        for label, req in reqs.items():
-                            r = _run(run_load(host, port, req, count, 8, limit))
-                            row[f"service_{label}"] = r["throughput"]
-                        per_round.append(row)
-                finally:
-                    for v in loops.values():
-                        v.close()
-                summary = {"rounds": per_round}
-                for label in reqs:
-                    for k in loops:
-                        summary[f"ratio_{label}_vs_{k}"] = statistics.median(
-                            r[f"service_{label}"] / r[f"loops_{k}"] for r in per_round)
-                for key in per_round[0]:
-                    summary[key] = statistics.median(r[key] for r in per_round)
-                figures["sustained"][name] = summary
-                print(f"sustained {name}^2 ({rounds} interleaved rounds, medians): two "
-                      f"in-process loops {summary['loops_plain']:.1f}/s (into their own "
-                      f"arrays {summary['loops_reuse']:.1f}/s); service, 2 workers, "
-                      f"concurrency 8: JSON {summary['service_json']:.1f}/s "
-                      f"({summary['ratio_json_vs_plain']:.0%}; "
-                      f"{summary['ratio_json_vs_reuse']:.0%} of the reusing loops), "
-                      f".npz {summary['service_npz']:.1f}/s "
-                      f"({summary['ratio_npz_vs_plain']:.0%}; "
-                      f"{summary['ratio_npz_vs_reuse']:.0%})", flush=True)
-        # 4. memory over many requests
+            for v in loops.values():
+                v.close()
+        out[name] = summary = _sustained_summary(per_round, reqs, loops)
+        print(f"sustained {name}^2 ({rounds} interleaved rounds, medians): two "
+              f"in-process loops {summary['loops_plain']:.1f}/s (into their own "
+              f"arrays {summary['loops_reuse']:.1f}/s); service, 2 workers, "
+              f"concurrency 8: JSON {summary['service_json']:.1f}/s "
+              f"({summary['ratio_json_vs_plain']:.0%}; "
+              f"{summary['ratio_json_vs_reuse']:.0%} of the reusing loops), "
+              f".npz {summary['service_npz']:.1f}/s "
+              f"({summary['ratio_npz_vs_plain']:.0%}; "
+              f"{summary['ratio_npz_vs_reuse']:.0%})", flush=True)
+    return out
+
+
+def _sustained_summary(per_round: list, labels, loops) -> dict:
+    """The rounds, the median of every figure over them, and the medians of the per-round
+    ratios service / loops (``ratio_{json,npz}_vs_{plain,reuse}``)."""
+    summary = {"rounds": per_round}
+    for label in labels:
+        for k in loops:
+            summary[f"ratio_{label}_vs_{k}"] = statistics.median(
+                r[f"service_{label}"] / r[f"loops_{k}"] for r in per_round)
+    for key in per_round[0]:
+        summary[key] = statistics.median(r[key] for r in per_round)
+    return summary
+
+
+def measure_memory(target: Target, total: int) -> dict:
+    """4. Resident memory of the server and its workers over ``total`` requests (256²,
+    JSON result, concurrency 4), sampled at 5%, 25%, 50%, 75% and 100%."""
+    req = target.request("256", "application/json")
+    samples = []
+    done = 0
+    marks = sorted({min(total, m) for m in (total // 20, total // 4, total // 2,
+                                            3 * total // 4, total)} - {0})
+    for mark in marks:
+        done += target.load(req, mark - done, 4, 600.0)["requests"]
+        samples.append({"requests": done, **memory(target.client)})
+    first, last = samples[0], samples[-1]
+    growth = {k: last[k] - first[k] for k in first if k != "requests" and k in last}
+    print(f"memory over {done} requests (MiB, after {first['requests']}): "
+          + ", ".join(f"{k} {first[k]:.1f} -> {last[k]:.1f}" for k in growth), flush=True)
+    return {"samples": samples, "growth_mib_after_warmup": growth}
+
+
+def run(args) -> int:
+    """``glraster serve-bench``: the four measurements against the service of ``args``;
+    the figures as JSON to ``args.json`` (written atomically) when given."""
+    quick = args.quick
+    target = open_target(args)
+    figures = {"quick": quick, "workers": args.workers, "scenes": {}, "machine": {
+        "cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
+        else os.cpu_count()}}
+    try:
+        target.client.wait_ready(120)
+        figures["renderer"] = target.client.info()["driver"].get("renderer")
+        limit = 15.0 if quick else 60.0
+        figures["scenes"] = measure_load(target, quick, limit)
+        figures["overhead_256"] = measure_overhead(target, args.backend, quick, limit)
+        if args.workers == 2 and target.server is not None:
+            figures["sustained"] = measure_sustained(target, args.backend, quick, limit)
         total = args.memory_requests if not quick else min(args.memory_requests, 1000)
         if total:
-            req = http_request(host, port, "/v1/rasterize", body_256 := encode_scene(*make_scene("256")),
-                               "application/x-npz", "application/json", token)
-            del body_256
-            samples = []
-            done = 0
-            marks = sorted({min(total, m) for m in (total // 20, total // 4, total // 2,
-                                                    3 * total // 4, total)} - {0})
-            for mark in marks:
-                r = _run(run_load(host, port, req, mark - done, 4, 600.0))
-                done += r["requests"]
-                samples.append({"requests": done, **memory(client)})
-            first, last = samples[0], samples[-1]
-            growth = {k: last[k] - first[k] for k in first if k != "requests" and k in last}
-            figures["memory"] = {"samples": samples, "growth_mib_after_warmup": growth}
-            print(f"memory over {done} requests (MiB, after {first['requests']}): "
-                  + ", ".join(f"{k} {first[k]:.1f} -> {last[k]:.1f}" for k in growth), flush=True)
+            figures["memory"] = measure_memory(target, total)
     finally:
-        client.close()
-        if server is not None:
-            server.stop()
+        target.close()
     if args.json:
-        from pathlib import Path
-
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(figures, indent=2))
+        write_text(args.json, json.dumps(figures, indent=2))
         print(f"figures: {args.json}")
     return 0

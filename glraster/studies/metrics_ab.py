@@ -1,6 +1,6 @@
 """Cost of the service's metrics now against an earlier revision's, in process.
 
-    python benchmarks/metrics_ab.py [REV]     # REV default 432fdaa, the hand-written text
+    glraster study metrics-ab [REV] [--rounds 15]     # REV default 432fdaa, the hand-written text
 
 Loads ``glraster/service/metrics.py`` of git revision REV beside the current one and times,
 per call, what a request pays (``Metrics.observe`` of one answered request: its counter, its
@@ -12,19 +12,13 @@ median of the per-round differences, in microseconds.
 
 from __future__ import annotations
 
-import importlib.util
 import os
 import statistics
-import subprocess
-import sys
-import tempfile
 import time
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from glraster.service import metrics as current  # noqa: E402
+from glraster.service import metrics as current
+from glraster.studies.registry import argument_parser
+from glraster.studies.revision import load_module_at
 
 ENDPOINTS = ("rasterize", "check", "info", "healthz", "readyz", "metrics")
 STATUSES = (200, 400, 429, 503, 504)
@@ -37,18 +31,6 @@ class FakePool:
         return {"queue_depth": 1, "queue_capacity": 16, "inflight": 3,
                 "workers": [{"index": i, "pid": os.getpid(), "state": "busy"}
                             for i in range(4)]}
-
-
-def _load(rev: str):
-    source = subprocess.run(["git", "show", f"{rev}:glraster/service/metrics.py"], cwd=ROOT,
-                            capture_output=True, text=True, check=True).stdout
-    path = Path(tempfile.mkdtemp()) / "metrics_then.py"
-    path.write_text(source)
-    spec = importlib.util.spec_from_file_location("metrics_then", path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["metrics_then"] = module
-    spec.loader.exec_module(module)
-    return module
 
 
 def _filled(module, pool):
@@ -74,8 +56,16 @@ def _per_call_us(fn, n: int) -> float:
     return (time.perf_counter() - t0) / n * 1e6
 
 
-def main(rev: str = "432fdaa", rounds: int = 15) -> None:
-    then = _load(rev)
+def main(argv=None) -> int:
+    parser = argument_parser("metrics-ab", __doc__)
+    parser.add_argument("rev", nargs="?", default="432fdaa", metavar="REV",
+                        help="the git revision to compare with (default 432fdaa)")
+    parser.add_argument("--rounds", type=int, default=15, help="interleaved rounds")
+    args = parser.parse_args(argv)
+    if args.rounds < 1:
+        parser.error(f"--rounds must be at least 1, got {args.rounds}")
+    rev, rounds = args.rev, args.rounds
+    then = load_module_at(rev, "glraster/service/metrics.py", "metrics_then")
     pool = FakePool()
     modules = {"then": then, "now": current}
     filled = {k: _filled(mod, pool) for k, mod in modules.items()}
@@ -93,6 +83,7 @@ def main(rev: str = "432fdaa", rounds: int = 15) -> None:
         diff = statistics.median(y - x for x, y in zip(a, b))
         print(f"  {label:24s} then {statistics.median(a):8.2f}   now {statistics.median(b):8.2f}"
               f"   now - then {diff:+8.2f}")
+    return 0
 
 
 def _client_version() -> str:
@@ -102,4 +93,4 @@ def _client_version() -> str:
 
 
 if __name__ == "__main__":
-    main(*sys.argv[1:2])
+    raise SystemExit(main())

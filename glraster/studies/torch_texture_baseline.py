@@ -1,5 +1,5 @@
 """Texture filtering in plain PyTorch (``grid_sample`` + autograd): the yardstick that
-:func:`glraster.torch.texture` is timed against (``python -m glraster.torch.texture_baseline``).
+:func:`glraster.torch.texture` is timed against (``glraster study texture-baseline``).
 
 The same filters as :func:`glraster.torch.texture` for 2-D textures whose extents are
 powers of two (the 2 x 2 box pyramid), written the way one would without a custom kernel:
@@ -20,7 +20,6 @@ Inputs are not validated (pass what glraster.torch.texture accepts, 2-D, power-o
 from __future__ import annotations
 
 import math
-import time
 
 import torch
 import torch.nn.functional as F
@@ -95,8 +94,10 @@ def texture(tex, uv, uv_da=None, mip_level_bias=None, filter_mode="auto",
 # --------------------------------------------------------------------------- benchmark
 
 
-def _inputs(size: int, channels: int = 4, seed: int = 0):
-    """A size x size image of a size x size texture seen in perspective (levels ~0 .. 3)."""
+def perspective_inputs(size: int, channels: int = 4, seed: int = 0):
+    """A size x size image of a size x size texture seen in perspective (levels ~0 .. 3):
+    tex (1, size, size, channels) uniform in [0, 1), uv (1, size, size, 2) and its screen
+    derivatives uv_da (1, size, size, 4), float32."""
     g = torch.Generator().manual_seed(seed)
     tex = torch.rand(1, size, size, channels, generator=g)
     ys, xs = torch.meshgrid(torch.arange(size) + 0.5, torch.arange(size) + 0.5, indexing="ij")
@@ -111,24 +112,15 @@ def _inputs(size: int, channels: int = 4, seed: int = 0):
     return tex, uv, uv_da.contiguous()
 
 
-def _time(fn, repeat: int) -> float:
-    fn()
-    times = []
-    for _ in range(repeat):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return sorted(times)[len(times) // 2]
-
-
 def benchmark(sizes=(512, 1024), repeat: int = 5, boundary_mode: str = "wrap"):
     """Rows (size, filter_mode, glraster ms, plain PyTorch ms, max |difference|) of forward
     + backward (gradients to tex and uv, and uv_da in linear-mipmap-linear)."""
     import glraster.torch as dr
+    from glraster.studies.timing import median_seconds
 
     rows = []
     for size in sizes:
-        tex, uv, uv_da = _inputs(size)
+        tex, uv, uv_da = perspective_inputs(size)
         for mode in ("nearest", "linear", "linear-mipmap-nearest", "linear-mipmap-linear"):
             da = uv_da if mode.startswith("linear-mipmap") else None
             results = {}
@@ -141,8 +133,8 @@ def benchmark(sizes=(512, 1024), repeat: int = 5, boundary_mode: str = "wrap"):
                 out.backward(torch.ones_like(out))
                 results[key] = out.detach()
 
-            ms_gl = 1e3 * _time(lambda: run(dr.texture, "gl"), repeat)
-            ms_pt = 1e3 * _time(lambda: run(texture, "pt"), repeat)
+            ms_gl = 1e3 * median_seconds(lambda: run(dr.texture, "gl"), repeat, warmup=1)
+            ms_pt = 1e3 * median_seconds(lambda: run(texture, "pt"), repeat, warmup=1)
             diff = (results["gl"] - results["pt"]).abs()
             rows.append((size, mode, ms_gl, ms_pt, float(diff.max()),
                          float(diff.flatten().kthvalue(max(1, math.ceil(0.999 * diff.numel())))
@@ -151,14 +143,14 @@ def benchmark(sizes=(512, 1024), repeat: int = 5, boundary_mode: str = "wrap"):
 
 
 def build_parser():
-    import argparse
+    from glraster.studies.registry import argument_parser
 
-    parser = argparse.ArgumentParser(
-        prog="python -m glraster.torch.texture_baseline",
-        description="Time glraster.torch.texture against the same filters in plain PyTorch "
-                    "(grid_sample + autograd): forward + backward for every filter mode, "
-                    "one square image and texture per size, 4 channels. Prints a Markdown "
-                    "table (docs/differentiable.md, 'Speed').")
+    parser = argument_parser(
+        "texture-baseline",
+        "Time glraster.torch.texture against the same filters in plain PyTorch "
+        "(grid_sample + autograd): forward + backward for every filter mode, one square "
+        "image and texture per size, 4 channels. Prints a Markdown table "
+        "(docs/differentiable.md, 'Speed').")
     parser.add_argument("--sizes", type=int, nargs="+", default=[512, 1024], metavar="N",
                         help="image and texture sizes, powers of two (default: 512 1024)")
     parser.add_argument("--repeat", type=int, default=5, metavar="K",

@@ -1,29 +1,58 @@
 """Figures for docs/differentiable.md ("GPU"): the differentiable rasterize's forward
-(glraster.diff.rasterize) against float64 on catalog scenes, and its speed with and
-without rast_db.
+(the float32 core of glraster.diff.ops.RASTERIZE) against float64 on catalog scenes, and its
+speed with and without rast_db.
 
-    .venv/bin/python scripts/diff_rasterize_figures.py [--accuracy] [--timing] [--batches]
+    glraster study diff-rasterize-figures [--accuracy] [--timing] [--batches]
+
+``--accuracy`` judges the GPU against the per-pixel error bounds of the test suite
+(tests/diff/test_rasterize_gpu.py: ``float64_forward`` and ``compare``), so it runs in a
+source checkout of glraster only.
 """
 
 from __future__ import annotations
 
-import argparse
+import importlib
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
 import glraster as gr
 from glraster.conformance.scenes import list_scenes, load_scene
 from glraster.diff.ops import RASTERIZE
 from glraster.studies.bench import make_bench_scene
-from tests.diff.test_rasterize_gpu import compare, float64_forward
+from glraster.studies.registry import argument_parser
+from glraster.studies.timing import median_seconds
+
+# the source tree this module is in: glraster/studies/ -> the checkout's root
+TREE = Path(__file__).resolve().parents[2]
+
+
+def gpu_forward(pos, tri, resolution, ctx, grad_db=True):
+    """A call of the float32 (GPU) rasterize core on inputs checked once: ``call()`` ->
+    (rast, rast_db), each (B, H, W, 4) float32 (rast_db (B, H, W, 0) without ``grad_db``).
+    The call runs the core only, which is what the timings measure."""
+    inputs, params = RASTERIZE.check(np.asarray(pos, np.float32), tri=tri,
+                                     resolution=resolution, grad_db=grad_db, ctx=ctx)
+    core = RASTERIZE.core(np.float32)
+    return lambda: core.forward(*inputs, **params)[0]
+
+
+def _test_bounds():
+    """``(float64_forward, compare)`` of the test suite's rasterize checks (the per-pixel
+    error bounds live with the tests), importable from a source checkout only."""
+    if not (TREE / "tests" / "diff" / "test_rasterize_gpu.py").is_file():
+        raise FileNotFoundError(f"--accuracy needs a glraster source checkout (its tests/diff "
+                                f"error bounds); none at {TREE}")
+    if str(TREE) not in sys.path:
+        sys.path.insert(0, str(TREE))
+    module = importlib.import_module("tests.diff.test_rasterize_gpu")
+    return module.float64_forward, module.compare
 
 
 def accuracy(ctx, names):
+    float64_forward, compare = _test_bounds()
     total = {"uv": [], "z": [], "db": [], "db_rel": []}
     worst = {"ratio": 0.0, "ratio_db": 0.0}
     mism = amb = pixels = 0
@@ -32,8 +61,7 @@ def accuracy(ctx, names):
     for name in names:
         s = load_scene(name)
         t0 = time.perf_counter()
-        (rast, db), _ = RASTERIZE.forward(np.float32(s.pos), tri=s.tri,
-                                          resolution=s.resolution, ctx=ctx)
+        rast, db = gpu_forward(s.pos, s.tri, s.resolution, ctx)()
         got = compare(rast[0], db[0], float64_forward(s.pos, s.tri, s.resolution, ctx=ctx))
         for k in total:
             total[k].append(got[k])
@@ -56,16 +84,6 @@ def accuracy(ctx, names):
     print(f"  worst error / bound: rast {worst['ratio']:.3f}, rast_db {worst['ratio_db']:.3f}")
 
 
-def _median_time(fn, repeat, clock=time.perf_counter):
-    fn()
-    times = []
-    for _ in range(repeat):
-        t0 = clock()
-        fn()
-        times.append(clock() - t0)
-    return float(np.median(times))
-
-
 def timing(ctx, repeat):
     print(f"\n{'size':>6s} {'tris':>6s} {'no db ms':>9s} {'db ms':>9s} {'ratio':>6s} "
           f"{'cpu no db':>9s} {'cpu db':>9s} {'ratio':>6s} {'gr.rasterize hw ms':>18s}")
@@ -77,16 +95,16 @@ def timing(ctx, repeat):
             # process CPU time includes llvmpipe's rasterizer threads and is less disturbed
             # by other processes on shared cores than wall time
             a, b, ca, cb = [], [], [], []
-            nodb = lambda: RASTERIZE.forward(np.float32(pos), tri=tri, resolution=res, ctx=ctx,
-                                             grad_db=False)
-            db = lambda: RASTERIZE.forward(np.float32(pos), tri=tri, resolution=res, ctx=ctx)
+            nodb = gpu_forward(pos, tri, res, ctx, grad_db=False)
+            db = gpu_forward(pos, tri, res, ctx)
             for _ in range(repeat):
-                a.append(_median_time(nodb, 1))
-                b.append(_median_time(db, 1))
-                ca.append(_median_time(nodb, 1, time.process_time))
-                cb.append(_median_time(db, 1, time.process_time))
-            hw = min(_median_time(lambda: gr.rasterize(pos, tri, res, ctx=ctx,
-                                                       outputs=("persp", "depth", "tri_id")), 1)
+                a.append(median_seconds(nodb, 1, warmup=1))
+                b.append(median_seconds(db, 1, warmup=1))
+                ca.append(median_seconds(nodb, 1, warmup=1, clock=time.process_time))
+                cb.append(median_seconds(db, 1, warmup=1, clock=time.process_time))
+            hw = min(median_seconds(lambda: gr.rasterize(pos, tri, res, ctx=ctx,
+                                                         outputs=("persp", "depth", "tri_id")),
+                                    1, warmup=1)
                      for _ in range(repeat))
             ta, tb = np.min(a), np.min(b)  # minima: the machine's cores are shared
             tca, tcb = np.median(ca), np.median(cb)
@@ -121,27 +139,28 @@ def batches(ctx, repeat):
             jitter = rng.normal(0, 0.01, (B, 1, 4)) * [1, 1, 0, 0]
             batch = (pos[None] + jitter).astype(np.float32)
             apos, atri = _atlas(batch, tri, size)
+            per_item = gpu_forward(batch, tri, (size, size), ctx)
+            one_draw = gpu_forward(apos, atri, (B * size, size), ctx)
             a, b = [], []
             for _ in range(repeat):
-                a.append(_median_time(lambda: RASTERIZE.forward(
-                    np.float32(batch), tri=tri, resolution=(size, size), ctx=ctx), 1))
-                b.append(_median_time(
-                    lambda: RASTERIZE.forward(np.float32(apos), tri=atri,
-                                              resolution=(B * size, size), ctx=ctx), 1))
+                a.append(median_seconds(per_item, 1, warmup=1))
+                b.append(median_seconds(one_draw, 1, warmup=1))
             ta, tb = np.min(a), np.min(b)  # minima: the machine's cores are shared
             print(f"{size:6d} {len(tri):6d} {B:3d} {1e3 * ta:11.1f} {1e3 * tb:11.1f} "
                   f"{ta / tb:19.2f}")
 
 
-def main():
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--accuracy", action="store_true")
-    ap.add_argument("--timing", action="store_true")
-    ap.add_argument("--batches", action="store_true")
+def main(argv=None) -> int:
+    ap = argument_parser("diff-rasterize-figures", __doc__)
+    ap.add_argument("--accuracy", action="store_true", help="float64 comparison on the catalog")
+    ap.add_argument("--timing", action="store_true", help="forward with and without rast_db")
+    ap.add_argument("--batches", action="store_true", help="instanced batches against one draw")
     ap.add_argument("--scenes", default=None, help="fnmatch pattern(s), default all")
-    ap.add_argument("--repeat", type=int, default=7)
-    ap.add_argument("--backend", default="egl")
-    args = ap.parse_args()
+    ap.add_argument("--repeat", type=int, default=7, help="timed rounds (minima shown)")
+    ap.add_argument("--backend", default="egl", choices=("egl", "osmesa"))
+    args = ap.parse_args(argv)
+    if args.repeat < 1:
+        ap.error(f"--repeat must be at least 1, got {args.repeat}")
     everything = not (args.accuracy or args.timing or args.batches)
     ctx = gr.Context(backend=args.backend)
     print(ctx.backend, ctx.renderer)
@@ -151,7 +170,8 @@ def main():
         timing(ctx, args.repeat)
     if args.batches or everything:
         batches(ctx, args.repeat)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

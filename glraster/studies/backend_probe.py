@@ -12,12 +12,11 @@ and, in this process, the per-call cost of a verdict already in memory (every Co
 after the first). Medians over the rounds; the machine may be shared, so the rounds are
 interleaved. Run::
 
-    python benchmarks/backend_probe.py [--backend egl] [--rounds 7]
+    glraster study backend-probe [--backend egl] [--rounds 7]
 """
 
 from __future__ import annotations
 
-import argparse
 import os
 import random
 import statistics
@@ -27,7 +26,10 @@ import tempfile
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+from glraster.studies.registry import argument_parser
+
+# the source tree this module is in, first on the timed processes' path
+TREE = Path(__file__).resolve().parents[2]
 
 TIMED = """
 import sys, time
@@ -44,14 +46,34 @@ ctx.release()
 
 def first_context_seconds(backend: str, mode: str, cache: str) -> float:
     env = {**os.environ, "XDG_CACHE_HOME": cache,
-           "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
+           "PYTHONPATH": os.pathsep.join([str(TREE), os.environ.get("PYTHONPATH", "")])}
     out = subprocess.run([sys.executable, "-c", TIMED, backend, mode], env=env, check=True,
                          capture_output=True, text=True, timeout=300).stdout
     return float(out.split()[-1])
 
 
+def verdict_in_memory_seconds(backend: str, cache: str, calls: int = 2000) -> float:
+    """Seconds per ``probe.verdict`` call once the verdict is in memory (every Context()
+    after a process's first), with ``$XDG_CACHE_HOME`` at ``cache`` during the calls."""
+    from glraster.gpu.backends import probe
+
+    before = os.environ.get("XDG_CACHE_HOME")
+    os.environ["XDG_CACHE_HOME"] = cache
+    try:
+        probe.verdict(backend)  # in memory from now on
+        t = time.perf_counter()
+        for _ in range(calls):
+            probe.verdict(backend)
+        return (time.perf_counter() - t) / calls
+    finally:
+        if before is None:
+            os.environ.pop("XDG_CACHE_HOME", None)
+        else:
+            os.environ["XDG_CACHE_HOME"] = before
+
+
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argument_parser("backend-probe", __doc__)
     parser.add_argument("--backend", default="egl", choices=("egl", "osmesa"))
     parser.add_argument("--rounds", type=int, default=7)
     args = parser.parse_args(argv)
@@ -73,16 +95,7 @@ def main(argv=None) -> int:
                         args.backend, "off" if mode == "no probe" else "on", warm_cache)
                 times[mode].append(seconds)
 
-        os.environ["XDG_CACHE_HOME"] = warm_cache
-        sys.path.insert(0, str(REPO))
-        from glraster.gpu.backends import probe
-
-        probe.verdict(args.backend)  # in memory from now on
-        calls = 2000
-        t = time.perf_counter()
-        for _ in range(calls):
-            probe.verdict(args.backend)
-        in_memory = (time.perf_counter() - t) / calls
+        in_memory = verdict_in_memory_seconds(args.backend, warm_cache)
 
     median = {mode: statistics.median(values) for mode, values in times.items()}
     print(f"first Context({args.backend!r}), median of {args.rounds} interleaved rounds "
@@ -98,4 +111,4 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(main())

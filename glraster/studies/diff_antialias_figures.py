@@ -1,12 +1,13 @@
 """Timing of glraster.diff.antialias (GPU, forward + backward) against its float64 reference
 (glraster.diff.antialias_reference) at 256², 512² and 1024² (docs/differentiable.md,
-"Antialias"). Usage: python scripts/diff_antialias_figures.py [--repeat N]"""
+"Antialias").
+
+    glraster study diff-antialias-figures [--repeat N]
+"""
 
 from __future__ import annotations
 
-import argparse
 import functools
-import time
 
 import numpy as np
 
@@ -15,6 +16,8 @@ from glraster.diff import antialias as gaa
 from glraster.diff import antialias_reference as aar
 from glraster.diff.ops import ANTIALIAS, INTERPOLATE, RASTERIZE
 from glraster.geometry import camera, shapes
+from glraster.studies.registry import argument_parser
+from glraster.studies.timing import best_seconds as best
 
 
 def scene(size: int, level: int = 4):
@@ -25,24 +28,17 @@ def scene(size: int, level: int = 4):
     return pos, faces.astype(np.int32), colors
 
 
-def best(fn, repeat: int) -> float:
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return min(times)
-
-
 def reference(color, rast, pos, tri, th, g):
     _, saved = ANTIALIAS.forward(color, rast, pos, tri=tri, topology_hash=th)
     aar.backward(saved, g)
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--repeat", type=int, default=5)
+    parser = argument_parser("diff-antialias-figures", __doc__)
+    parser.add_argument("--repeat", type=int, default=5, help="timed calls; the best is shown")
     args = parser.parse_args(argv)
+    if args.repeat < 1:
+        parser.error(f"--repeat must be at least 1, got {args.repeat}")
     ctx = gr.Context()
     print(f"renderer: {ctx.renderer}")
     print("| frame | triangles | blended pairs | GPU fwd ms | GPU bwd ms (atomic) | "
@@ -71,7 +67,8 @@ def main(argv=None):
         both = fwd + bwd
         print(f"| {size}² | {len(tri)} | {len(s.pairs.tau)} | {fwd * 1e3:.1f} | {bwd * 1e3:.1f} | "
               f"{bwd_det * 1e3:.1f} | {both * 1e3:.1f} | {ref * 1e3:.0f} | {ref / both:.1f} |")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

@@ -1,9 +1,9 @@
 """The service's request parser now against an earlier revision's, in process.
 
-    python benchmarks/service_parse_ab.py [REV]     # REV default b5fd647, the hand-written parser
+    glraster study service-parse-ab [REV]     # REV default b5fd647, the hand-written parser
 
 Loads ``glraster/service/protocol.py`` of git revision REV beside the current one and times
-``parse_rasterize`` on the load test's scenes (glraster.service.loadtest.make_scene: the
+``parse_rasterize`` on the load test's scenes (glraster.studies.loadtest.make_scene: the
 256x256 torus and the 1024x1024 grid) as a JSON body with options, and as an .npz body with
 the options in the query. Rounds alternate between the two parsers (the machine's speed
 drifts); printed are the medians of the rounds and the median of the per-round differences.
@@ -12,40 +12,26 @@ Both parsers must give the same arrays and options.
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import statistics
-import subprocess
-import sys
-import tempfile
 import time
-from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from glraster.client import encode_scene  # noqa: E402
-from glraster.service import protocol as current  # noqa: E402
-from glraster.service.config import Limits  # noqa: E402
-from glraster.service.loadtest import make_scene  # noqa: E402
-
-
-def _load(rev: str):
-    source = subprocess.run(["git", "show", f"{rev}:glraster/service/protocol.py"], cwd=ROOT,
-                            capture_output=True, text=True, check=True).stdout
-    path = Path(tempfile.mkdtemp()) / "protocol_then.py"
-    path.write_text(source)
-    spec = importlib.util.spec_from_file_location("protocol_then", path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["protocol_then"] = module
-    spec.loader.exec_module(module)
-    return module
+from glraster.client import encode_scene
+from glraster.service import protocol as current
+from glraster.service.config import Limits
+from glraster.studies.loadtest import make_scene
+from glraster.studies.registry import argument_parser
+from glraster.studies.revision import load_module_at
 
 
-def main(rev: str = "b5fd647") -> None:
-    then = _load(rev)
+def main(argv=None) -> int:
+    parser = argument_parser("service-parse-ab", __doc__)
+    parser.add_argument("rev", nargs="?", default="b5fd647", metavar="REV",
+                        help="the git revision to compare with (default b5fd647)")
+    rev = parser.parse_args(argv).rev
+    then = load_module_at(rev, "glraster/service/protocol.py", "protocol_then")
     limits = Limits()
     for name in ("256", "1024"):
         pos, tri, res = make_scene(name)
@@ -80,7 +66,8 @@ def main(rev: str = "b5fd647") -> None:
               f"{med['json now']:.2f} ms (per-round difference {diff['json']:+.2f} ms); .npz "
               f"body + query: {rev} {med['npz then'] * 1e3:.0f} us, now "
               f"{med['npz now'] * 1e3:.0f} us ({diff['npz'] * 1e3:+.0f} us)")
+    return 0
 
 
 if __name__ == "__main__":
-    main(*sys.argv[1:2])
+    raise SystemExit(main())

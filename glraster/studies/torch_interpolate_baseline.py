@@ -1,5 +1,7 @@
 """Attribute interpolation in plain PyTorch (gather + autograd): the yardstick that
-``glraster.studies.diff_bench`` times :func:`glraster.torch.interpolate` against.
+``glraster.studies.diff_bench`` (``glraster bench-diff``) times
+:func:`glraster.torch.interpolate` against. It imports torch itself, on purpose (the
+import contract allows exactly the studies written in torch).
 
 The same mathematics as :func:`glraster.torch.interpolate` (and the same float32 operation
 order as ``shaders/diff/interpolate.comp``, so the forward outputs are bit-identical): per

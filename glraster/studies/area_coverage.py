@@ -1,6 +1,6 @@
 """How long the exact area coverage (glraster.reference.area_coverage) takes.
 
-    python benchmarks/area_coverage.py [--size 256] [--rounds 5]
+    glraster study area-coverage [--size 256] [--rounds 5]
 
 Scenes at --size x --size: the antialias study's three (fan, thin slivers, near-clipped
 floor), a 32 x 32 grid mesh (2048 triangles sharing edges), 300 small random overlapping
@@ -12,7 +12,6 @@ noisy.
 
 from __future__ import annotations
 
-import argparse
 import statistics
 import time
 
@@ -21,6 +20,7 @@ import numpy as np
 from glraster.geometry.window import window_to_clip
 from glraster.reference.area import area_coverage
 from glraster.studies.antialias import builtin_scenes
+from glraster.studies.registry import argument_parser
 
 
 def _random(n, size, side, seed):
@@ -43,11 +43,15 @@ def _grid(n, size):
     return pos, np.array(tri)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--size", type=int, default=256)
-    parser.add_argument("--rounds", type=int, default=5)
-    args = parser.parse_args()
+def main(argv=None) -> int:
+    parser = argument_parser("area-coverage", __doc__)
+    parser.add_argument("--size", type=int, default=256, help="image height and width (px)")
+    parser.add_argument("--rounds", type=int, default=5, help="timed runs per scene")
+    args = parser.parse_args(argv)
+    if args.size < 16:
+        parser.error(f"--size must be at least 16, got {args.size}")
+    if args.rounds < 1:
+        parser.error(f"--rounds must be at least 1, got {args.rounds}")
     size = args.size
     scenes = {s.name: (s.pos, s.tri) for s in builtin_scenes((size, size))}
     scenes["grid 32x32"] = _grid(32, size)
@@ -62,7 +66,8 @@ def main() -> None:
             times.append(time.perf_counter() - t0)
         print(f"{name:<24} {len(tri):5d} triangles  {size}x{size}  "
               f"{1e3 * statistics.median(times):8.1f} ms  (covered {area.sum():.0f} px)")
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())
