@@ -113,7 +113,10 @@ def interpolate(attr, raster, tri, space: str = "persp", *, normalize: bool = Tr
     rast[0, ys, xs, 0] = b[:, 0] / scale
     rast[0, ys, xs, 1] = b[:, 1] / scale
     rast[0, ys, xs, 3] = _ids.encode_ids(tri_id[ys, xs])
-    (out, _), _saved = INTERPOLATE.forward(a.astype(np.float64, copy=False), rast, tri=t)
+    # checked above: the float64 core itself, without the op's second pass over the frame
+    core = INTERPOLATE.core(np.float64)
+    (out, _), _saved = core.forward(a.astype(np.float64, copy=False)[None], rast, None,
+                                    tri=t.astype(np.int32, copy=False), diff_attrs=None)
     out = out[0]
     if not normalize:
         out[ys, xs] *= total[:, None]

@@ -71,6 +71,8 @@ STUDIES: dict[str, Study] = {s.name: s for s in (
           "the same filters in plain PyTorch (grid_sample)", extra="torch"),
     Study("texture-mip-reuse", _S + "texture_mip_reuse", "texture with the mip pyramid built "
           "in the call against texture_construct_mip", extra="torch"),
+    Study("interpolate-adapter", _S + "interpolate_adapter", "glraster.interpolate (the "
+          "adapter over the differentiable interpolate) against a plain weighted sum"),
     Study("metrics-ab", _S + "metrics_ab", "the service's /metrics cost against an earlier "
           "revision's (git)", extra="service"),
     Study("service-parse-ab", _S + "service_parse_ab", "the worker's request parsing against "

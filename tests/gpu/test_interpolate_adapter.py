@@ -48,24 +48,31 @@ def test_adapter_equals_the_weighted_sum_on_gpu_and_reference_rasters(ctx, space
 
 
 def test_adapter_runs_the_float64_core_of_the_one_interpolate(monkeypatch):
-    """The math lives in ops.INTERPOLATE: the adapter calls it once, in nvdiffrast's layout."""
+    """The math lives in ops.INTERPOLATE: the adapter calls its float64 core once, in
+    nvdiffrast's layout."""
     calls = []
-    forward = ops.INTERPOLATE.forward
+    core = ops.INTERPOLATE.core(np.float64)
 
-    def spy(*inputs, **params):
-        calls.append((inputs, params))
-        return forward(*inputs, **params)
+    class Spy:
+        def forward(self, *inputs, **params):
+            calls.append((inputs, params))
+            return core.forward(*inputs, **params)
 
-    monkeypatch.setattr(type(ops.INTERPOLATE), "forward", lambda self, *a, **k: spy(*a, **k))
+    def spy_core(self, dtype):
+        assert np.dtype(dtype) == np.float64
+        return Spy()
+
+    monkeypatch.setattr(type(ops.INTERPOLATE), "core", spy_core)
     tri_id = np.array([[-1, 0], [1, -1]], np.int32)
     bary = np.zeros((2, 2, 3))
     bary[0, 1], bary[1, 0] = (0.5, 0.25, 0.25), (0.0, 0.0, 2.0)
     r = gr.Raster(resolution=(2, 2), mask=tri_id >= 0, persp=bary, tri_id=tri_id)
     out = interpolate(np.array([[4.0], [8.0], [16.0], [32.0]]), r, np.array([[0, 1, 2],
                                                                               [1, 2, 3]]))
-    (attr, rast), params = calls[0]
+    assert len(calls) == 1
+    (attr, rast, rast_db), params = calls[0]
     assert rast.shape == (1, 2, 2, 4) and rast.dtype == np.float64 and attr.dtype == np.float64
-    assert "rast_db" not in params and "diff_attrs" not in params
+    assert rast_db is None and params["diff_attrs"] is None
     np.testing.assert_array_equal(rast[0, 1, 0], [0.0, 0.0, 0.0, 2.0])   # id 2 = index 1 + 1
     # dyadic weights and values: exact
     assert out[0, 1, 0] == 0.5 * 4 + 0.25 * 8 + 0.25 * 16 and out[1, 0, 0] == 32.0
@@ -84,7 +91,7 @@ def test_barycentrics_summing_to_zero_cannot_be_normalized():
 
 
 def test_the_adapter_benchmark_runs_and_agrees_with_the_plain_sum(ctx, capsys):
-    from benchmarks import interpolate_adapter
+    from glraster.studies import interpolate_adapter
 
     assert interpolate_adapter.main(["--sizes", "40x30", "--rounds", "1", "--calls", "1"]) == 0
     row = capsys.readouterr().out.splitlines()[-1].strip("| ").split(" | ")

@@ -2,7 +2,7 @@
 core) against the plain weighted sum it replaced, ``einsum("nk,nkc->nc", b, corners)`` over
 the covered pixels, on the same GPU raster, in one process.
 
-    python benchmarks/interpolate_adapter.py --sizes 320x240 640x480 --rounds 7
+    glraster study interpolate-adapter --sizes 320x240 640x480 --rounds 7
 
 A 48 x 24 torus seen in perspective, rasterized once per size (persp and tri_id, float32);
 attributes: the 3 eye-space coordinates and the clip w. The two variants alternate round by
@@ -22,6 +22,7 @@ import numpy as np
 import glraster as gr
 from glraster.geometry import camera as cam
 from glraster.geometry import shapes
+from glraster.studies.registry import argument_parser
 
 
 def weighted_sum(attr, raster, tri) -> np.ndarray:
@@ -68,7 +69,7 @@ def _size(text: str) -> tuple[int, int]:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argument_parser("interpolate-adapter", __doc__)
     parser.add_argument("--sizes", nargs="+", type=_size, default=[(240, 320), (480, 640)],
                         metavar="WxH")
     parser.add_argument("--rounds", type=int, default=7)
