@@ -14,7 +14,7 @@ import jax.numpy as jnp
 from glraster.diff.antialias_reference import antialias_construct_topology_hash as _construct
 from glraster.diff.ops import ANTIALIAS
 from glraster.jax import bridge
-from glraster.jax.context import check_glctx, gl_context
+from glraster.jax.context import check_glctx
 
 __all__ = ["antialias", "antialias_construct_topology_hash"]
 
@@ -59,5 +59,5 @@ def antialias(color, rast, pos, tri, topology_hash=None, pos_gradient_boost=1.0,
     (out,) = bridge.apply(ANTIALIAS, (color, rast, pos),
                           dict(tri=bridge.concrete("tri", tri), topology_hash=topology_hash,
                                pos_gradient_boost=pos_gradient_boost, convex=convex,
-                               ctx=gl_context(glctx, color)))
+                               ctx=glctx))
     return out

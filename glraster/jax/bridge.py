@@ -41,6 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from glraster.diff.op import Op
+from glraster.diff.rasterizer_context import RasterizerContext
 from glraster.errors import ArgumentError
 
 __all__ = ["apply", "concrete", "is_traced"]
@@ -122,6 +123,15 @@ def apply(op: Op, inputs: Sequence, params: dict):
     # range-mode rasterize has no batch axis to fold a vmapped axis into
     foldable = not (op.name == "rasterize" and checked_params.get("ranges") is not None)
 
+    glctx = checked_params.get("ctx")
+
+    def core_params():
+        """The params for the core; a front end's context is made on first use, here in
+        the callback, so that float64 and bad input never open OpenGL."""
+        if not isinstance(glctx, RasterizerContext):
+            return checked_params
+        return dict(checked_params, ctx=glctx.context if dtype == np.float32 else None)
+
     def full(values):
         """The core's positional inputs from the present arrays (None where absent)."""
         args = [None] * len(checked)
@@ -133,7 +143,7 @@ def apply(op: Op, inputs: Sequence, params: dict):
         args = full(values)
         if traced:   # the values were not seen at trace time: check them now
             args, _ = op.check(*args, **checked_params)
-        return core.forward(*args, **checked_params)
+        return core.forward(*args, **core_params())
 
     def forward_host(*values):
         values = [np.asarray(v, dtype) for v in values]

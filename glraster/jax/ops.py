@@ -33,7 +33,7 @@ import numpy as np
 from glraster.diff.ops import INTERPOLATE, RASTERIZE, depth_peeler
 from glraster.errors import ArgumentError
 from glraster.jax import bridge
-from glraster.jax.context import check_glctx, gl_context
+from glraster.jax.context import check_glctx
 
 __all__ = ["DepthPeeler", "interpolate", "rasterize"]
 
@@ -47,7 +47,7 @@ def _grad_db_flag(grad_db) -> bool:
 def _rasterize_params(glctx, pos, tri, resolution, ranges):
     return dict(tri=bridge.concrete("tri", tri), resolution=resolution,
                 ranges=bridge.concrete("ranges", ranges), grad_db=glctx.output_db,
-                ctx=gl_context(glctx, pos))
+                ctx=glctx)
 
 
 def rasterize(glctx, pos, tri, resolution, ranges=None, grad_db=True):
@@ -109,7 +109,7 @@ def interpolate(attr, rast, tri, rast_db=None, diff_attrs=None, *, glctx=None):
                                        "with output_db=False, so diff_attrs cannot be computed")
     return bridge.apply(INTERPOLATE, (attr, rast, rast_db),
                         dict(tri=bridge.concrete("tri", tri), diff_attrs=diff_attrs,
-                             ctx=gl_context(glctx, attr)))
+                             ctx=glctx))
 
 
 class DepthPeeler:
@@ -172,7 +172,9 @@ class DepthPeeler:
         if self._peeler is None:
             (pos_np,), params = RASTERIZE.check(pos_np, **self._params)
             self._params = params
-            self._peeler = depth_peeler(pos_np, **params)
+            glctx = self.raster_ctx
+            ctx = glctx.context if pos_np.dtype == np.float32 else None
+            self._peeler = depth_peeler(pos_np, **dict(params, ctx=ctx))
         return self._peeler.rasterize_next_layer()
 
 

@@ -185,5 +185,5 @@ def texture(tex, uv, uv_da=None, mip_level_bias=None, mip=None, filter_mode="aut
     (out,) = bridge.apply(TEXTURE, (tex, uv, uv_da, mip_level_bias, *levels),
                           dict(filter_mode=filter_mode, boundary_mode=boundary_mode,
                                max_mip_level=max_mip_level, own_mips=own,
-                               ctx=gl_context(glctx, tex)))
+                               ctx=glctx))
     return out
