@@ -113,16 +113,49 @@ def apply(op: Op, inputs: Sequence, params: dict):
         checked, checked_params = op.check(*(None if v is None else np.asarray(v)
                                              for v in arrays), **params)
     dtype = next(c.dtype for c in checked if c is not None)
-    present = [k for k, c in enumerate(checked) if c is not None]
-    shapes = [tuple(checked[k].shape) for k in present]
-    out_shapes = tuple(tuple(s) for s in op.output_shapes(*checked, **checked_params))
+    layout = tuple(None if c is None else tuple(c.shape) for c in checked)
+    key = (op.name, layout, dtype.str, traced, _frozen(checked_params))
+    call = _CACHE.get(key)
+    if call is None:
+        call = _CACHE[key] = _build(op, names, layout, dtype, checked_params, traced)
+        while len(_CACHE) > CACHE_SIZE:
+            _CACHE.pop(next(iter(_CACHE)))
+    return call(*(a.astype(dtype) for a in arrays if a is not None))
+
+
+# The jitted call per op, input layout, dtype and static parameters: building one means
+# tracing and compiling an XLA computation (~0.1 s), which an eager call would otherwise
+# pay every time. Oldest first out.
+CACHE_SIZE = 256
+_CACHE: dict = {}
+
+
+def _frozen(value):
+    """A hashable stand-in for a static parameter: arrays by dtype, shape and bytes,
+    containers element-wise, anything else itself (contexts and topology hashes hash by
+    identity, and the key keeps them alive)."""
+    if isinstance(value, np.ndarray):
+        return ("ndarray", value.dtype.str, value.shape, value.tobytes())
+    if isinstance(value, dict):
+        return tuple(sorted((k, _frozen(v)) for k, v in value.items()))
+    if isinstance(value, (list, tuple)):
+        return (type(value).__name__,) + tuple(_frozen(v) for v in value)
+    return value
+
+
+def _build(op: Op, names, layout, dtype, checked_params: dict, traced: bool):
+    """The jitted custom_vjp call of ``op`` for inputs of ``layout`` (shapes, None where
+    absent) and ``dtype``."""
+    present = [k for k, shape in enumerate(layout) if shape is not None]
+    shapes = [layout[k] for k in present]
+    probe = [None if shape is None else np.zeros(shape, dtype) for shape in layout]
+    out_shapes = tuple(tuple(s) for s in op.output_shapes(*probe, **checked_params))
     result_types = tuple(jax.ShapeDtypeStruct(s, dtype) for s in out_shapes)
     grad_types = tuple(jax.ShapeDtypeStruct(s, dtype) for s in shapes)
     core = op.core(dtype)
     ranks = [_rank_of(op, names[k], checked_params) for k in present]
     # range-mode rasterize has no batch axis to fold a vmapped axis into
     foldable = not (op.name == "rasterize" and checked_params.get("ranges") is not None)
-
     glctx = checked_params.get("ctx")
 
     def core_params():
@@ -134,7 +167,7 @@ def apply(op: Op, inputs: Sequence, params: dict):
 
     def full(values):
         """The core's positional inputs from the present arrays (None where absent)."""
-        args = [None] * len(checked)
+        args = [None] * len(layout)
         for k, v in zip(present, values):
             args[k] = v
         return args
@@ -159,10 +192,10 @@ def apply(op: Op, inputs: Sequence, params: dict):
             _, saved = run_forward(vs)
             result = core.backward(saved, *gs)
             out = []
-            for k, shape in zip(present, [tuple(v.shape) for v in vs]):
+            for k, v in zip(present, vs):
                 g = result[k] if k < len(result) else None
-                out.append(np.zeros(shape, dtype) if g is None
-                           else np.asarray(g, dtype).reshape(shape))
+                out.append(np.zeros(v.shape, dtype) if g is None
+                           else np.asarray(g, dtype).reshape(v.shape))
             return tuple(out)
 
         return _batched(values + grads, shapes + list(out_shapes),
@@ -182,7 +215,7 @@ def apply(op: Op, inputs: Sequence, params: dict):
                                        vmap_method="broadcast_all"))
 
     call.defvjp(call_fwd, call_bwd)
-    return call(*(arrays[k].astype(dtype) for k in present))
+    return jax.jit(call)
 
 
 def _batched(values, base_shapes, ranks, out_shapes, foldable, run, *, reduce_inputs,

@@ -100,6 +100,8 @@ def interpolate(attr, rast, tri, rast_db=None, diff_attrs=None, *, glctx=None):
     """
     check_glctx(glctx, optional=True)
     attr = jnp.asarray(attr)
+    if attr.ndim == 3 and attr.shape[0] == 1:
+        attr = attr[0]   # a batch of 1 broadcasts: the (V, A) form every core takes
     if diff_attrs is not None and not isinstance(diff_attrs, str) and len(diff_attrs) == 0:
         diff_attrs = None
     if diff_attrs is None:
