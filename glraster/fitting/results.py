@@ -39,7 +39,10 @@ class CubeFit:
                 "antialias": self.antialias, "start_error": float(self.error[0]),
                 "final_error": float(self.error[-1]),
                 "final_color_error": float(self.color_error[-1]),
-                "first_below_0.05": first_below(self.error, 0.05), "timing": self.timing}
+                "first_below_0.05": first_below(self.error, 0.05),
+                "final_loss": float(self.loss[-1]) if len(self.loss) else None,
+                "first_loss_below_0.01": first_below(self.loss, 0.01),
+                "timing": self.timing}
 
 
 @dataclass

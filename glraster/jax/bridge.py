@@ -172,9 +172,9 @@ def _build(op: Op, names, layout, dtype, checked_params: dict, traced: bool):
             args[k] = v
         return args
 
-    def run_forward(values):
+    def run_forward(values, check: bool = traced):
         args = full(values)
-        if traced:   # the values were not seen at trace time: check them now
+        if check:    # the values were not seen at trace time: check them now
             args, _ = op.check(*args, **checked_params)
         return core.forward(*args, **core_params())
 
@@ -189,7 +189,7 @@ def _build(op: Op, names, layout, dtype, checked_params: dict, traced: bool):
 
         def one(vs_and_gs):
             vs, gs = vs_and_gs[:len(present)], vs_and_gs[len(present):]
-            _, saved = run_forward(vs)
+            _, saved = run_forward(vs, check=False)   # checked by the forward already
             result = core.backward(saved, *gs)
             out = []
             for k, v in zip(present, vs):

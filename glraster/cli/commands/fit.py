@@ -217,9 +217,12 @@ def _run_cube(args) -> int:
                 first = f.summary()["first_below_0.05"]
                 when = (f"under {CUBE_GOAL} from iteration {first}" if first is not None
                         else f"never under {CUBE_GOAL}")
+                loss_at = f.summary()["first_loss_below_0.01"]
                 print(f"cube {res}x{res} seed {seed}: error {f.error[0]:.3f} -> "
-                      f"{f.error[-1]:.3g} (colour {f.color_error[-1]:.3g}), {when}",
-                      flush=True)
+                      f"{f.error[-1]:.3g} (colour {f.color_error[-1]:.3g}), {when}; image "
+                      f"loss {f.loss[0]:.3g} -> {f.loss[-1]:.3g}"
+                      + (f", under 0.01 from iteration {loss_at}" if loss_at is not None
+                         else ""), flush=True)
         paths = figures.cube_figures(fits, glctx, args.out)
     met = True
     per_res = {}
