@@ -28,8 +28,8 @@ from glraster.fitting import scenes
 from glraster.io import figures
 from glraster.io.png import write_png
 
-__all__ = ["PANEL", "Renderer", "cube_figures", "grid", "pose_figures", "upright", "scaled",
-           "write_grid"]
+__all__ = ["PANEL", "Renderer", "cube_figures", "grid", "pose_figures", "scaled",
+           "texture_figures", "upright", "write_grid"]
 
 PANEL = 128
 POSE_ROWS = 5
@@ -47,6 +47,10 @@ class Renderer(Protocol):
 
     def pose(self, quaternions: np.ndarray, size: int, *, antialias: bool) -> np.ndarray:
         """The cube turned by each of the (N, 4) ``quaternions`` (the pose fit's camera)."""
+
+    def texture(self, mvp: np.ndarray, tex: np.ndarray, size: int, *, mip: bool) -> np.ndarray:
+        """The sphere of the texture fit carrying ``tex`` (Ht, Wt, 3) under (N, 4, 4)
+        ``mvp`` (linear-mipmap-linear when ``mip``, else linear)."""
 
 
 def upright(img) -> np.ndarray:
@@ -178,4 +182,55 @@ def pose_figures(fits, renderer: Renderer, out_dir) -> list[Path]:
         rows.append([scaled(upright(i), PANEL) for i in small] + [upright(i) for i in large])
     paths.append(write_grid(out_dir / "fit-pose-before-after.png", rows,
                         "glraster fit pose: target, start, result"))
+    return paths
+
+
+# --------------------------------------------------------------------------- texture
+
+
+def texture_figures(pairs, renderer: Renderer, out_dir, *, data) -> list[Path]:
+    """Write fit-texture-psnr.png, fit-texture-before-after.png and fit-texture-views.png
+    for a list of (linear TextureFit, mipmapped TextureFit) pairs, one per seed; ``data``:
+    the first seed's (pool, held-out) views (``mvp``, ``target``, ``distance`` arrays)."""
+    out_dir = Path(out_dir)
+    paths = []
+    with figures.figure(out_dir / "fit-texture-psnr.png", figsize=(9.0, 3.6),
+                        title="glraster fit texture: PSNR",
+                        description="held-out image PSNR and texture PSNR, linear against "
+                                    "linear-mipmap-linear") as fig:
+        ax1, ax2 = fig.subplots(1, 2)
+        col = figures.colors(["linear", "linear-mipmap-linear"])
+        for lin, mip in pairs:
+            for f, name, ls in ((lin, "linear", "--"), (mip, "linear-mipmap-linear", "-")):
+                ax1.plot(f.eval_iterations, f.eval_psnr, color=col[name], ls=ls, lw=1.0,
+                         label=f"{name}, seed {f.seed}: {f.eval_psnr[-1]:.2f} dB")
+                ax2.plot(f.eval_iterations, f.texture_psnr, color=col[name], ls=ls, lw=1.0,
+                         label=f"{name}, seed {f.seed}: {f.texture_psnr[-1]:.2f} dB")
+        ax1.set_title(f"held-out views ({pairs[0][0].resolution}² px, covered pixels)")
+        ax2.set_title(f"texture ({2 * pairs[0][0].texture_size} x {pairs[0][0].texture_size}) "
+                      f"against the truth")
+        for ax in (ax1, ax2):
+            ax.set_xlabel("iteration")
+            ax.set_ylabel("PSNR (dB)")
+            ax.grid(True)
+            ax.legend(loc="lower right", fontsize=7)
+    paths.append(out_dir / "fit-texture-psnr.png")
+
+    lin, mip = pairs[0]
+    truth = scenes.procedural_texture(lin.texture_size)
+    paths.append(write_grid(out_dir / "fit-texture-before-after.png",
+                        [[upright(truth)], [upright(lin.final)], [upright(mip.final)]],
+                        "glraster fit texture: truth, linear fit, mipmapped fit"))
+    held_out = data[1]
+    order = np.argsort(held_out.distance)
+    rows = []
+    for k in (order[0], order[-1]):
+        mvp = np.asarray(held_out.mvp[k:k + 1])
+        row = [scaled(upright(np.asarray(held_out.target[k])), 2 * lin.resolution)]
+        for f in (lin, mip):
+            img = renderer.texture(mvp, f.final, f.resolution, mip=f.mip)
+            row.append(scaled(upright(img[0]), 2 * lin.resolution))
+        rows.append(row)
+    paths.append(write_grid(out_dir / "fit-texture-views.png", rows,
+                        "glraster fit texture: target, linear fit, mipmapped fit"))
     return paths

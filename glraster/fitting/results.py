@@ -1,5 +1,5 @@
 """The records of one fit run (NumPy arrays, float64), the same from every front end:
-:class:`CubeFit` and :class:`PoseFit`, each with the JSON ``summary()`` that
+:class:`CubeFit`, :class:`PoseFit` and :class:`TextureFit`, each with the JSON ``summary()`` that
 ``glraster fit --json`` writes."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import numpy as np
 
 from glraster.fitting.scenes import first_below
 
-__all__ = ["CubeFit", "PoseFit"]
+__all__ = ["CubeFit", "PoseFit", "TextureFit"]
 
 
 @dataclass
@@ -77,3 +77,29 @@ class PoseFit:
                 "restarts_within_5deg": int(np.sum(self.angle[-1] < 5.0)),
                 "final_angles_deg": [float(a) for a in self.angle[-1]],
                 "timing": self.timing}
+
+
+@dataclass
+class TextureFit:
+    """One run of :func:`fit_texture`."""
+
+    seed: int
+    mip: bool
+    resolution: int
+    iterations: int
+    views: int
+    texture_size: int
+    eval_iterations: np.ndarray  # (K,)
+    eval_psnr: np.ndarray        # (K,) held-out image PSNR, dB
+    texture_psnr: np.ndarray     # (K,) texture against the truth, dB
+    loss: np.ndarray             # (iterations,)
+    final: np.ndarray            # (Ht, Wt, 3) the fitted texture, float64
+    timing: dict = field(default_factory=dict)
+
+    def summary(self) -> dict:
+        return {"seed": self.seed, "mip": self.mip,
+                "filter_mode": "linear-mipmap-linear" if self.mip else "linear",
+                "resolution": self.resolution, "iterations": self.iterations,
+                "views": self.views, "texture_size": self.texture_size,
+                "final_image_psnr_db": float(self.eval_psnr[-1]),
+                "final_texture_psnr_db": float(self.texture_psnr[-1]), "timing": self.timing}

@@ -21,8 +21,8 @@ import numpy as np
 from glraster.geometry import camera, shapes
 
 __all__ = ["DISPLAY_QUATERNIONS", "DISTANCE", "FOVY", "Timer", "angle_degrees", "cube",
-           "cube_symmetries", "first_below", "pose_camera", "quaternion_matrices",
-           "random_quaternions", "view_matrices"]
+           "cube_symmetries", "first_below", "pose_camera", "procedural_texture",
+           "psnr", "quaternion_matrices", "random_quaternions", "uv_sphere", "view_matrices"]
 
 DISTANCE = 3.0
 FOVY = 40.0
@@ -110,6 +110,48 @@ def pose_camera() -> np.ndarray:
     m = np.eye(4)
     m[2, 3] = -DISTANCE
     return camera.perspective(FOVY, 1.0, 0.5, 20.0) @ m
+
+
+def uv_sphere(nu: int = 32, nv: int = 16):
+    """(vertices (V, 3), triangles (T, 3) int64, uv (V, 2)) of a unit UV sphere: a
+    (nu + 1) x (nv + 1) lattice, u = i / nu around the y axis (seam duplicated), v = j / nv
+    from the south pole (v = 0) to the north pole (whose rings are coincident vertices)."""
+    faces, (cu, cv) = shapes.parametric_grid(nu, nv, False, False)
+    u, v = np.meshgrid(np.arange(cu) / nu, np.arange(cv) / nv, indexing="ij")
+    theta, phi = 2.0 * np.pi * u, np.pi * v
+    verts = np.stack([np.sin(phi) * np.cos(theta), -np.cos(phi), -np.sin(phi) * np.sin(theta)],
+                     -1)
+    return verts.reshape(-1, 3), faces, np.stack([u, v], -1).reshape(-1, 2)
+
+
+def procedural_texture(size: int = 128) -> np.ndarray:
+    """(size, 2 size, 3) float64 in [0, 1]: texel (i, j) = tex[j, i] at
+    s = (i + 0.5) / (2 size), t = (j + 0.5) / size. Hue bands around the sphere, a 32 x 16
+    checkerboard (darker squares) and one-texel grid lines every 8 squares."""
+    h, w = size, 2 * size
+    s = (np.arange(w) + 0.5) / w
+    t = (np.arange(h) + 0.5) / h
+    ss, tt = np.meshgrid(s, t)  # (h, w)
+    hue = 0.5 + 0.5 * np.cos(2.0 * np.pi * (2.0 * ss[..., None] + np.array([0.0, 1 / 3, 2 / 3])))
+    checker = (np.floor(32 * ss) + np.floor(16 * tt)) % 2
+    tex = hue * (0.35 + 0.55 * checker[..., None]) + 0.05
+    i, j = np.meshgrid(np.arange(w), np.arange(h))
+    lines = (i % (w // 4) == 0) | (j % (h // 2) == 0)
+    tex[lines] = 1.0
+    return np.clip(tex, 0.0, 1.0)
+
+
+def psnr(a, b, mask=None, peak: float = 1.0) -> float:
+    """Peak signal-to-noise ratio in dB of arrays ``a`` against ``b``, over the pixels where
+    ``mask`` (broadcast against the arrays' leading axes) is true."""
+    import math
+
+    d2 = (np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2
+    if mask is not None:
+        mask = np.asarray(mask)
+        d2 = d2[np.broadcast_to(mask, d2.shape[:mask.ndim])]
+    mse = float(d2.mean())
+    return math.inf if mse == 0.0 else 10.0 * math.log10(peak * peak / mse)
 
 
 def first_below(curve, level):

@@ -81,6 +81,19 @@ def test_fit_command_with_jax_writes_curves_images_and_json(tmp_path, gl_backend
     assert (out / "fit-pose-before-after.png").stat().st_size > 1000
 
 
-def test_texture_fit_with_jax_is_refused_before_opening_gl(capsys):
-    assert main(["fit", "texture", "--framework", "jax"]) == 2
-    assert "the texture fit runs on torch only" in capsys.readouterr().err
+def test_texture_fit_command_with_jax_mipmapped_beats_linear(tmp_path, gl_backend):
+    # A small version of the full run: 32² px images, a 128 x 64 texture, 8 training
+    # views, 60 iterations. Measured (held-out PSNR):
+    # linear 14.27 dB, mipmapped 17.46 dB, the torch fit's figures to every digit.
+    rc = main(["fit", "texture", "--framework", "jax", "--iterations", "60",
+               "--resolution", "32", "--texture-size", "64", "--pool", "8",
+               "--eval-every", "30", "--out", str(tmp_path), "--json",
+               str(tmp_path / "r.json"), "--quiet", "--backend", gl_backend])
+    assert rc == 0
+    runs = {r["filter_mode"]: r for r in json.loads((tmp_path / "r.json").read_text())["runs"]}
+    linear, mip = runs["linear"], runs["linear-mipmap-linear"]
+    assert mip["final_image_psnr_db"] > linear["final_image_psnr_db"] + 2.0, runs
+    assert linear["final_image_psnr_db"] > 13.5
+    for name in ("fit-texture-psnr.png", "fit-texture-before-after.png",
+                 "fit-texture-views.png"):
+        assert (tmp_path / name).stat().st_size > 1000

@@ -2,7 +2,7 @@
 
 `glraster fit cube|pose|texture` recovers a scene made in code from images of it through
 glraster.torch (rasterize, interpolate, antialias, texture), or glraster.jax with
-`--framework jax` (cube and pose; docs/jax.md): 'cube' fits the 8 vertex
+`--framework jax` (docs/jax.md): 'cube' fits the 8 vertex
 positions and colours of a cube at a few pixels, 'pose' a cube's rotation, 'texture' a
 texture on a sphere with and without mipmaps (docs/fitting.md). Each shows a progress bar
 on stderr, prints one line per run and the time per iteration (forward, backward,
@@ -101,7 +101,7 @@ def register(subparsers) -> None:
                             "needs the cores; torch only)")
         q.add_argument("--framework", choices=FRAMEWORKS, default="torch",
                        help="the front end the fit runs on: glraster.torch (default) or "
-                            "glraster.jax (cube and pose)")
+                            "glraster.jax")
         q.add_argument("--quiet", action="store_true", help="no progress bar")
         add_backend_argument(q)
 
@@ -269,11 +269,7 @@ def _run_pose(args) -> int:
 
 
 def _run_texture(args) -> int:
-    if args.framework != "torch":
-        raise ValueError(f"--framework {args.framework}: the texture fit runs on torch only "
-                         f"(glraster.jax.fitting has the cube and pose fits)")
-    from glraster.torch.fitting import figures, texture
-
+    texture, figures = _fitting(args, "texture")
     for name in ("resolution", "texture_size", "views", "pool", "eval_every"):
         _positive(name.replace("_", "-"), getattr(args, name))
     if args.views > args.pool:
