@@ -8,6 +8,9 @@ commands run once for docs/jax.md; here one seed and a few hundred iterations at
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -97,3 +100,20 @@ def test_texture_fit_command_with_jax_mipmapped_beats_linear(tmp_path, gl_backen
     for name in ("fit-texture-psnr.png", "fit-texture-before-after.png",
                  "fit-texture-views.png"):
         assert (tmp_path / name).stat().st_size > 1000
+
+
+def test_fit_with_jax_missing_is_a_usage_error_naming_the_extra(tmp_path):
+    """Without jax (a stub that cannot be imported), `glraster fit --framework jax` says
+    which extra to install instead of a traceback."""
+    stub = tmp_path / "stub" / "jax"
+    stub.mkdir(parents=True)
+    (stub / "__init__.py").write_text("raise ModuleNotFoundError(\"No module named 'jax'\", "
+                                      "name='jax')\n")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(
+        [str(tmp_path / "stub"), os.environ.get("PYTHONPATH", "")])}
+    result = subprocess.run([sys.executable, "-m", "glraster.cli", "fit", "cube",
+                             "--framework", "jax", "--out", str(tmp_path / "o")],
+                            capture_output=True, text=True, env=env, timeout=120)
+    assert result.returncode == 2, result.stderr
+    assert "pip install 'glraster[jax]'" in result.stderr
+    assert "Traceback" not in result.stderr
