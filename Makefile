@@ -26,7 +26,7 @@ system-deps:
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test,mesh,torch,service,ray]'
+	$(PY) -m pip install --quiet -e '.[test,mesh,torch,service,ray,jax]'
 	touch $@
 
 clean:

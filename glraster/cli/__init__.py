@@ -32,7 +32,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 # optional dependency -> the pyproject extra that installs it
 OPTIONAL_EXTRAS = {"torch": "torch", "starlette": "service", "uvicorn": "service",
-                   "trimesh": "mesh", "pyrender": "mesh", "ray": "ray"}
+                   "trimesh": "mesh", "pyrender": "mesh", "ray": "ray", "jax": "jax",
+                   "jaxlib": "jax", "optax": "jax"}
 
 
 def main(argv=None) -> int:

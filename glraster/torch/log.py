@@ -1,61 +1,6 @@
-"""nvdiffrast's ``get_log_level`` / ``set_log_level`` over Python :mod:`logging`.
+"""nvdiffrast's ``get_log_level`` / ``set_log_level``: :mod:`glraster.diff.log` (shared by
+the front ends)."""
 
-The level is an int with nvdiffrast's (Torch's C++) meaning: messages of this severity or
-higher are printed, the others discarded. It is the level of the ``"glraster"`` logger
-(every glraster module logs to a child of it), so ``logging`` configuration works too:
-
-    ====  ========  =================  ==================================================
-    int   name      logging level      what glraster logs at it
-    ====  ========  =================  ==================================================
-    0     info      ``logging.INFO``   an OpenGL context made for a RasterizeGLContext
-                                       (backend, renderer); a mip pyramid built by
-                                       ``texture_construct_mip`` (levels, shapes)
-    1     warning   ``logging.WARNING``  ``texture(..., mip=)`` given a pyramid whose
-                                       texture changed since it was built (it is rebuilt)
-    2     error     ``logging.ERROR``  nothing: glraster raises exceptions for errors
-    3     fatal     ``logging.CRITICAL``  nothing
-    ====  ========  =================  ==================================================
-
-The default is 1 (logging's default, WARNING). A ``logging`` level in between reads as the
-next int up (DEBUG reads 0, anything above CRITICAL 3).
-"""
-
-from __future__ import annotations
-
-import logging
-import numbers
-import sys
+from glraster.diff.log import LOGGER_NAME, get_log_level, set_log_level
 
 __all__ = ["LOGGER_NAME", "get_log_level", "set_log_level"]
-
-LOGGER_NAME = "glraster"
-LEVELS = (logging.INFO, logging.WARNING, logging.ERROR, logging.CRITICAL)
-
-
-def get_log_level() -> int:
-    """The current log level, 0 (info) .. 3 (fatal); see :func:`set_log_level`."""
-    effective = logging.getLogger(LOGGER_NAME).getEffectiveLevel()
-    for level, value in enumerate(LEVELS):
-        if effective <= value:
-            return level
-    return len(LEVELS) - 1
-
-
-def set_log_level(level: int) -> None:
-    """Print glraster's messages of severity ``level`` or higher: 0 info, 1 warning (the
-    default), 2 error, 3 fatal (nvdiffrast's convention).
-
-    Sets the ``"glraster"`` logger's level; when no handler would print its records (no
-    handler on it or its ancestors), adds one writing to stderr, as nvdiffrast prints its
-    messages there.
-    """
-    if isinstance(level, (bool, float)) or not isinstance(level, numbers.Integral) \
-            or not 0 <= level < len(LEVELS):
-        raise ValueError(f"level must be an int 0 (info), 1 (warning), 2 (error) or 3 "
-                         f"(fatal), got {level!r}")
-    logger = logging.getLogger(LOGGER_NAME)
-    logger.setLevel(LEVELS[int(level)])
-    if not logger.hasHandlers():
-        handler = logging.StreamHandler(sys.stderr)
-        handler.setFormatter(logging.Formatter("%(name)s %(levelname)s: %(message)s"))
-        logger.addHandler(handler)

@@ -15,33 +15,7 @@ import inspect
 import pytest
 
 import glraster.torch as dr
-
-REQUIRED = inspect.Parameter.empty
-
-# name -> [(parameter, default or REQUIRED)], nvdiffrast's PyTorch API reference
-NVDIFFRAST_API = {
-    "RasterizeCudaContext": [("device", None)],
-    "RasterizeGLContext": [("output_db", True), ("mode", "automatic"), ("device", None)],
-    "RasterizeGLContext.set_context": [],
-    "RasterizeGLContext.release_context": [],
-    "rasterize": [("glctx", REQUIRED), ("pos", REQUIRED), ("tri", REQUIRED),
-                  ("resolution", REQUIRED), ("ranges", None), ("grad_db", True)],
-    "DepthPeeler": [("glctx", REQUIRED), ("pos", REQUIRED), ("tri", REQUIRED),
-                    ("resolution", REQUIRED), ("ranges", None), ("grad_db", True)],
-    "DepthPeeler.rasterize_next_layer": [],
-    "interpolate": [("attr", REQUIRED), ("rast", REQUIRED), ("tri", REQUIRED),
-                    ("rast_db", None), ("diff_attrs", None)],
-    "texture": [("tex", REQUIRED), ("uv", REQUIRED), ("uv_da", None), ("mip_level_bias", None),
-                ("mip", None), ("filter_mode", "auto"), ("boundary_mode", "wrap"),
-                ("max_mip_level", None)],
-    "texture_construct_mip": [("tex", REQUIRED), ("max_mip_level", None),
-                              ("cube_mode", False)],
-    "antialias": [("color", REQUIRED), ("rast", REQUIRED), ("pos", REQUIRED), ("tri", REQUIRED),
-                  ("topology_hash", None), ("pos_gradient_boost", 1.0)],
-    "antialias_construct_topology_hash": [("tri", REQUIRED)],
-    "get_log_level": [],
-    "set_log_level": [("level", REQUIRED)],
-}
+from tests.nvdiffrast_api import NVDIFFRAST_API, REQUIRED
 
 
 def _resolve(name):

@@ -1,7 +1,8 @@
 """`glraster fit`: inverse rendering: fit a cube, a pose or a texture to images.
 
 `glraster fit cube|pose|texture` recovers a scene made in code from images of it through
-glraster.torch (rasterize, interpolate, antialias, texture): 'cube' fits the 8 vertex
+glraster.torch (rasterize, interpolate, antialias, texture), or glraster.jax with
+`--framework jax` (docs/jax.md): 'cube' fits the 8 vertex
 positions and colours of a cube at a few pixels, 'pose' a cube's rotation, 'texture' a
 texture on a sphere with and without mipmaps (docs/fitting.md). Each shows a progress bar
 on stderr, prints one line per run and the time per iteration (forward, backward,
@@ -24,6 +25,7 @@ from glraster.cli import exit_codes
 from glraster.cli.commands import add_backend_argument, add_command
 
 CUBE_GOAL = 0.05    # mean vertex error
+FRAMEWORKS = ("torch", "jax")
 POSE_GOAL = 5.0     # degrees
 
 
@@ -96,7 +98,10 @@ def register(subparsers) -> None:
         q.add_argument("--json", default=None, metavar="FILE", help="write the results as JSON")
         q.add_argument("--threads", type=int, default=1,
                        help="torch CPU threads (1: the tensors are small, and llvmpipe "
-                            "needs the cores)")
+                            "needs the cores; torch only)")
+        q.add_argument("--framework", choices=FRAMEWORKS, default="torch",
+                       help="the front end the fit runs on: glraster.torch (default) or "
+                            "glraster.jax")
         q.add_argument("--quiet", action="store_true", help="no progress bar")
         add_backend_argument(q)
 
@@ -145,14 +150,30 @@ def register(subparsers) -> None:
 
 @contextmanager
 def _session(args):
-    """A RasterizeGLContext on a new context of ``--backend`` with ``--threads`` torch
-    threads (glraster.torch.fitting.common.session)."""
-    from glraster.torch.fitting.common import session
-
+    """A RasterizeGLContext of ``--framework`` on a new context of ``--backend`` (torch:
+    with ``--threads`` CPU threads; glraster.torch.fitting.common.session,
+    glraster.jax.fitting.common.session)."""
     _positive("threads", args.threads)
     _positive("iterations", args.iterations)
+    if args.framework == "jax":
+        from glraster.jax.fitting.common import session
+
+        with session(backend=args.backend) as glctx:
+            yield glctx
+        return
+    from glraster.torch.fitting.common import session
+
     with session(backend=args.backend, threads=args.threads) as glctx:
         yield glctx
+
+
+def _fitting(args, name):
+    """The modules of fit ``name`` and its figures for ``--framework``."""
+    import importlib
+
+    package = f"glraster.{args.framework}.fitting"
+    return (importlib.import_module(f"{package}.{name}"),
+            importlib.import_module(f"{package}.figures"))
 
 
 def _progress(args, name):
@@ -160,10 +181,10 @@ def _progress(args, name):
 
 
 def _timing_line(name, summaries) -> str:
-    from glraster.torch.fitting.common import Timer
+    from glraster.fitting.scenes import Timer
 
     t = Timer.merge(summaries)
-    parts = [f"{k} {t[k]['mean_ms']:.1f}" for k in ("target", "forward", "backward", "step")
+    parts = [f"{k} {t[k]['mean_ms']:.1f}" for k in ("target", "forward", "backward", "forward+backward", "step")
              if k in t]
     return f"{name}: ms per iteration (mean): " + ", ".join(parts)
 
@@ -180,8 +201,7 @@ def _finish(args, result, paths) -> None:
 
 
 def _run_cube(args) -> int:
-    from glraster.torch.fitting import cube, figures
-
+    cube, figures = _fitting(args, "cube")
     resolutions = _ints(args.resolutions, "resolutions")
     _positive("views", args.views)
     seeds = _seeds(args)
@@ -197,9 +217,12 @@ def _run_cube(args) -> int:
                 first = f.summary()["first_below_0.05"]
                 when = (f"under {CUBE_GOAL} from iteration {first}" if first is not None
                         else f"never under {CUBE_GOAL}")
+                loss_at = f.summary()["first_loss_below_0.01"]
                 print(f"cube {res}x{res} seed {seed}: error {f.error[0]:.3f} -> "
-                      f"{f.error[-1]:.3g} (colour {f.color_error[-1]:.3g}), {when}",
-                      flush=True)
+                      f"{f.error[-1]:.3g} (colour {f.color_error[-1]:.3g}), {when}; image "
+                      f"loss {f.loss[0]:.3g} -> {f.loss[-1]:.3g}"
+                      + (f", under 0.01 from iteration {loss_at}" if loss_at is not None
+                         else ""), flush=True)
         paths = figures.cube_figures(fits, glctx, args.out)
     met = True
     per_res = {}
@@ -212,14 +235,13 @@ def _run_cube(args) -> int:
               + _timing_line("time", [f.timing for f in runs]))
     print(f"goal (most seeds of every resolution under {CUBE_GOAL}): "
           f"{'met' if met else 'MISSED'}")
-    _finish(args, {"problem": "cube", "goal_met": bool(met),
+    _finish(args, {"problem": "cube", "framework": args.framework, "goal_met": bool(met),
                    "runs": [f.summary() for f in fits]}, paths)
     return exit_codes.OK if met else exit_codes.FAIL
 
 
 def _run_pose(args) -> int:
-    from glraster.torch.fitting import figures, pose
-
+    pose, figures = _fitting(args, "pose")
     _positive("resolution", args.resolution)
     _positive("restarts", args.restarts)
     antialias = not args.no_antialias
@@ -241,14 +263,13 @@ def _run_pose(args) -> int:
     print(f"{below}/{len(fits)} seeds under {POSE_GOAL} deg; "
           + _timing_line("time", [f.timing for f in fits]))
     print(f"goal (most seeds under {POSE_GOAL} deg): {'met' if met else 'MISSED'}")
-    _finish(args, {"problem": "pose", "goal_met": bool(met),
+    _finish(args, {"problem": "pose", "framework": args.framework, "goal_met": bool(met),
                    "runs": [f.summary() for f in fits]}, paths)
     return exit_codes.OK if met else exit_codes.FAIL
 
 
 def _run_texture(args) -> int:
-    from glraster.torch.fitting import figures, texture
-
+    texture, figures = _fitting(args, "texture")
     for name in ("resolution", "texture_size", "views", "pool", "eval_every"):
         _positive(name.replace("_", "-"), getattr(args, name))
     if args.views > args.pool:
@@ -276,6 +297,6 @@ def _run_texture(args) -> int:
     for k, name in enumerate(("linear", "linear-mipmap-linear")):
         print(_timing_line(name, [p[k].timing for p in pairs]))
     print(f"goal (mipmapped PSNR above linear for every seed): {'met' if met else 'MISSED'}")
-    _finish(args, {"problem": "texture", "goal_met": bool(met),
+    _finish(args, {"problem": "texture", "framework": args.framework, "goal_met": bool(met),
                    "runs": [f.summary() for p in pairs for f in p]}, paths)
     return exit_codes.OK if met else exit_codes.FAIL

@@ -15,12 +15,11 @@ true ones.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 import torch
 
-from glraster.geometry import shapes
+from glraster.fitting.results import CubeFit
+from glraster.fitting.scenes import DISPLAY_QUATERNIONS, DISTANCE, FOVY, cube
 from glraster.torch.fitting.common import (
     Timer,
     clip_positions,
@@ -32,17 +31,6 @@ from glraster.torch.fitting.common import (
 from glraster.torch.fitting.render import shade, topology_hash
 
 __all__ = ["CubeFit", "cube", "display_views", "fit_cube", "render_cube"]
-
-DISTANCE = 3.0
-FOVY = 40.0
-# Two fixed views for the before/after pictures: three faces of the cube each.
-DISPLAY_QUATERNIONS = np.array([[0.88, 0.28, 0.36, 0.10], [0.35, -0.20, 0.85, 0.35]])
-
-
-def cube():
-    """(vertices (8, 3) float64, triangles (12, 3) int64, colours (8, 3) float64)."""
-    vertices, triangles = shapes.box()
-    return vertices, triangles, 0.15 + 0.7 * (vertices + 0.5)
 
 
 def display_views() -> torch.Tensor:
@@ -57,40 +45,6 @@ def render_cube(glctx, mvp, vertices, colors, tri, resolution: int, *, antialias
     image, _ = shade(glctx, clip_positions(mvp, vertices), tri, colors,
                      (resolution, resolution), antialias=antialias, topology=topology)
     return image
-
-
-@dataclass
-class CubeFit:
-    """One run of :func:`fit_cube`. Arrays are float64 NumPy."""
-
-    resolution: int
-    seed: int
-    iterations: int
-    views: int
-    antialias: bool
-    error: np.ndarray        # (iterations + 1,) mean vertex distance before each step
-    color_error: np.ndarray  # (iterations + 1,) mean |colour - true colour| per vertex
-    loss: np.ndarray         # (iterations,) image loss of each step
-    true_pos: np.ndarray
-    true_col: np.ndarray
-    start_pos: np.ndarray
-    start_col: np.ndarray
-    final_pos: np.ndarray
-    final_col: np.ndarray
-    timing: dict = field(default_factory=dict)
-
-    def summary(self) -> dict:
-        return {"resolution": self.resolution, "seed": self.seed,
-                "iterations": self.iterations, "views": self.views,
-                "antialias": self.antialias, "start_error": float(self.error[0]),
-                "final_error": float(self.error[-1]),
-                "final_color_error": float(self.color_error[-1]),
-                "first_below_0.05": _first_below(self.error, 0.05), "timing": self.timing}
-
-
-def _first_below(curve, level):
-    hits = np.flatnonzero(np.asarray(curve) < level)
-    return int(hits[0]) if hits.size else None
 
 
 def fit_cube(glctx, resolution: int, seed: int, *, iterations: int = 1000, views: int = 4,

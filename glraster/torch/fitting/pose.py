@@ -24,12 +24,11 @@ cube symmetries in nvdiffrast's pose sample.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 import torch
 
-from glraster.geometry import camera
+from glraster.fitting.results import PoseFit
+from glraster.fitting.scenes import cube, cube_symmetries, pose_camera
 from glraster.torch.fitting.common import (
     Timer,
     angle_degrees,
@@ -38,27 +37,9 @@ from glraster.torch.fitting.common import (
     quaternion_matrices,
     random_quaternions,
 )
-from glraster.torch.fitting.cube import DISTANCE, FOVY, cube
 from glraster.torch.fitting.render import shade, topology_hash
 
 __all__ = ["PoseFit", "cube_symmetries", "fit_pose", "multiply", "render_pose"]
-
-
-def cube_symmetries() -> np.ndarray:
-    """(24, 4) unit quaternions of the rotations that map the cube onto itself (w >= 0):
-    the identity and the half turns about the axes; the 8 (1, +-1, +-1, +-1)/2 (thirds of a
-    turn about the body diagonals); the 12 with two entries +-1/sqrt(2) (quarter turns
-    about the axes, half turns about the face diagonals)."""
-    out = [np.eye(4)[k] for k in range(4)]
-    for signs in np.ndindex(2, 2, 2):
-        out.append(np.array([1.0] + [1.0 - 2.0 * b for b in signs]) / 2.0)
-    for i in range(4):
-        for j in range(i + 1, 4):
-            for sign in (1.0, -1.0):
-                q = np.zeros(4)
-                q[i], q[j] = 1.0, sign
-                out.append(q / np.sqrt(2.0))
-    return np.array(out)
 
 
 def multiply(a, b):
@@ -72,9 +53,7 @@ def multiply(a, b):
 
 def _camera() -> torch.Tensor:
     """(4, 4) float32: proj @ translate(0, 0, -DISTANCE)."""
-    m = np.eye(4)
-    m[2, 3] = -DISTANCE
-    return torch.tensor(camera.perspective(FOVY, 1.0, 0.5, 20.0) @ m, dtype=torch.float32)
+    return torch.tensor(pose_camera(), dtype=torch.float32)
 
 
 def render_pose(glctx, q, resolution: int, *, antialias=True, topology=None):
@@ -88,40 +67,6 @@ def render_pose(glctx, q, resolution: int, *, antialias=True, topology=None):
     image, _ = shade(glctx, clip.contiguous(), tri, torch.tensor(colors, dtype=torch.float32),
                      (resolution, resolution), antialias=antialias, topology=topology)
     return image
-
-
-@dataclass
-class PoseFit:
-    """One run of :func:`fit_pose`. Arrays are float64 NumPy."""
-
-    seed: int
-    resolution: int
-    iterations: int
-    restarts: int
-    antialias: bool
-    target: np.ndarray      # (4,) the true quaternion
-    start: np.ndarray       # (restarts, 4)
-    final: np.ndarray       # (restarts, 4), normalized
-    angle: np.ndarray       # (iterations + 1, restarts) degrees from the truth
-    loss: np.ndarray        # (iterations, restarts) image loss of each restart
-    best: int               # the restart with the lowest final loss
-    final_loss: np.ndarray  # (restarts,) loss at the final parameters
-    jumps: list = field(default_factory=list)  # [(iteration, [symmetry index per restart])]
-    timing: dict = field(default_factory=dict)
-
-    @property
-    def best_angle(self) -> float:
-        return float(self.angle[-1, self.best])
-
-    def summary(self) -> dict:
-        return {"seed": self.seed, "resolution": self.resolution,
-                "iterations": self.iterations, "restarts": self.restarts,
-                "antialias": self.antialias, "jumps": self.jumps, "best_restart": self.best,
-                "final_angle_deg": self.best_angle,
-                "start_angle_deg_of_best": float(self.angle[0, self.best]),
-                "restarts_within_5deg": int(np.sum(self.angle[-1] < 5.0)),
-                "final_angles_deg": [float(a) for a in self.angle[-1]],
-                "timing": self.timing}
 
 
 def fit_pose(glctx, seed: int, *, resolution: int = 32, restarts: int = 8,

@@ -24,12 +24,13 @@ rendering with its own filter) and the PSNR of the texture itself against the tr
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 
-from glraster.geometry import shapes
+from glraster.fitting.results import TextureFit
+from glraster.fitting.scenes import procedural_texture, uv_sphere
 from glraster.torch.fitting.common import (
     Timer,
     clip_positions,
@@ -46,35 +47,6 @@ __all__ = ["TextureFit", "Views", "fit_texture", "make_views", "procedural_textu
            "render_texture", "uv_sphere"]
 
 FOVY = 40.0
-
-
-def uv_sphere(nu: int = 32, nv: int = 16):
-    """(vertices (V, 3), triangles (T, 3) int64, uv (V, 2)) of a unit UV sphere: a
-    (nu + 1) x (nv + 1) lattice, u = i / nu around the y axis (seam duplicated), v = j / nv
-    from the south pole (v = 0) to the north pole (whose rings are coincident vertices)."""
-    faces, (cu, cv) = shapes.parametric_grid(nu, nv, False, False)
-    u, v = np.meshgrid(np.arange(cu) / nu, np.arange(cv) / nv, indexing="ij")
-    theta, phi = 2.0 * np.pi * u, np.pi * v
-    verts = np.stack([np.sin(phi) * np.cos(theta), -np.cos(phi), -np.sin(phi) * np.sin(theta)],
-                     -1)
-    return verts.reshape(-1, 3), faces, np.stack([u, v], -1).reshape(-1, 2)
-
-
-def procedural_texture(size: int = 128) -> np.ndarray:
-    """(size, 2 size, 3) float64 in [0, 1]: texel (i, j) = tex[j, i] at
-    s = (i + 0.5) / (2 size), t = (j + 0.5) / size. Hue bands around the sphere, a 32 x 16
-    checkerboard (darker squares) and one-texel grid lines every 8 squares."""
-    h, w = size, 2 * size
-    s = (np.arange(w) + 0.5) / w
-    t = (np.arange(h) + 0.5) / h
-    ss, tt = np.meshgrid(s, t)  # (h, w)
-    hue = 0.5 + 0.5 * np.cos(2.0 * np.pi * (2.0 * ss[..., None] + np.array([0.0, 1 / 3, 2 / 3])))
-    checker = (np.floor(32 * ss) + np.floor(16 * tt)) % 2
-    tex = hue * (0.35 + 0.55 * checker[..., None]) + 0.05
-    i, j = np.meshgrid(np.arange(w), np.arange(h))
-    lines = (i % (w // 4) == 0) | (j % (h // 2) == 0)
-    tex[lines] = 1.0
-    return np.clip(tex, 0.0, 1.0)
 
 
 @dataclass
@@ -136,32 +108,6 @@ def make_views(glctx, rng, n: int, resolution: int, tex, *, supersample: int = 4
 def masked_mse(image, target, mask):
     m = mask[..., None].to(image.dtype)
     return torch.sum(m * (image - target) ** 2) / (torch.sum(m) * image.shape[-1])
-
-
-@dataclass
-class TextureFit:
-    """One run of :func:`fit_texture`."""
-
-    seed: int
-    mip: bool
-    resolution: int
-    iterations: int
-    views: int
-    texture_size: int
-    eval_iterations: np.ndarray  # (K,)
-    eval_psnr: np.ndarray        # (K,) held-out image PSNR, dB
-    texture_psnr: np.ndarray     # (K,) texture against the truth, dB
-    loss: np.ndarray             # (iterations,)
-    final: np.ndarray            # (Ht, Wt, 3) the fitted texture, float64
-    timing: dict = field(default_factory=dict)
-
-    def summary(self) -> dict:
-        return {"seed": self.seed, "mip": self.mip,
-                "filter_mode": "linear-mipmap-linear" if self.mip else "linear",
-                "resolution": self.resolution, "iterations": self.iterations,
-                "views": self.views, "texture_size": self.texture_size,
-                "final_image_psnr_db": float(self.eval_psnr[-1]),
-                "final_texture_psnr_db": float(self.texture_psnr[-1]), "timing": self.timing}
 
 
 def evaluate(glctx, tex, views: Views, resolution: int, *, mip: bool, chunk: int = 8) -> float:
