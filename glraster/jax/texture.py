@@ -21,6 +21,7 @@ import logging
 import jax.numpy as jnp
 import numpy as np
 
+from glraster.diff import texture_args
 from glraster.diff import texture_reference as _ref
 from glraster.diff.ops import TEXTURE
 from glraster.errors import ArgumentError
@@ -59,9 +60,9 @@ class TextureMip:
     def _build(self, tex) -> None:
         array = np.asarray(tex)
         boundary = "cube" if self.cube_mode else "wrap"
-        _ref.check_arguments(array, np.zeros((array.shape[0], 1, 1, 3 if self.cube_mode
-                                              else 2), array.dtype), None, None, None,
-                             "linear", boundary, dtype=array.dtype)
+        texture_args.check(array, np.zeros((array.shape[0], 1, 1, 3 if self.cube_mode
+                                            else 2), array.dtype),
+                           filter_mode="linear", boundary_mode=boundary, dtype=array.dtype)
         if array.dtype == np.float64:
             shapes = _ref.level_shapes(array.shape[-3], array.shape[-2], self.max_mip_level)
             levels = _ref.build_mips(array, shapes)
@@ -132,7 +133,7 @@ def texture_construct_mip(tex, max_mip_level=None, cube_mode=False, *, glctx=Non
 def _mipmapped(filter_mode, uv_da, mip_level_bias) -> bool:
     if filter_mode == "auto":
         return uv_da is not None or mip_level_bias is not None
-    return filter_mode in _ref.MIP_MODES
+    return filter_mode in texture_args.MIP_MODES
 
 
 def texture(tex, uv, uv_da=None, mip_level_bias=None, mip=None, filter_mode="auto",

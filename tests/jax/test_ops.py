@@ -28,7 +28,7 @@ from jax.test_util import check_grads  # noqa: E402
 
 import glraster.jax as dr  # noqa: E402
 from glraster.diff import layout  # noqa: E402
-from glraster.diff import reference as ref  # noqa: E402
+from glraster.diff.ops import INTERPOLATE, RASTERIZE  # noqa: E402
 from glraster.errors import ArgumentError  # noqa: E402
 from tests.diff.test_antialias_reference import soup_scene  # noqa: E402
 from tests.torch import scenes  # noqa: E402
@@ -118,8 +118,8 @@ def test_float64_rasterize_interpolate_gradients_match_central_differences(x64):
 
 def test_float64_antialias_gradients_match_central_differences(x64):
     pos, tri, colors = soup_scene((14, 18), count=5, seed=3, layered=True)
-    rast, _, _ = ref.rasterize_forward(pos, tri, (14, 18))
-    col, _, _ = ref.interpolate_forward(colors, rast, tri)
+    (rast, _), _ = RASTERIZE.forward(np.asarray(pos, np.float64), tri=tri, resolution=(14, 18))
+    (col, _), _ = INTERPOLATE.forward(np.asarray(colors, np.float64), rast, tri=tri)
     th = dr.antialias_construct_topology_hash(tri)
     g = jnp.asarray(np.random.default_rng(2).standard_normal(col.shape))
 

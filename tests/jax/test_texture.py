@@ -20,6 +20,7 @@ jax = pytest.importorskip("jax")
 import jax.numpy as jnp  # noqa: E402
 
 import glraster.jax as dr  # noqa: E402
+from glraster.diff import texture_args  # noqa: E402
 from glraster.diff import texture_reference as tr  # noqa: E402
 from glraster.errors import ArgumentError  # noqa: E402
 from tests.diff.test_texture_reference import make_inputs, safe  # noqa: E402
@@ -30,7 +31,7 @@ TOL = 1e-5
 def smooth_inputs(seed, boundary, mode, count=12, **kwargs):
     """(tex, uv, uv_da, bias) float64 NumPy arrays of ``count`` smooth pixels, (1, 3, 4, .)."""
     tex, uv, da, bias = make_inputs(seed, boundary, batch=1, image=(16, 16), **kwargs)
-    args = tr.check_arguments(tex, uv, da, bias, None, mode, boundary)
+    args = texture_args.check(tex, uv, da, bias, filter_mode=mode, boundary_mode=boundary)
     keep = np.nonzero(safe(args, 0.02))[0][:count]
     assert len(keep) == count, "not enough smooth pixels"
     pick = lambda a: a.reshape(256, -1)[keep].reshape((1, 3, 4) + a.shape[3:])  # noqa: E731

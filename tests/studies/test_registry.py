@@ -20,7 +20,8 @@ REPO = Path(__file__).resolve().parents[2]
 MODULE_STUDIES = sorted(n for n, s in registry.STUDIES.items() if s.command is None)
 COMMAND_STUDIES = sorted(n for n, s in registry.STUDIES.items() if s.command is not None)
 # the module an extra installs, for skipping where the extra is absent
-EXTRA_MODULE = {"torch": "torch", "service": "prometheus_client", "mesh": "trimesh"}
+EXTRA_MODULE = {"torch": "torch", "service": "prometheus_client", "mesh": "trimesh",
+                "jax": "jax"}
 
 
 def _needs_extra(name: str) -> None:
