@@ -12,6 +12,7 @@ import functools
 import numpy as np
 
 from glraster import validate
+from glraster.errors import ArgumentError
 from glraster.gpu import cull as _cull
 from glraster.gpu import pipeline
 from glraster.gpu.context import Context, default_context
@@ -71,8 +72,8 @@ def _check_out(out, names, shape, value_dtype) -> dict:
     """The arrays of ``out`` (a :class:`Raster`) to fill, by output name; ValueError naming
     the field when one is missing or has the wrong shape, dtype or layout."""
     if not isinstance(out, Raster):
-        raise ValueError(f"out must be a glraster.Raster (e.g. an earlier result), got "
-                         f"{type(out).__name__}")
+        raise ArgumentError("out", f"out must be a glraster.Raster (e.g. an earlier result), got "
+                                   f"{type(out).__name__}")
     height, width = shape
     wanted = {"persp": ((height, width, 3), value_dtype), "screen": ((height, width, 3), value_dtype),
               "depth": ((height, width), np.float32), "tri_id": ((height, width), np.int32),
@@ -176,14 +177,15 @@ def rasterize(
     samples = validate.samples(samples)
     interpolation = validate.interpolation(interpolation)
     if samples > 1 and out is not None:
-        raise ValueError("out is only supported with samples=1 (multisampled arrays have "
-                         "a sample axis)")
+        raise ArgumentError("out", "out is only supported with samples=1 (multisampled arrays have "
+                                   "a sample axis)")
     if shader_files is not None and method != "hw":
-        raise ValueError(f"shader_files replaces the 'hw' shaders; got method {method!r}")
+        raise ArgumentError(
+            "shader_files", f"shader_files replaces the 'hw' shaders; got method {method!r}")
     if affine not in (None, False):
-        raise ValueError(f"affine must be None (automatic) or False, got {affine!r}")
+        raise ArgumentError("affine", f"affine must be None (automatic) or False, got {affine!r}")
     if cull not in (True, False, "auto"):
-        raise ValueError(f"cull must be True, False or 'auto', got {cull!r}")
+        raise ArgumentError("cull", f"cull must be True, False or 'auto', got {cull!r}")
     ctx = ctx if ctx is not None else default_context()
     m = for_context(m, ctx)  # hw below GL 4.5: the vertex-attribute variant
     if samples > 1:
@@ -208,7 +210,8 @@ def rasterize(
             kept = culling.kept
             tri = tri[kept]
     if not m.vertex_input and pos.nbytes > ctx.max_storage_block_size:
-        raise ValueError(
+        raise ArgumentError(
+            "pos",
             f"pos takes {pos.nbytes} bytes, above the driver's shader storage block "
             f"limit of {ctx.max_storage_block_size} bytes ({ctx.max_storage_block_size // 16} vertices)"
         )
@@ -303,12 +306,14 @@ def _check_multisampling(ctx, m: Method, samples: int, interpolation: str) -> No
     ``samples`` per pixel and ``interpolation``."""
     offered = ctx.sample_counts
     if samples not in offered:
-        raise ValueError(
+        raise ArgumentError(
+            "samples",
             f"samples={samples} is not offered by this driver ({ctx.renderer}): choose one "
             f"of {offered} (GL_MAX_SAMPLES and the integer / depth texture limits: "
             f"{ctx.max_samples})")
     if interpolation not in m.interpolations:
-        raise ValueError(
+        raise ArgumentError(
+            "method",
             f"method {m.name!r} computes barycentrics at gl_FragCoord (the pixel center) and "
             f"offers interpolation {m.interpolations}, got {interpolation!r}; use method "
             f"'hw' or 'divw'")
@@ -316,7 +321,8 @@ def _check_multisampling(ctx, m: Method, samples: int, interpolation: str) -> No
         missing = [e for e in ("GL_ARB_shading_language_420pack", "GL_ARB_gpu_shader5")
                    if e not in ctx.mgl.extensions]
         if missing:
-            raise ValueError(
+            raise ArgumentError(
+                "interpolation",
                 f"interpolation={interpolation!r} on the OpenGL 3.3 path needs "
                 f"{' and '.join(missing)}, which this driver ({ctx.renderer}) lacks")
 

@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 import OpenImageIO as oiio
 
+from glraster.errors import ArgumentError
 from glraster.io.atomic import atomic_write
 
 ORIENTATION = "upright: file row 0 is the top row (glraster array row H-1)"
@@ -72,7 +73,8 @@ class ExrRaster:
         data window (0 for barycentrics, 1.0 for depth, -1 for tri_id)."""
         data = getattr(self, name)
         if data is None:
-            raise ValueError(f"this EXR holds no {name!r} output (it has {self.outputs})")
+            raise ArgumentError(
+                "name", f"this EXR holds no {name!r} output (it has {self.outputs})")
         h, w = self.resolution
         fill = -1 if name == "tri_id" else EMPTY[name]
         out = np.full((h, w) + data.shape[2:], fill, dtype=data.dtype)
@@ -126,13 +128,15 @@ def write_raster(path, raster=None, *, persp=None, screen=None, depth=None, tri_
         if value is not None:
             arrays[name] = np.asarray(value)
     if not arrays:
-        raise ValueError("write_raster needs at least one of persp, screen, depth, tri_id")
+        raise ArgumentError(
+            "raster", "write_raster needs at least one of persp, screen, depth, tri_id")
     shapes = {n: a.shape[:2] for n, a in arrays.items()}
     if len(set(shapes.values())) != 1:
-        raise ValueError(f"outputs must share one (H, W) resolution, got {shapes}")
+        raise ArgumentError("raster", f"outputs must share one (H, W) resolution, got {shapes}")
     h, w = next(iter(shapes.values()))
     if resolution is not None and tuple(resolution) != (h, w):
-        raise ValueError(f"resolution {tuple(resolution)} does not match the arrays' {(h, w)}")
+        raise ArgumentError(
+            "resolution", f"resolution {tuple(resolution)} does not match the arrays' {(h, w)}")
     for name, arr in arrays.items():
         want = (h, w, 3) if name in ("persp", "screen") else (h, w)
         if arr.shape != want:
@@ -140,9 +144,9 @@ def write_raster(path, raster=None, *, persp=None, screen=None, depth=None, tri_
     if "tri_id" in arrays:
         ids = arrays["tri_id"]
         if not np.issubdtype(ids.dtype, np.integer):
-            raise ValueError(f"tri_id must have an integer dtype, got {ids.dtype}")
+            raise ArgumentError("tri_id", f"tri_id must have an integer dtype, got {ids.dtype}")
         if ids.size and (ids.min() < -1 or ids.max() >= 2**32 - 1):
-            raise ValueError("tri_id values must lie in [-1, 2^32 - 2]")
+            raise ArgumentError("tri_id", "tri_id values must lie in [-1, 2^32 - 2]")
 
     if isinstance(window, str):
         if window == "full":
@@ -156,10 +160,12 @@ def write_raster(path, raster=None, *, persp=None, screen=None, depth=None, tri_
                 mask = np.ones((h, w), bool)
             window = coverage_window(mask)
         else:
-            raise ValueError(f"window must be 'covered', 'full' or (y0, y1, x0, x1), got {window!r}")
+            raise ArgumentError(
+                "window", f"window must be 'covered', 'full' or (y0, y1, x0, x1), got {window!r}")
     y0, y1, x0, x1 = (int(v) for v in window)
     if not (0 <= y0 < y1 <= h and 0 <= x0 < x1 <= w):
-        raise ValueError(f"window {window} must be a non-empty box inside (0, {h}, 0, {w})")
+        raise ArgumentError(
+            "window", f"window {window} must be a non-empty box inside (0, {h}, 0, {w})")
     window = (y0, y1, x0, x1)
 
     from glraster._version import __version__
