@@ -186,8 +186,10 @@ def float_array(name: str, value, shape: tuple) -> np.ndarray:
 
 
 def _fmt(shape: tuple) -> str:
+    """(3, N) style, as NumPy writes shapes ((3,) for one axis); -1 = any length."""
     names = iter("NM")
-    return "(" + ", ".join(next(names) if s == -1 else str(s) for s in shape) + ")"
+    parts = [next(names) if s == -1 else str(s) for s in shape]
+    return "(" + ", ".join(parts) + ("," if len(parts) == 1 else "") + ")"
 
 
 def matrix4(name: str, value) -> np.ndarray:

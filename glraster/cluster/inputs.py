@@ -31,6 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
+from glraster.errors import ArgumentError
+
 SCENE_SUFFIXES = (".npz", ".json")
 
 
@@ -66,12 +68,13 @@ def list_items(source) -> list:
             views = _views(str(path))
             items = [f"{path}#{i}" for i in range(len(views["cameras"]))]
         elif path.exists():
-            raise ValueError(f"source {str(source)!r} must be a folder of scene files, a .txt "
-                             "list of them, or a .json views file (mesh and cameras)")
+            raise ArgumentError(
+                "source", f"source {str(source)!r} must be a folder of scene files, a .txt "
+                          "list of them, or a .json views file (mesh and cameras)")
         else:
-            raise ValueError(f"source {str(source)!r} does not exist")
+            raise ArgumentError("source", f"source {str(source)!r} does not exist")
     if not items:
-        raise ValueError(f"source {str(source)!r} holds no scene (.npz or .json) file")
+        raise ArgumentError("source", f"source {str(source)!r} holds no scene (.npz or .json) file")
     return items
 
 

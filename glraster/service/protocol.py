@@ -84,12 +84,19 @@ def error_json(status: int, field: str, message: str) -> bytes:
     return json.dumps({"error": message, "field": field, "status": status}).encode()
 
 
-def field_of(message: str, default: str = "body") -> str:
-    """The argument a glraster ValueError names (its messages start with the argument:
-    ``"pos must have shape (V, 4), got (5, 3)"``, ``"tri index 7 is out of range ..."``)."""
-    head = message.split(" ", 1)[0].split(".", 1)[0].strip("'\":,")
-    known = ARRAY_FIELDS + OPTION_FIELDS + CHECK_FIELDS
-    return head if head in known else default
+# glraster's argument names (ArgumentError.argument) -> the request field that carries the
+# value: glraster.rasterize and glraster.reference.rasterize take the request's fields
+# under the same names; sample_positions is what the worker passes the reference for the
+# request's samples. Any other argument is set by the service, not the client: "body".
+ARGUMENT_FIELDS = {**{name: name for name in ARRAY_FIELDS + OPTION_FIELDS},
+                   "sample_positions": "samples"}
+
+
+def invalid(exc: ValueError, status: int = 422) -> "RequestError":
+    """The :class:`RequestError` for a glraster ValueError about a request's values: the
+    field of its ``.argument`` (:data:`ARGUMENT_FIELDS`; "body" when it names none)."""
+    field_name = ARGUMENT_FIELDS.get(getattr(exc, "argument", None), "body")
+    return RequestError(status, field_name, str(exc)[:500])
 
 
 # -- options --------------------------------------------------------------------------------

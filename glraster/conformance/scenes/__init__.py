@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from glraster import validate
+from glraster.errors import ArgumentError
 
 from glraster.conformance.scenes.builders import BUILDERS
 
@@ -97,7 +98,7 @@ def describe(name: str) -> str:
 def _entry(name: str) -> dict:
     cat = _catalog()
     if name not in cat:
-        raise ValueError(f"unknown scene {name!r}; known scenes: {', '.join(cat)}")
+        raise ArgumentError("name", f"unknown scene {name!r}; known scenes: {', '.join(cat)}")
     return cat[name]
 
 
@@ -108,11 +109,13 @@ def load_scene(name: str) -> Scene:
     base, at, count = name.partition("@")
     if at:
         if not (count.endswith("x") and count[:-1].isdigit() and int(count[:-1]) >= 1):
-            raise ValueError(f"scene name {name!r}: a sample count is written <name>@<S>x, "
-                             f"e.g. {base}@4x")
+            raise ArgumentError(
+                "name", f"scene name {name!r}: a sample count is written <name>@<S>x, "
+                         f"e.g. {base}@4x")
         scene = load_scene(base)
         if scene.samples == 1:
-            raise ValueError(f"scene name {name!r}: {base!r} is a single-sample scene")
+            raise ArgumentError("name",
+                                f"scene name {name!r}: {base!r} is a single-sample scene")
         return with_samples(scene, int(count[:-1]))
     return build_scene(_entry(name), source=f"catalog scene {name!r}")
 
