@@ -42,6 +42,11 @@ def interpolate(attr, raster, tri, space: str = "persp", *, normalize: bool = Tr
         (H, W, C) array, or (H, W) for 1-D ``attr``, indexed ``[y, x]`` with row 0 at the
         bottom, of the barycentrics' dtype (float32 for GPU rasters, float64 for reference
         rasters).  The sums are formed in float64 and rounded once.  Empty pixels are 0.
+
+    Raises:
+        glraster.errors.ArgumentError naming ``attr`` (None, not finite real numbers, not
+        (V, C) or (V,)), ``tri`` (glraster.validate.triangles over attr's rows), ``space``
+        or ``raster`` (an output missing, or ids beyond ``tri``).
     """
     space = validate.space(space)
     bary = getattr(raster, space, None)

@@ -235,7 +235,7 @@ def test_every_check_names_its_argument(check, call, argument, words):
     assert err.value.argument == argument
     assert isinstance(err.value, ValueError)
     assert words in str(err.value), str(err.value)
-    assert str(err.value).startswith(argument) or check in ("sample_positions",), str(err.value)
+    assert str(err.value).startswith(argument), str(err.value)   # the wording convention
 
 
 def test_every_public_check_is_in_the_table():
