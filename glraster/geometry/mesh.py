@@ -63,7 +63,8 @@ class Mesh:
             if a is not None:
                 a = np.ascontiguousarray(a, dtype=np.float64)
                 if a.shape != (len(v), width):
-                    raise ValueError(f"{name} must have shape ({len(v)}, {width}), got {a.shape}")
+                    raise ArgumentError(name, f"{name} must have shape ({len(v)}, {width}), "
+                                              f"got {a.shape}")
                 object.__setattr__(self, name, a)
 
     def bounding_sphere(self) -> tuple[np.ndarray, float]:

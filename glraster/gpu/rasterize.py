@@ -83,11 +83,12 @@ def _check_out(out, names, shape, value_dtype) -> dict:
         array = getattr(out, name)
         want_shape, want_dtype = wanted[name]
         if not isinstance(array, np.ndarray):
-            raise ValueError(f"out.{name} must be an array of shape {want_shape} for the "
-                             f"requested outputs, got {type(array).__name__}")
+            raise ArgumentError("out", f"out.{name} must be an array of shape {want_shape} "
+                                       f"for the requested outputs, got {type(array).__name__}")
         if array.shape != want_shape or array.dtype != want_dtype \
                 or not array.flags.c_contiguous or not array.flags.writeable:
-            raise ValueError(
+            raise ArgumentError(
+                "out",
                 f"out.{name} must be a writeable C-contiguous {np.dtype(want_dtype).name} "
                 f"array of shape {want_shape}, got {array.dtype.name} {array.shape}"
                 f"{'' if array.flags.c_contiguous else ' (not C-contiguous)'}"

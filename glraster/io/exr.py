@@ -140,7 +140,7 @@ def write_raster(path, raster=None, *, persp=None, screen=None, depth=None, tri_
     for name, arr in arrays.items():
         want = (h, w, 3) if name in ("persp", "screen") else (h, w)
         if arr.shape != want:
-            raise ValueError(f"{name} must have shape {want}, got {arr.shape}")
+            raise ArgumentError(name, f"{name} must have shape {want}, got {arr.shape}")
     if "tri_id" in arrays:
         ids = arrays["tri_id"]
         if not np.issubdtype(ids.dtype, np.integer):
@@ -220,7 +220,7 @@ def read_raster(path) -> ExrRaster:
     path = Path(path)
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
-        raise ValueError(f"{path}: cannot open as an image ({oiio.geterror()})")
+        raise ArgumentError("path", f"{path}: cannot open as an image ({oiio.geterror()})")
     try:
         found: dict = {}
         meta: dict = {}
@@ -230,7 +230,8 @@ def read_raster(path) -> ExrRaster:
             spec = inp.spec()
             geo = (spec.x, spec.y, spec.width, spec.height, spec.full_width, spec.full_height)
             if geometry is not None and geo != geometry:
-                raise ValueError(f"{path}: parts have different data windows {geometry} and {geo}")
+                raise ArgumentError(
+                    "path", f"{path}: parts have different data windows {geometry} and {geo}")
             geometry = geo
             for attr in spec.extra_attribs:
                 if attr.name.startswith("glraster:"):
@@ -238,7 +239,7 @@ def read_raster(path) -> ExrRaster:
             names = list(spec.channelnames)
             data = inp.read_image(sub, 0, 0, spec.nchannels, oiio.UNKNOWN)
             if data is None:
-                raise ValueError(f"{path}: reading part {sub} failed ({inp.geterror()})")
+                raise ArgumentError("path", f"{path}: reading part {sub} failed ({inp.geterror()})")
             data = np.asarray(data).reshape(spec.height, spec.width, spec.nchannels)
             for i, n in enumerate(names):
                 found[n] = data[..., i][::-1]
@@ -246,22 +247,23 @@ def read_raster(path) -> ExrRaster:
     finally:
         inp.close()
     if geometry is None:
-        raise ValueError(f"{path}: no image parts")
+        raise ArgumentError("path", f"{path}: no image parts")
     x, y, width, height, full_w, full_h = geometry
     window = (full_h - (y + height), full_h - y, x, x + width)
     result = ExrRaster(resolution=(full_h, full_w), window=window, metadata=meta)
     for name, channels in _LAYERS.items():
         present = [c in found for c in channels]
         if any(present) and not all(present):
-            raise ValueError(f"{path}: layer {name!r} is incomplete (needs {channels})")
+            raise ArgumentError("path", f"{path}: layer {name!r} is incomplete (needs {channels})")
         if all(present):
             planes = [np.ascontiguousarray(found[c], dtype=np.float32) for c in channels]
             setattr(result, name, np.stack(planes, -1) if len(planes) == 3 else planes[0])
     if TRI_ID_CHANNEL in found:
         raw = found[TRI_ID_CHANNEL]
         if raw.dtype != np.uint32:
-            raise ValueError(f"{path}: {TRI_ID_CHANNEL} must be a UINT channel, got {raw.dtype}")
+            raise ArgumentError(
+                "path", f"{path}: {TRI_ID_CHANNEL} must be a UINT channel, got {raw.dtype}")
         result.tri_id = raw.astype(np.int64) - 1
     if not result.outputs:
-        raise ValueError(f"{path}: no glraster channels (found {sorted(found)})")
+        raise ArgumentError("path", f"{path}: no glraster channels (found {sorted(found)})")
     return result
