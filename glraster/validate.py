@@ -267,24 +267,19 @@ def outputs(names) -> tuple[str, ...]:
 
 
 def choice(name: str, value, choices: tuple):
-    """``value`` when it is one of ``choices`` (compared with ==, text or not)."""
-    if isinstance(value, (list, dict, set, np.ndarray)) or value not in choices:
+    """``value`` when it is one of ``choices`` (compared with ==; a container never is)."""
+    if isinstance(value, (list, tuple, dict, set, np.ndarray)) or value not in choices:
         raise ArgumentError(name, f"{name} must be one of {choices}, got {value!r}")
     return value
 
 
 def space(value) -> str:
     """The barycentric space: "persp" (perspective-correct) or "screen" (window space)."""
-    if not isinstance(value, str):
-        raise ArgumentError("space", f"space must be one of {SPACES}, got {value!r}")
     return choice("space", value, SPACES)
 
 
 def interpolation(value) -> str:
     """``interpolation`` as one of :data:`glraster.types.INTERPOLATIONS`."""
-    if not isinstance(value, str):
-        raise ArgumentError("interpolation", f"interpolation must be one of "
-                                             f"{INTERPOLATIONS}, got {value!r}")
     return choice("interpolation", value, INTERPOLATIONS)
 
 
