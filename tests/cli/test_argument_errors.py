@@ -59,8 +59,9 @@ def test_render_with_an_unknown_output_names_the_option(capsys, tmp_path):
     assert not (tmp_path / "x.exr").exists()
 
 
-def test_fit_option_errors_are_one_line_naming_the_option(capsys, tmp_path):
-    code = main(["fit", "cube", "--out", str(tmp_path / "o"), "--resolutions", "0"])
+def test_an_option_check_of_the_cli_is_one_line_naming_the_option(capsys, tmp_path):
+    code = main(["antialias-study", "--out", str(tmp_path / "o"), "--size", "8"])
     assert code == exit_codes.USAGE
     assert capsys.readouterr().err.strip() == (
-        "glraster fit: error: --resolutions must be positive integers, got '0'")
+        "glraster antialias-study: error: --size must be at least 16 pixels, got 8")
+    assert not (tmp_path / "o").exists()
