@@ -42,6 +42,8 @@ from pathlib import Path
 import numpy as np
 from msgspec import UNSET
 
+from glraster import validate
+from glraster.errors import ArgumentError
 from glraster.io.npz import NpzError, npz_nbytes, read_npz, write_npz_into
 
 from glraster.service.models import (  # the names of fields and options, re-exported
@@ -195,25 +197,20 @@ def _npz_arrays(body, limits) -> dict:
 
 
 def _resolution(value, limits, driver_max: int | None) -> tuple:
-    if isinstance(value, np.ndarray):
-        if value.dtype.kind not in "iu" or value.shape != (2,):
-            raise RequestError(422, "resolution", f"resolution must be 2 integers (H, W), got "
-                                                  f"{value.dtype} {value.shape}")
-        value = value.tolist()
-    if not isinstance(value, (list, tuple)) or len(value) != 2 \
-            or not all(isinstance(v, int) and not isinstance(v, bool) for v in value):
-        raise RequestError(422, "resolution", f"resolution must be [height, width] integers, "
-                                              f"got {value!r}"[:300])
+    """(height, width) from the request (glraster.validate's check), each at most the
+    server's configured and the driver's maximum."""
+    try:
+        height, width = validate.resolution(value)
+    except ArgumentError as exc:
+        raise invalid(exc) from None
     limit = limits.max_resolution if driver_max is None else min(limits.max_resolution, driver_max)
-    for axis, v in zip(("height", "width"), value):
-        if v <= 0:
-            raise RequestError(422, "resolution", f"resolution {axis} must be > 0, got {v}")
+    for axis, v in (("height", height), ("width", width)):
         if v > limit:
             raise RequestError(422, "resolution",
                                f"resolution {axis} {v} exceeds this server's maximum of {limit} "
                                f"(configured {limits.max_resolution}, driver "
                                f"{driver_max if driver_max is not None else 'unknown'})")
-    return (int(value[0]), int(value[1]))
+    return height, width
 
 
 def _rows_error(exc: ModelError, limits) -> None:
