@@ -28,6 +28,7 @@ import urllib.parse
 
 import numpy as np
 
+from glraster.errors import ArgumentError
 from glraster.io.npz import read_npz, write_npz
 from glraster.types import OUTPUTS, Raster
 
@@ -86,7 +87,7 @@ class Client:
                  retries: int = 2):
         parts = urllib.parse.urlsplit(url)
         if parts.scheme not in ("http", "https") or not parts.hostname:
-            raise ValueError(f"url must be http://HOST:PORT or https://..., got {url!r}")
+            raise ArgumentError("url", f"url must be http://HOST:PORT or https://..., got {url!r}")
         self.url = url.rstrip("/")
         self._scheme, self._host, self._port = parts.scheme, parts.hostname, parts.port
         self._base = parts.path.rstrip("/")
@@ -203,7 +204,8 @@ class Client:
                  "json" -> the statistics dict, "exr" -> the EXR file's bytes.
         """
         if result not in _ACCEPT:
-            raise ValueError(f"result must be one of {sorted(_ACCEPT)}, got {result!r}")
+            raise ArgumentError(
+                "result", f"result must be one of {sorted(_ACCEPT)}, got {result!r}")
         body = encode_scene(pos, tri, resolution)
         query = {"outputs": ",".join([outputs] if isinstance(outputs, str) else outputs),
                  "method": method}

@@ -23,11 +23,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from glraster import validate
 from glraster.errors import ArgumentError
 
 __all__ = ["interpolate"]
-
-_SPACES = {"persp": "persp", "screen": "screen"}
 
 
 def interpolate(attr, raster, tri, space: str = "persp", *, normalize: bool = True) -> np.ndarray:
@@ -50,51 +49,44 @@ def interpolate(attr, raster, tri, space: str = "persp", *, normalize: bool = Tr
         (H, W, C) array, or (H, W) for 1-D ``attr``, indexed ``[y, x]`` with row 0 at the
         bottom, of the barycentrics' dtype (float32 for GPU rasters, float64 for reference
         rasters).  The sums are formed in float64 and rounded once.  Empty pixels are 0.
+
+    Raises:
+        glraster.errors.ArgumentError naming ``attr`` (None, not finite real numbers, not
+        (V, C) or (V,)), ``tri`` (glraster.validate.triangles over attr's rows), ``space``
+        or ``raster`` (an output missing, or ids beyond ``tri``).
     """
-    if space not in _SPACES:
-        raise ValueError(f"space must be 'persp' or 'screen', got {space!r}")
-    bary = getattr(raster, _SPACES[space], None)
+    space = validate.space(space)
+    bary = getattr(raster, space, None)
     if bary is None:
-        raise ValueError(f"raster has no {space!r} barycentrics; "
-                         f"rasterize with '{space}' in outputs")
+        raise ArgumentError("raster", f"raster has no {space!r} barycentrics; "
+                                      f"rasterize with '{space}' in outputs")
     tri_id = getattr(raster, "tri_id", None)
     if tri_id is None:
-        raise ValueError("raster has no 'tri_id'; rasterize with 'tri_id' in outputs")
+        raise ArgumentError("raster", "raster has no 'tri_id'; rasterize with 'tri_id' in "
+                                      "outputs")
     if bary.ndim != 3 or bary.shape[2] != 3 or tri_id.shape != bary.shape[:2]:
-        raise ValueError(f"raster barycentrics must be (H, W, 3) with tri_id (H, W), got "
-                         f"{bary.shape} and {tri_id.shape}")
+        raise ArgumentError("raster", f"raster barycentrics must be (H, W, 3) with tri_id "
+                                      f"(H, W), got {bary.shape} and {tri_id.shape}")
 
     if attr is None:
-        raise ValueError(
-            "attr is None: there are no per-vertex values to interpolate. A Mesh whose file "
-            "has no texture coordinates has uv None (and one without normals normals None); "
-            "check `mesh.uv is not None` or pass another (V, C) array")
-    try:
-        a = np.asarray(attr)
-    except (TypeError, ValueError):
-        raise ValueError("attr must be a numeric array of shape (V, C)") from None
-    if a.dtype.kind not in "biuf":
-        raise ValueError(f"attr must be numeric, got dtype {a.dtype}")
+        raise ArgumentError(
+            "attr", "attr is None: there are no per-vertex values to interpolate. A Mesh whose "
+            "file has no texture coordinates has uv None (and one without normals normals "
+            "None); check `mesh.uv is not None` or pass another (V, C) array")
+    a = validate.real_array("attr", attr)
     squeeze = a.ndim == 1
     if squeeze:
         a = a[:, None]
     if a.ndim != 2:
-        raise ValueError(f"attr must have shape (V, C) or (V,), got {np.shape(attr)}")
-
-    t = np.asarray(tri)
-    if t.ndim != 2 or t.shape[1] != 3:
-        raise ValueError(f"tri must have shape (T, 3), got {t.shape}")
-    if t.dtype.kind not in "iu":
-        raise ValueError(f"tri must hold integers, got dtype {t.dtype}")
-    if t.size and (t.min() < 0 or t.max() >= a.shape[0]):
-        raise ValueError(f"tri indexes vertices 0..{a.shape[0] - 1} of attr, got indices "
-                         f"in [{t.min()}, {t.max()}]")
+        raise ArgumentError("attr", f"attr must have shape (V, C) or (V,), got {np.shape(attr)}")
+    validate.finite("attr", a, a.astype(np.float64, copy=False))
+    t = validate.triangles(tri, a.shape[0], of="attr")
 
     covered = tri_id >= 0
     ids = tri_id[covered]
     if ids.size and ids.max() >= t.shape[0]:
-        raise ValueError(f"raster.tri_id refers to triangle {ids.max()} but tri has "
-                         f"{t.shape[0]} triangles")
+        raise ArgumentError("raster", f"raster.tri_id refers to triangle {ids.max()} but tri "
+                                      f"has {t.shape[0]} triangles")
 
     # The math lives in the differentiable interpolate (glraster.diff.ops.INTERPOLATE, its
     # float64 core): this adapter hands it the raster in nvdiffrast's layout, with (u, v)

@@ -14,6 +14,7 @@ import sys
 
 from glraster._version import __version__
 from glraster.cli import commands, exit_codes
+from glraster.cli.errors import describe, name_options
 from glraster.errors import BackendUnavailable, ShaderCompileError
 
 
@@ -27,6 +28,7 @@ def build_parser() -> argparse.ArgumentParser:
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
     for module in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
         importlib.import_module(f"{commands.__name__}.{module.name}").register(subparsers)
+    name_options(parser)   # errors name the option at fault (glraster.cli.errors)
     return parser
 
 
@@ -76,7 +78,7 @@ def _main(argv) -> int:
         print(f"glraster {args.command}: error: {exc}", file=sys.stderr)
         return exit_codes.NO_BACKEND
     except (ValueError, ShaderCompileError) as exc:
-        print(f"glraster {args.command}: error: {exc}", file=sys.stderr)
+        print(f"glraster {args.command}: error: {describe(exc, args)}", file=sys.stderr)
         return exit_codes.USAGE
     except ModuleNotFoundError as exc:
         extra = OPTIONAL_EXTRAS.get((exc.name or "").split(".")[0])

@@ -35,6 +35,7 @@ from pathlib import Path
 from glraster.cluster import inputs as _inputs
 from glraster.cluster import runtime
 from glraster.cluster import shards as _shards
+from glraster.errors import ArgumentError
 
 # Retries of a shard whose worker died: a scene that crashes every time needs two deaths
 # to be recognised (the first attempt does not record items), and one to spare.
@@ -158,7 +159,7 @@ def render_dataset(source, out_dir, *, address=None, driver=None, shard_size=DEF
         driver = runtime.check_driver_names([driver])[0]
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)
                                 or workers < 1):
-        raise ValueError(f"workers must be a positive integer, got {workers!r}")
+        raise ArgumentError("workers", f"workers must be a positive integer, got {workers!r}")
     items = _inputs.list_items(source)
     plan = _shards.plan(items, shard_size)
     out_dir = Path(out_dir)
@@ -216,8 +217,9 @@ def _worker_count(ray, driver) -> int:
         return max(1, int(ray.cluster_resources().get("CPU", 1)))
     nodes = runtime.driver_nodes(ray).get(driver)
     if not nodes:
-        raise ValueError(f"driver: no node of the cluster advertises driver:{driver} "
-                         f"(advertised: {', '.join(sorted(runtime.driver_nodes(ray))) or 'none'})")
+        raise ArgumentError(
+            "driver", f"driver: no node of the cluster advertises driver:{driver} "
+                      f"(advertised: {', '.join(sorted(runtime.driver_nodes(ray))) or 'none'})")
     return max(1, sum(min(n["cpus"], n["slots"]) for n in nodes))
 
 

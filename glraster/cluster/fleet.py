@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 
 from glraster.cluster import runtime
 from glraster.cluster.workers import MAX_TASK_RETRIES, remote_worker
+from glraster.errors import ArgumentError
 
 # Seconds an actor may take to start and make its context.
 START_TIMEOUT_S = 300
@@ -122,7 +123,8 @@ def run_check(names=None, *, drivers=None, methods=("hw",), address=None, backen
     methods = list(methods)
     for m in methods:
         if m not in METHODS:
-            raise ValueError(f"methods: {m!r} is not a method; known: {', '.join(METHODS)}")
+            raise ArgumentError(
+                "methods", f"methods: {m!r} is not a method; known: {', '.join(METHODS)}")
     if drivers is not None:
         drivers = runtime.check_driver_names(drivers)
     ray = runtime.connect(address, drivers)

@@ -31,6 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
+from glraster.errors import ArgumentError
+
 SCENE_SUFFIXES = (".npz", ".json")
 
 
@@ -66,12 +68,13 @@ def list_items(source) -> list:
             views = _views(str(path))
             items = [f"{path}#{i}" for i in range(len(views["cameras"]))]
         elif path.exists():
-            raise ValueError(f"source {str(source)!r} must be a folder of scene files, a .txt "
-                             "list of them, or a .json views file (mesh and cameras)")
+            raise ArgumentError(
+                "source", f"source {str(source)!r} must be a folder of scene files, a .txt "
+                          "list of them, or a .json views file (mesh and cameras)")
         else:
-            raise ValueError(f"source {str(source)!r} does not exist")
+            raise ArgumentError("source", f"source {str(source)!r} does not exist")
     if not items:
-        raise ValueError(f"source {str(source)!r} holds no scene (.npz or .json) file")
+        raise ArgumentError("source", f"source {str(source)!r} holds no scene (.npz or .json) file")
     return items
 
 
@@ -86,12 +89,12 @@ def _views(path: str) -> dict:
     try:
         data = json.loads(Path(path).read_text())
     except (OSError, ValueError) as exc:
-        raise ValueError(f"{path}: not a readable JSON views file ({exc})") from None
+        raise ArgumentError("path", f"{path}: not a readable JSON views file ({exc})") from None
     for key in ("mesh", "resolution", "cameras"):
         if key not in data:
-            raise ValueError(f"{path}: views file lacks {key!r}")
+            raise ArgumentError("path", f"{path}: views file lacks {key!r}")
     if not isinstance(data["cameras"], list) or not data["cameras"]:
-        raise ValueError(f"{path}: cameras must be a non-empty list")
+        raise ArgumentError("path", f"{path}: cameras must be a non-empty list")
     resolution = validate.resolution(data["resolution"])
     mesh_path = Path(data["mesh"])
     if not mesh_path.is_absolute():
@@ -101,8 +104,9 @@ def _views(path: str) -> dict:
             with np.load(mesh_path, allow_pickle=False) as z:
                 mesh = Mesh(z["vertices"], z["faces"])
         except (OSError, KeyError, ValueError) as exc:
-            raise ValueError(f"{path}: mesh {str(mesh_path)!r}: {exc} (a mesh .npz holds "
-                             "vertices (V, 3) and faces (T, 3))") from None
+            raise ArgumentError(
+                "path", f"{path}: mesh {str(mesh_path)!r}: {exc} (a mesh .npz holds "
+                        "vertices (V, 3) and faces (T, 3))") from None
     else:
         mesh = load_mesh(str(mesh_path))
     height, width = resolution
@@ -121,7 +125,7 @@ def _views(path: str) -> dict:
                 raise ValueError("needs view/proj, K/R/t/near/far or eye/target/fovy/near/far")
             cameras.append((validate.matrix4("view", view), validate.matrix4("proj", proj)))
         except (KeyError, TypeError, ValueError) as exc:
-            raise ValueError(f"{path}: camera {i}: {exc}") from None
+            raise ArgumentError("path", f"{path}: camera {i}: {exc}") from None
     outputs = tuple(data.get("outputs", ("persp", "screen", "depth", "tri_id")))
     return {"mesh": mesh, "resolution": resolution, "outputs": validate.outputs(outputs),
             "cameras": cameras}
@@ -137,7 +141,8 @@ def load_item(item: str):
         views = _views(path)
         k = int(index)
         if k >= len(views["cameras"]):
-            raise ValueError(f"{item}: the views file has {len(views['cameras'])} cameras")
+            raise ArgumentError(
+                "item", f"{item}: the views file has {len(views['cameras'])} cameras")
         from glraster.geometry.camera import project
 
         view, proj = views["cameras"][k]

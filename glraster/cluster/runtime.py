@@ -28,6 +28,8 @@ import subprocess
 import sys
 from concurrent.futures import ThreadPoolExecutor
 
+from glraster.errors import ArgumentError
+
 # Mesa's gallium drivers that any machine with Mesa can select by GALLIUM_DRIVER; zink
 # (GL on Vulkan) comes up only where a Vulkan driver does.
 SIMULATED_DRIVERS = ("llvmpipe", "softpipe", "zink")
@@ -81,14 +83,16 @@ def check_driver_names(drivers) -> list:
         drivers = [d.strip() for d in drivers.split(",")]
     drivers = list(drivers)
     if not drivers or any(not d for d in drivers):
-        raise ValueError(f"drivers must be a comma-separated list of driver names, got "
-                         f"{','.join(drivers)!r}")
+        raise ArgumentError(
+            "drivers", f"drivers must be a comma-separated list of driver names, got "
+                       f"{','.join(drivers)!r}")
     for d in drivers:
         if not re.fullmatch(r"[a-z0-9_]+", d):
-            raise ValueError(f"drivers: {d!r} is not a driver name (lower case letters, digits, "
-                             "_; e.g. llvmpipe, softpipe, zink, radeonsi)")
+            raise ArgumentError(
+                "drivers", f"drivers: {d!r} is not a driver name (lower case letters, digits, "
+                           "_; e.g. llvmpipe, softpipe, zink, radeonsi)")
     if len(set(drivers)) != len(drivers):
-        raise ValueError(f"drivers: {','.join(drivers)!r} names a driver twice")
+        raise ArgumentError("drivers", f"drivers: {','.join(drivers)!r} names a driver twice")
     return drivers
 
 

@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from glraster.errors import ArgumentError
 from glraster.io.atomic import atomic_write
 
 MANIFEST = "manifest.jsonl"
@@ -56,7 +57,8 @@ def plan(items, shard_size: int) -> list:
     """The shards of ``items``: consecutive runs of ``shard_size`` items."""
     if isinstance(shard_size, bool) or not isinstance(shard_size, (int, np.integer)) \
             or shard_size < 1:
-        raise ValueError(f"shard_size must be a positive integer, got {shard_size!r}")
+        raise ArgumentError(
+            "shard_size", f"shard_size must be a positive integer, got {shard_size!r}")
     items = list(items)
     return [Shard(i, tuple(items[j:j + shard_size]))
             for i, j in enumerate(range(0, len(items), shard_size))]

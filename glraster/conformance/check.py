@@ -40,6 +40,7 @@ from glraster.conformance import golden as _golden
 from glraster.conformance import mutants as _mutants
 from glraster.conformance import probes as _probes
 from glraster.conformance import rules as _rules
+from glraster.errors import ArgumentError
 from glraster.verify.compare import compare, waived_pixels
 from glraster.gpu.methods import METHODS, error_model
 from glraster.gpu.rasterize import rasterize
@@ -474,10 +475,11 @@ def run(ctx, names=None, *, method="hw", golden_dir=None, check_golden=True, mut
     and are not reported as scenes.
     """
     if method not in METHODS:
-        raise ValueError(f"method must be one of {sorted(METHODS)}, got {method!r}")
+        raise ArgumentError("method", f"method must be one of {sorted(METHODS)}, got {method!r}")
     if mutants and method != "hw":
-        raise ValueError(f"mutants are faults in the hw shaders: method must be 'hw' with "
-                         f"mutants, got {method!r}")
+        raise ArgumentError(
+            "mutants", f"mutants are faults in the hw shaders: method must be 'hw' with "
+                       f"mutants, got {method!r}")
     t0 = time.perf_counter()
     names = list(names) if names is not None else list_scenes()
     out = CheckResult(ctx.backend, ctx.renderer, ctx.gl_version, method)
@@ -596,7 +598,7 @@ def shard_scenes(names, index: int, count: int) -> list:
     the least loaded shard. Deterministic: every CI runner computes the same split from
     the same catalog, each scene lands in exactly one shard. Returned in catalog order."""
     if isinstance(index, bool) or isinstance(count, bool) or not (1 <= int(index) <= int(count)):
-        raise ValueError(f"shard must be I/N with 1 <= I <= N, got {index}/{count}")
+        raise ArgumentError("shard", f"shard must be I/N with 1 <= I <= N, got {index}/{count}")
     names = list(names)
     loads = [0.0] * int(count)
     owner = {}

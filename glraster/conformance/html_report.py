@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from glraster.errors import ArgumentError
 from glraster.io import figures
 from glraster.io.atomic import atomic_write, write_text
 from glraster.io.png import EMPTY_RGB, bary_rgb, write_png
@@ -163,7 +164,8 @@ class HtmlReport:
         bytes}."""
         for fname, data in files.items():
             if Path(fname).name != fname:
-                raise ValueError(f"files: image name {fname!r} must be a bare file name")
+                raise ArgumentError(
+                    "files", f"files: image name {fname!r} must be a bare file name")
             with atomic_write(self.img / fname) as tmp:
                 Path(tmp).write_bytes(data)
         self.images[name] = info

@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from glraster import validate
+from glraster.errors import ArgumentError
 from glraster.gpu import methods as _methods
 from glraster.gpu import pipeline as _pipeline
 from glraster.gpu import rasterize as _raster
@@ -283,7 +284,8 @@ def get(name: str) -> Mutant:
     for m in MUTANTS:
         if m.name == name:
             return m
-    raise ValueError(f"unknown mutant {name!r}; known: {', '.join(m.name for m in MUTANTS)}")
+    raise ArgumentError(
+        "name", f"unknown mutant {name!r}; known: {', '.join(m.name for m in MUTANTS)}")
 
 
 def select(pattern: str | None) -> list[Mutant]:
@@ -295,7 +297,9 @@ def select(pattern: str | None) -> list[Mutant]:
     pats = [p.strip() for p in pattern.split(",") if p.strip()]
     chosen = [m for m in MUTANTS if any(fnmatch.fnmatchcase(m.name, p) for p in pats)]
     if not chosen:
-        raise ValueError(f"no mutant matches {pattern!r}; known: {', '.join(m.name for m in MUTANTS)}")
+        raise ArgumentError(
+            "pattern", f"no mutant matches {pattern!r}; "
+                       f"known: {', '.join(m.name for m in MUTANTS)}")
     return chosen
 
 

@@ -40,6 +40,7 @@ from functools import lru_cache
 import numpy as np
 
 from glraster import reference as _reference
+from glraster.errors import ArgumentError
 from glraster.geometry.fill_rule import MAX_SUBPIXEL_BITS, FillRule, candidates
 from glraster.geometry.window import window_float32
 
@@ -321,8 +322,9 @@ def detect(render, candidate_rules=None, *, reported_subpixel_bits=None) -> Rule
                              seconds=time.perf_counter() - t0,
                              reported_subpixel_bits=reported_subpixel_bits)
     if ids.shape != tuple(s.resolution):
-        raise ValueError(f"render must return ({s.resolution[0]}, {s.resolution[1]}) ids, "
-                         f"got shape {ids.shape}")
+        raise ArgumentError(
+            "render", f"render must return ({s.resolution[0]}, {s.resolution[1]}) ids, "
+                      f"got shape {ids.shape}")
     # The tie probes' vertices are pixel centers and corners, exact at any precision and
     # with any rounding: their pixels depend on the tie rule alone, so they first set
     # aside every candidate of another tie rule (unless no tie rule fits them).

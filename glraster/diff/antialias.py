@@ -33,7 +33,8 @@ from __future__ import annotations
 import numpy as np
 
 from glraster.diff import compute as _gpu
-from glraster.diff import layout
+from glraster import validate
+from glraster.diff.ids import decode_ids
 from glraster.diff.antialias_args import AntialiasSaved, check, wanted
 from glraster.diff.antialias_reference import MAX_WALK
 from glraster.diff.topology_hash import TopologyHash, antialias_construct_topology_hash
@@ -164,7 +165,7 @@ def forward(color, rast, pos, *, tri, topology_hash, pos_gradient_boost=1.0, con
         :class:`~glraster.diff.antialias_args.AntialiasSaved`.
     """
     ctx = ctx or default_context()
-    ids = layout.decode_ids(rast[..., 3], "rast channel 3 (triangle id)")
+    ids = decode_ids(rast[..., 3], "rast channel 3 (triangle id)")
     passes = _Passes(ctx, color, rast, pos, tri, topology_hash, ids)
     out = color.copy()
     flat_out = out.reshape(-1, passes.channels)
@@ -187,7 +188,7 @@ def pair_records(color, rast, pos, tri, topology_hash=None, *, ctx: Context | No
     ctx = ctx or default_context()
     color, rast, pos, tri, th, _, _ = check(color, rast, pos, tri, topology_hash,
                                             dtype=np.float32)
-    ids = layout.decode_ids(rast[..., 3])
+    ids = decode_ids(rast[..., 3])
     passes = _Passes(ctx, color, rast, pos, tri, th, ids)
     out = np.empty((passes.batch * passes.hw, 2, 4), np.uint32)
     with ctx:
@@ -263,7 +264,7 @@ def backward(saved: AntialiasSaved, grad_out, *, needs=None, deterministic: bool
     want_color, want_pos = wanted(needs)
     ctx, color = saved.ctx, saved.color
     grad_out = (np.zeros(color.shape, np.float32) if grad_out is None
-                else layout.image("grad_out", grad_out, color.shape, np.float32))
+                else validate.image("grad_out", grad_out, color.shape, np.float32))
     mode = _gpu.accumulation(ctx, deterministic, accumulate)
     if not (want_color or want_pos):
         return None, None, None

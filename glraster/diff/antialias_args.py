@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from glraster import validate
 from glraster.diff import layout
 from glraster.diff.topology_hash import TopologyHash, topology_hash_for
 from glraster.errors import ArgumentError
@@ -46,17 +47,17 @@ def check(color, rast, pos, tri, topology_hash=None, pos_gradient_boost=1.0, con
     """The checked arguments of antialias (an ArgumentError naming the one that is wrong):
     (color, rast, pos, tri, topology_hash, pos_gradient_boost, convex), arrays of
     ``dtype``; the topology hash is built from ``tri`` when None."""
-    rast = layout.image("rast", rast, dtype=dtype)
+    rast = validate.image("rast", rast, dtype=dtype)
     batch_n, height, width, _ = rast.shape
-    color = layout.image("color", color, dtype=dtype, channels=None)
+    color = validate.image("color", color, dtype=dtype, channels=None)
     if color.shape[:3] != rast.shape[:3] or color.shape[3] < 1:
         raise ArgumentError("color", f"color must have shape {(batch_n, height, width)} + (C,) "
                             f"with C >= 1 (rast's B, H, W), got {color.shape}")
-    pos = layout.positions(pos, dtype=dtype)
+    pos = validate.batched_positions(pos, dtype=dtype)
     if pos.ndim == 3 and pos.shape[0] != batch_n:
         raise ArgumentError("pos", f"pos has a batch of {pos.shape[0]}, rast of {batch_n}: "
                             "3-D pos needs one entry per image")
-    tri = layout.triangles(tri, pos.shape[-2])
+    tri = validate.triangles(tri, pos.shape[-2])
     layout.rast_ids(rast, len(tri))
     th = topology_hash_for(topology_hash, tri, pos.shape[-2])
     if isinstance(pos_gradient_boost, (bool, np.bool_)) or not isinstance(

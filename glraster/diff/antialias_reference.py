@@ -42,7 +42,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from glraster.diff import layout
+from glraster import validate
+from glraster.diff.ids import decode_ids
 from glraster.diff.antialias_args import AntialiasSaved, wanted
 from glraster.diff.topology_hash import TopologyHash, antialias_construct_topology_hash
 
@@ -309,7 +310,7 @@ def pairs(rast, pos, tri, topology_hash: TopologyHash, *, band: float = DECISION
     (a continuous surface; in the first triangle: try the other pixel's triangle instead),
     or after :data:`MAX_WALK` triangles (counted in ``walk_limit``)."""
     batch_n, height, width, _ = rast.shape
-    ids = layout.decode_ids(rast[..., 3], "rast channel 3 (triangle id)")
+    ids = decode_ids(rast[..., 3], "rast channel 3 (triangle id)")
     zw = rast[..., 2]
     pos3 = pos if pos.ndim == 3 else pos[None]
     stride = pos3.shape[1] if pos.ndim == 3 else 0
@@ -388,7 +389,7 @@ def forward(color, rast, pos, *, tri, topology_hash, pos_gradient_boost=1.0, con
     for c in range(channels):
         out[:, c] += np.bincount(mod, weights=w * (flat[par, c] - flat[mod, c]),
                                  minlength=pixels)
-    ids = layout.decode_ids(rast[..., 3])
+    ids = decode_ids(rast[..., 3])
     saved = AntialiasSaved(color, rast, pos, tri, topology_hash, float(pos_gradient_boost),
                            bool(convex), ids, pairs=p)
     return (out.reshape(color.shape),), saved
@@ -452,7 +453,7 @@ def backward(saved: AntialiasSaved, grad_out, *, needs=None, deterministic: bool
     color, p = saved.color, saved.pairs
     batch_n, height, width, channels = color.shape
     grad_out = (np.zeros(color.shape) if grad_out is None
-                else layout.image("grad_out", grad_out, color.shape))
+                else validate.image("grad_out", grad_out, color.shape))
     pixels = batch_n * height * width
     flat = color.reshape(pixels, channels)
     g = grad_out.reshape(pixels, channels)

@@ -24,7 +24,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from glraster.diff import layout
+from glraster.errors import ArgumentError
+from glraster.diff.ids import decode_ids
 from glraster.gpu.context import Context
 
 __all__ = [
@@ -54,11 +55,12 @@ def accumulation(ctx: Context, deterministic: bool = False, accumulate: str | No
     ``deterministic``, else ``"atomic_float"`` where the driver has it, else ``"cas"``."""
     if accumulate is not None:
         if accumulate not in ACCUMULATIONS:
-            raise ValueError(f"accumulate must be one of {', '.join(ACCUMULATIONS)}, "
-                             f"got {accumulate!r}")
+            raise ArgumentError("accumulate", f"accumulate must be one of "
+                                f"{', '.join(ACCUMULATIONS)}, got {accumulate!r}")
         if accumulate == "atomic_float" and not has_atomic_float(ctx):
-            raise ValueError("accumulate='atomic_float' needs GL_NV_shader_atomic_float, "
-                             f"which {ctx.renderer} does not offer")
+            raise ArgumentError("accumulate", "accumulate='atomic_float' needs "
+                                "GL_NV_shader_atomic_float, which "
+                                f"{ctx.renderer} does not offer")
         return accumulate
     if deterministic:
         return "per_pixel"
@@ -102,7 +104,7 @@ def corner_vertices(rast_chunk_ids: np.ndarray, first: int, tri: np.ndarray,
                     pixels_per_image: int, vertex_stride: int):
     """Covered-pixel mask (count,) of a chunk starting at pixel ``first`` and the (N, 3)
     vertex rows of its covered pixels (batch offset ``image * vertex_stride`` included)."""
-    ids = layout.decode_ids(rast_chunk_ids) + 1      # index + 1, 0 = empty
+    ids = decode_ids(rast_chunk_ids) + 1      # index + 1, 0 = empty
     live = (ids > 0) & (ids <= len(tri))
     rows = tri[ids[live] - 1].astype(np.int64)
     if vertex_stride:

@@ -26,6 +26,8 @@ import logging
 import numbers
 import sys
 
+from glraster.errors import ArgumentError
+
 __all__ = ["LOGGER_NAME", "get_log_level", "set_log_level"]
 
 LOGGER_NAME = "glraster"
@@ -51,8 +53,8 @@ def set_log_level(level: int) -> None:
     """
     if isinstance(level, (bool, float)) or not isinstance(level, numbers.Integral) \
             or not 0 <= level < len(LEVELS):
-        raise ValueError(f"level must be an int 0 (info), 1 (warning), 2 (error) or 3 "
-                         f"(fatal), got {level!r}")
+        raise ArgumentError("level", f"level must be an int 0 (info), 1 (warning), 2 (error) "
+                                     f"or 3 (fatal), got {level!r}")
     logger = logging.getLogger(LOGGER_NAME)
     logger.setLevel(LEVELS[int(level)])
     if not logger.hasHandlers():

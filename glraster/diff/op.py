@@ -38,6 +38,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from glraster.errors import ArgumentError
+
 FLOAT_DTYPES = (np.dtype(np.float32), np.dtype(np.float64))
 
 
@@ -76,8 +78,8 @@ class Op:
         """The core for inputs of ``dtype``: float64 -> reference, float32 -> GPU."""
         dtype = np.dtype(dtype)
         if dtype not in FLOAT_DTYPES:
-            raise ValueError(f"{self.name} runs on float32 (GPU) or float64 (reference) "
-                             f"inputs, got {dtype}")
+            raise ArgumentError(self.inputs[0], f"{self.name} runs on float32 (GPU) or "
+                                                f"float64 (reference) inputs, got {dtype}")
         return _load(self.reference if dtype == np.float64 else self.gpu)
 
     def forward(self, *inputs, **params):

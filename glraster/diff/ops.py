@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from glraster import validate
 from glraster.diff import antialias_args, layout, texture_args
 from glraster.diff.op import Op
 from glraster.errors import ArgumentError
@@ -43,14 +44,14 @@ def float_dtype(*values) -> np.dtype:
 
 def _rasterize_check(pos, *, tri, resolution, ranges=None, grad_db=True, space="persp",
                      ctx=None):
-    pos = layout.positions(pos, dtype=float_dtype(pos))
-    tri = layout.triangles(tri, pos.shape[-2])
+    pos = validate.batched_positions(pos, dtype=float_dtype(pos))
+    tri = validate.triangles(tri, pos.shape[-2])
     if not isinstance(grad_db, (bool, np.bool_)):
         raise ArgumentError("grad_db", f"grad_db must be True or False, got {grad_db!r}")
     # ranges are ignored in instanced mode (3-D pos), as nvdiffrast does
-    params = dict(tri=tri, resolution=layout.resolution(resolution),
-                  ranges=layout.ranges(ranges, len(tri), pos.ndim) if pos.ndim == 2 else None,
-                  grad_db=bool(grad_db), space=layout.space(space), ctx=ctx)
+    params = dict(tri=tri, resolution=validate.resolution(resolution),
+                  ranges=validate.ranges(ranges, len(tri), pos.ndim) if pos.ndim == 2 else None,
+                  grad_db=bool(grad_db), space=validate.space(space), ctx=ctx)
     return (pos,), params
 
 
@@ -69,15 +70,16 @@ RASTERIZE = Op("rasterize", ("pos",), ("rast", "rast_db"), _rasterize_check, _ra
 
 def _interpolate_check(attr, rast, rast_db=None, *, tri, diff_attrs=None, ctx=None):
     dtype = float_dtype(attr)
-    rast = layout.image("rast", rast, dtype=dtype)
-    attr = layout.attributes(attr, rast.shape[0], dtype=dtype)
-    tri = layout.triangles(tri, attr.shape[-2], "attr")
-    diff = layout.diff_attrs(diff_attrs, attr.shape[-1])
+    rast = validate.image("rast", rast, dtype=dtype)
+    attr = validate.attributes(attr, rast.shape[0], dtype=dtype)
+    tri = validate.triangles(tri, attr.shape[-2], "attr")
+    diff = validate.diff_attrs(diff_attrs, attr.shape[-1])
     layout.rast_ids(rast, len(tri))         # every id a triangle of tri, or empty
     if rast_db is not None:
-        rast_db = layout.image("rast_db", rast_db, rast.shape, dtype)
+        rast_db = validate.image("rast_db", rast_db, rast.shape, dtype)
     elif diff:
-        raise ValueError("diff_attrs needs rast_db (the raster's screen derivatives)")
+        raise ArgumentError("rast_db", "diff_attrs needs rast_db (the raster's screen "
+                                       "derivatives)")
     return (attr, rast, rast_db), dict(tri=tri, diff_attrs=diff, ctx=ctx)
 
 

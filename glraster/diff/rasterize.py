@@ -51,6 +51,7 @@ import functools
 
 import numpy as np
 
+from glraster.errors import ArgumentError
 from glraster import validate
 from glraster.diff import compute, layout
 from glraster.diff.saved import RasterizeSaved
@@ -106,9 +107,9 @@ class _Forward:
         self.height, self.width = validate.resolution(resolution, self.ctx.max_texture_size)
         item_bytes = pos[0].nbytes if pos.ndim == 3 else pos.nbytes
         if item_bytes > self.ctx.max_storage_block_size:
-            raise ValueError(f"pos takes {item_bytes} bytes per batch item, above the driver's "
-                             "shader storage block limit of "
-                             f"{self.ctx.max_storage_block_size} bytes")
+            raise ArgumentError("pos", f"pos takes {item_bytes} bytes per batch item, above "
+                                "the driver's shader storage block limit of "
+                                f"{self.ctx.max_storage_block_size} bytes")
         self.batch = layout.batch_size(pos, ranges)
         self.colors = {"rast": (4, "f4")}
         if grad_db:

@@ -30,7 +30,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from glraster import validate
 from glraster.diff import layout
+from glraster.diff.ids import encode_ids
 from glraster.diff.saved import RasterizeSaved
 from glraster.geometry.triangles import edge_functions, homogeneous_vertices
 from glraster.reference import kernels
@@ -108,9 +110,9 @@ def rasterize_values(pos, tri, tri_id, *, space: str = "persp", offset=(0.0, 0.0
              (x + 0.5 + dx, y + 0.5 + dy), for finite differences; ids stay frozen)
     Returns (rast (B, H, W, 4), rast_db (B, H, W, 4)) as :func:`rasterize_forward`.
     """
-    pos = layout.positions(pos)
-    tri = layout.triangles(tri, pos.shape[-2])
-    space = layout.space(space)
+    pos = validate.batched_positions(pos)
+    tri = validate.triangles(tri, pos.shape[-2])
+    space = validate.space(space)
     tid = np.asarray(tri_id)
     if tid.ndim != 3 or not np.issubdtype(tid.dtype, np.integer):
         raise ValueError(f"tri_id must be a (B, H, W) integer array, got {tid.dtype} {tid.shape}")
@@ -125,7 +127,7 @@ def rasterize_values(pos, tri, tri_id, *, space: str = "persp", offset=(0.0, 0.0
 
 def _assemble(px: _Pixels, space: str):
     values, db = _values(px, space)
-    values[:, 3] = layout.encode_ids(px.t)
+    values[:, 3] = encode_ids(px.t)
     return px.image(values), px.image(db)
 
 

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from glraster.diff import layout
+from glraster.diff.ids import decode_ids
 
 __all__ = ["InterpolateSaved", "RasterizeSaved"]
 
@@ -43,7 +43,7 @@ class RasterizeSaved:
     @cached_property
     def tri_id(self) -> np.ndarray:
         """(B, H, W) int64 winning triangle of every pixel (index into tri, -1 empty)."""
-        return layout.decode_ids(self.rast[..., 3], "rast channel 3 (triangle id)")
+        return decode_ids(self.rast[..., 3], "rast channel 3 (triangle id)")
 
 
 @dataclass(frozen=True)
@@ -68,7 +68,7 @@ class InterpolateSaved:
     @cached_property
     def tri_id(self) -> np.ndarray:
         """(B, H, W) int64 triangle of every pixel (index into tri, -1 empty)."""
-        return layout.decode_ids(self.rast[..., 3], "rast channel 3 (triangle id)")
+        return decode_ids(self.rast[..., 3], "rast channel 3 (triangle id)")
 
     @property
     def attr_batches(self) -> np.ndarray:

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from glraster.diff import layout
+from glraster import validate
 from glraster.diff.compute import DEFINES as _DEFINES
 from glraster.diff.compute import accumulation
 from glraster.diff.compute import chunks as _chunks
@@ -289,7 +289,7 @@ def backward(saved: TextureSaved, grad_out, *, needs=None, deterministic: bool =
     mode = accumulation(ctx, deterministic, accumulate)
     shape = args.uv.shape[:3] + (args.channels,)
     grad_out = (np.zeros(shape, np.float32) if grad_out is None
-                else layout.image("grad_out", grad_out, shape=shape, dtype=np.float32))
+                else validate.image("grad_out", grad_out, shape=shape, dtype=np.float32))
     if not (texels or any(want[1:4])):
         return (None,) * (4 + mips)
     n, uv_f, da, bias = _pixel_inputs(args)

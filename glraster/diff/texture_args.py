@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from glraster.diff import layout
+from glraster import validate
 from glraster.errors import ArgumentError
 
 __all__ = ["BOUNDARY_MODES", "FILTER_MODES", "MIP_MODES", "TextureArgs", "TextureSaved",
@@ -147,7 +147,7 @@ def _mode(name: str, value, modes) -> str:
 
 
 def _tex(tex, dtype, cube: bool) -> np.ndarray:
-    arr = layout.float_array("tex", tex, dtype)
+    arr = validate.finite_array("tex", tex, dtype)
     if cube:
         if arr.ndim != 5 or arr.shape[1] != 6 or arr.shape[2] != arr.shape[3]:
             raise ArgumentError("tex", "tex must have shape (B, 6, N, N, C) (a cube map of "
@@ -162,7 +162,7 @@ def _tex(tex, dtype, cube: bool) -> np.ndarray:
 
 def _uv(uv, dtype, cube: bool, tex_batch: int) -> np.ndarray:
     coords = 3 if cube else 2
-    arr = layout.float_array("uv", uv, dtype)
+    arr = validate.finite_array("uv", uv, dtype)
     if arr.ndim != 4 or arr.shape[-1] != coords:
         what = "a direction (x, y, z) per pixel with boundary_mode='cube'" if cube else "(s, t)"
         raise ArgumentError("uv", f"uv must have shape (B, H, W, {coords}) ({what}), got "
@@ -184,7 +184,7 @@ def _mips(mip, tex: np.ndarray, dtype) -> tuple:
     levels = []
     for k, value in enumerate(mip):
         name = f"mip[{k}]"
-        level = layout.float_array(name, value, dtype)
+        level = validate.finite_array(name, value, dtype)
         h, w = full[k + 1]
         want = tex.shape[:-3] + (h, w, tex.shape[-1])
         if level.shape != want:
@@ -214,14 +214,14 @@ def check(tex, uv, uv_da=None, mip_level_bias=None, *mip, filter_mode="auto",
     uv_ = _uv(uv, dtype, cube, tex_.shape[0])
     da = None
     if uv_da is not None:
-        da = layout.float_array("uv_da", uv_da, dtype)
+        da = validate.finite_array("uv_da", uv_da, dtype)
         want = uv_.shape[:3] + (uv_.shape[-1] * 2,)
         if da.shape != want:
             raise ArgumentError("uv_da", f"uv_da must have shape {want} (uv's with the last "
                                 f"axis twice as long), got {da.shape}")
     bias = None
     if mip_level_bias is not None:
-        bias = layout.float_array("mip_level_bias", mip_level_bias, dtype)
+        bias = validate.finite_array("mip_level_bias", mip_level_bias, dtype)
         if bias.shape != uv_.shape[:3]:
             raise ArgumentError("mip_level_bias", "mip_level_bias must have shape "
                                 f"{uv_.shape[:3]} (B, H, W), got {bias.shape}")

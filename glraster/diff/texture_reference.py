@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from glraster.diff import layout
+from glraster import validate
 from glraster.diff.texture_args import TextureArgs, TextureSaved, level_shapes, wanted
 
 __all__ = ["backward", "build_mips", "forward", "level_shapes", "lookup_geometry",
@@ -594,7 +594,7 @@ def backward(saved: TextureSaved, grad_out, *, needs=None, deterministic: bool =
     want = wanted(needs, 4 + mips)
     shape = args.uv.shape[:3] + (args.channels,)
     grad_out = (np.zeros(shape) if grad_out is None
-                else layout.image("grad_out", grad_out, shape=shape))
+                else validate.image("grad_out", grad_out, shape=shape))
     g = grad_out.reshape(-1, args.channels)
     lk = _lookup(args)
     grad_tex, grad_mip = None, [None] * mips

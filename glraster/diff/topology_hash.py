@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from glraster.diff import layout
+from glraster import validate
 from glraster.errors import ArgumentError
 
 __all__ = ["HASH_EMPTY", "TopologyHash", "antialias_construct_topology_hash",
@@ -129,7 +129,7 @@ class TopologyHash:
 
 def _weld(pos, num_vertices: int) -> np.ndarray:
     """canon (V,): the lowest index of the vertices with exactly this vertex's position."""
-    p = layout.float_array("pos", pos, np.float64)
+    p = validate.finite_array("pos", pos, np.float64)
     if p.ndim != 2 or p.shape[1] not in (3, 4) or p.shape[0] < num_vertices:
         raise ArgumentError("pos", "pos for welding must have shape (V, 3) or (V, 4) with V "
                             f">= {num_vertices} (tri's largest index + 1), got {p.shape}")

@@ -36,6 +36,7 @@ import math
 import numpy as np
 
 from glraster import validate
+from glraster.errors import ArgumentError
 from glraster.geometry.window import clip_to_window  # noqa: F401 (part of this API)
 
 __all__ = [
@@ -76,12 +77,12 @@ def perspective(fovy_deg: float, aspect: float, near: float, far: float) -> np.n
     """
     fovy = validate.real("fovy_deg", fovy_deg)
     if not 0.0 < fovy < 180.0:
-        raise ValueError(f"fovy_deg must be in (0, 180), got {fovy}")
+        raise ArgumentError("fovy_deg", f"fovy_deg must be in (0, 180), got {fovy}")
     aspect = validate.real("aspect", aspect, positive=True)
     near = validate.real("near", near, positive=True)
     far = validate.real("far", far, positive=True)
     if far <= near:
-        raise ValueError(f"far must be > near, got near={near}, far={far}")
+        raise ArgumentError("far", f"far must be > near, got near={near}, far={far}")
     f = 1.0 / math.tan(math.radians(fovy) / 2.0)
     m = np.zeros((4, 4))
     m[0, 0] = f / aspect
@@ -108,11 +109,11 @@ def orthographic(left: float, right: float, bottom: float, top: float,
     b, t = validate.real("bottom", bottom), validate.real("top", top)
     n, f = validate.real("near", near), validate.real("far", far)
     if r == l:
-        raise ValueError(f"right must differ from left, both are {l}")
+        raise ArgumentError("right", f"right must differ from left, both are {l}")
     if t == b:
-        raise ValueError(f"top must differ from bottom, both are {b}")
+        raise ArgumentError("top", f"top must differ from bottom, both are {b}")
     if f == n:
-        raise ValueError(f"far must differ from near, both are {n}")
+        raise ArgumentError("far", f"far must differ from near, both are {n}")
     m = np.eye(4)
     m[0, 0] = 2.0 / (r - l)
     m[1, 1] = 2.0 / (t - b)
@@ -140,12 +141,12 @@ def look_at(eye, target, up=(0.0, 1.0, 0.0)) -> np.ndarray:
     fwd = target - eye
     n = np.linalg.norm(fwd)
     if n == 0.0:
-        raise ValueError("target must differ from eye")
+        raise ArgumentError("target", "target must differ from eye")
     fwd /= n
     side = np.cross(fwd, up)
     ns = np.linalg.norm(side)
     if ns <= 1e-12 * max(np.linalg.norm(up), 1e-300):
-        raise ValueError("up must not be parallel to target - eye (or zero)")
+        raise ArgumentError("up", "up must not be parallel to target - eye (or zero)")
     side /= ns
     upv = np.cross(side, fwd)
     m = np.eye(4)
@@ -192,7 +193,7 @@ def from_intrinsics(K, width: int, height: int, near: float, far: float) -> np.n
     near = validate.real("near", near, positive=True)
     far = validate.real("far", far, positive=True)
     if far <= near:
-        raise ValueError(f"far must be > near, got near={near}, far={far}")
+        raise ArgumentError("far", f"far must be > near, got near={near}, far={far}")
     fx, s, cx = K[0]
     fy, cy = K[1, 1], K[1, 2]
     m = np.zeros((4, 4))
@@ -288,15 +289,16 @@ def project(vertices, model=None, view=None, proj=None, *, dtype=np.float32) -> 
     """
     dtype = np.dtype(dtype)
     if dtype not in (np.dtype(np.float32), np.dtype(np.float64)):
-        raise ValueError(f"dtype must be float32 or float64, got {dtype}")
+        raise ArgumentError("dtype", f"dtype must be float32 or float64, got {dtype}")
     try:
         v = np.asarray(vertices, dtype=np.float64)
     except (TypeError, ValueError):
-        raise ValueError("vertices must be a numeric array of shape (V, 3) or (V, 4)") from None
+        raise ArgumentError(
+            "vertices", "vertices must be a numeric array of shape (V, 3) or (V, 4)") from None
     if v.ndim != 2 or v.shape[1] not in (3, 4):
-        raise ValueError(f"vertices must have shape (V, 3) or (V, 4), got {v.shape}")
+        raise ArgumentError("vertices", f"vertices must have shape (V, 3) or (V, 4), got {v.shape}")
     if not np.all(np.isfinite(v)):
-        raise ValueError("vertices must be finite")
+        raise ArgumentError("vertices", "vertices must be finite")
     if v.shape[1] == 3:
         v = np.concatenate([v, np.ones((v.shape[0], 1))], axis=1)
     m = validate.matrix4("proj", proj) @ validate.matrix4("view", view) @ validate.matrix4("model", model)
@@ -322,7 +324,7 @@ def shift_window(proj, dx: float, dy: float, resolution) -> np.ndarray:
     m = validate.float_array("proj", proj, (4, 4))
     dx, dy = validate.real("dx", dx), validate.real("dy", dy)
     if len(resolution) != 2:
-        raise ValueError(f"resolution must be (H, W), got {resolution!r}")
+        raise ArgumentError("resolution", f"resolution must be (H, W), got {resolution!r}")
     H, W = validate.positive_int("resolution[0]", resolution[0]), validate.positive_int("resolution[1]", resolution[1])
     m[0] += 2.0 * dx / W * m[3]
     m[1] += 2.0 * dy / H * m[3]

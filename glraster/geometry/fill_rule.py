@@ -15,6 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from glraster.errors import ArgumentError
+
 SUBPIXEL_BITS = 8  # llvmpipe: FIXED_ORDER = 8, so positions snap to 1/256 px
 FIXED_ONE = 1 << SUBPIXEL_BITS
 
@@ -48,12 +50,13 @@ class FillRule:
     def __post_init__(self):
         if not (isinstance(self.subpixel_bits, (int, np.integer))
                 and 1 <= self.subpixel_bits <= MAX_SUBPIXEL_BITS):
-            raise ValueError(f"subpixel_bits must be an integer in 1 .. {MAX_SUBPIXEL_BITS}, "
-                             f"got {self.subpixel_bits!r}")
+            raise ArgumentError(
+                "subpixel_bits", f"subpixel_bits must be an integer in 1 .. {MAX_SUBPIXEL_BITS}, "
+                                 f"got {self.subpixel_bits!r}")
         if self.tie not in TIES:
-            raise ValueError(f"tie must be one of {TIES}, got {self.tie!r}")
+            raise ArgumentError("tie", f"tie must be one of {TIES}, got {self.tie!r}")
         if self.snap not in SNAPS:
-            raise ValueError(f"snap must be one of {SNAPS}, got {self.snap!r}")
+            raise ArgumentError("snap", f"snap must be one of {SNAPS}, got {self.snap!r}")
 
     @property
     def one(self) -> int:
@@ -119,7 +122,7 @@ def snap(window: np.ndarray, subpixel_bits: int = SUBPIXEL_BITS,
         elif mode == "floor":
             out = np.floor(a)
         else:
-            raise ValueError(f"mode must be one of {SNAPS}, got {mode!r}")
+            raise ArgumentError("mode", f"mode must be one of {SNAPS}, got {mode!r}")
         return out.astype(np.float32)
 
 

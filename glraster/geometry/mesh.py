@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from glraster import validate
+from glraster.errors import ArgumentError
 from glraster.geometry import camera as cam
 
 __all__ = ["Mesh", "SceneGeometry", "load_mesh", "scene_geometry",
@@ -45,16 +46,16 @@ class Mesh:
     def __post_init__(self):
         v = np.ascontiguousarray(self.vertices, dtype=np.float64)
         if v.ndim != 2 or v.shape[1] != 3:
-            raise ValueError(f"vertices must have shape (V, 3), got {v.shape}")
+            raise ArgumentError("vertices", f"vertices must have shape (V, 3), got {v.shape}")
         f = np.asarray(self.faces)
         if f.ndim != 2 or f.shape[1] != 3:
-            raise ValueError(f"faces must have shape (T, 3), got {f.shape}")
+            raise ArgumentError("faces", f"faces must have shape (T, 3), got {f.shape}")
         if f.size and f.dtype.kind not in "iu":
-            raise ValueError(f"faces must hold integers, got dtype {f.dtype}")
+            raise ArgumentError("faces", f"faces must hold integers, got dtype {f.dtype}")
         f = np.ascontiguousarray(f, dtype=np.int64)
         if f.size and (f.min() < 0 or f.max() >= len(v)):
-            raise ValueError(f"faces index vertices 0..{len(v) - 1}, got indices in "
-                             f"[{f.min()}, {f.max()}]")
+            raise ArgumentError("faces", f"faces index vertices 0..{len(v) - 1}, got indices in "
+                                         f"[{f.min()}, {f.max()}]")
         object.__setattr__(self, "vertices", v)
         object.__setattr__(self, "faces", f)
         for name, width in (("uv", 2), ("normals", 3)):
@@ -62,7 +63,8 @@ class Mesh:
             if a is not None:
                 a = np.ascontiguousarray(a, dtype=np.float64)
                 if a.shape != (len(v), width):
-                    raise ValueError(f"{name} must have shape ({len(v)}, {width}), got {a.shape}")
+                    raise ArgumentError(name, f"{name} must have shape ({len(v)}, {width}), "
+                                              f"got {a.shape}")
                 object.__setattr__(self, name, a)
 
     def bounding_sphere(self) -> tuple[np.ndarray, float]:
@@ -151,11 +153,12 @@ def load_mesh(source) -> Mesh:
     if isinstance(source, (str, os.PathLike)):
         path = os.fspath(source)
         if not os.path.isfile(path):
-            raise ValueError(f"source file does not exist: {path}")
+            raise ArgumentError("source", f"source file does not exist: {path}")
         try:
             loaded = trimesh.load(path, process=False)
         except Exception as exc:  # trimesh raises many types for unreadable files
-            raise ValueError(f"source {path!r} could not be read as a mesh: {exc}") from exc
+            raise ArgumentError(
+                "source", f"source {path!r} could not be read as a mesh: {exc}") from exc
     else:
         loaded = source
     if isinstance(loaded, trimesh.Scene):
@@ -163,10 +166,11 @@ def load_mesh(source) -> Mesh:
     elif isinstance(loaded, trimesh.Trimesh):
         mesh = _from_trimesh(loaded)
     else:
-        raise ValueError(f"source must be a mesh file path, trimesh.Trimesh, trimesh.Scene or "
-                         f"glraster Mesh, got {type(loaded).__name__}")
+        raise ArgumentError(
+            "source", f"source must be a mesh file path, trimesh.Trimesh, trimesh.Scene or "
+                      f"glraster Mesh, got {type(loaded).__name__}")
     if len(mesh.faces) == 0:
-        raise ValueError("source contains no triangles")
+        raise ArgumentError("source", "source contains no triangles")
     return mesh
 
 
@@ -228,7 +232,8 @@ def _resolution(resolution) -> tuple[int, int]:
     try:
         H, W = resolution
     except (TypeError, ValueError):
-        raise ValueError(f"resolution must be (H, W), got {resolution!r}") from None
+        raise ArgumentError(
+            "resolution", f"resolution must be (H, W), got {resolution!r}") from None
     return validate.positive_int("resolution[0]", H), validate.positive_int("resolution[1]", W)
 
 
@@ -238,8 +243,9 @@ def _pyrender_scene(scene, resolution, view, proj) -> SceneGeometry:
         pose = scene.get_pose(node)
         for prim in node.mesh.primitives:
             if prim.mode != GL_TRIANGLES:
-                raise ValueError(f"scene mesh {node.name or node.mesh.name!r} has a primitive "
-                                 f"with mode {prim.mode}; only triangle lists (4) rasterize")
+                raise ArgumentError(
+                    "scene", f"scene mesh {node.name or node.mesh.name!r} has a primitive "
+                             f"with mode {prim.mode}; only triangle lists (4) rasterize")
             v = np.asarray(prim.positions, dtype=np.float64)
             f = (np.asarray(prim.indices, dtype=np.int64).reshape(-1, 3)
                  if prim.indices is not None else np.arange(len(v)).reshape(-1, 3))
@@ -252,7 +258,7 @@ def _pyrender_scene(scene, resolution, view, proj) -> SceneGeometry:
     if view is None or proj is None:
         node = scene.main_camera_node
         if node is None:
-            raise ValueError("scene has no camera; add one or pass view and proj")
+            raise ArgumentError("scene", "scene has no camera; add one or pass view and proj")
         H, W = resolution
         view = np.linalg.inv(scene.get_pose(node)) if view is None else view
         proj = node.camera.get_projection_matrix(W, H) if proj is None else proj

@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from glraster.errors import ArgumentError
+
 STANDARD_POSITIONS = {
     1: ((0.5, 0.5),),
     2: ((0.75, 0.75), (0.25, 0.25)),
@@ -29,8 +31,9 @@ STANDARD_POSITIONS = {
 def standard_positions(samples: int) -> np.ndarray:
     """(S, 2) float64 standard sample positions for ``samples`` S (ValueError if none)."""
     if samples not in STANDARD_POSITIONS:
-        raise ValueError(f"there is no standard sample pattern for samples={samples!r}; "
-                         f"give sample_positions (known: {sorted(STANDARD_POSITIONS)})")
+        raise ArgumentError(
+            "samples", f"there is no standard sample pattern for samples={samples!r}; "
+                     f"give sample_positions (known: {sorted(STANDARD_POSITIONS)})")
     return np.array(STANDARD_POSITIONS[samples], np.float64)
 
 

@@ -9,11 +9,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from glraster.errors import ArgumentError
+
 
 def icosphere(level: int, radius: float = 1.0):
     """Icosahedron subdivided ``level`` times (20 * 4**level faces), projected on a sphere."""
     if level < 0:
-        raise ValueError(f"level must be >= 0, got {level}")
+        raise ArgumentError("level", f"level must be >= 0, got {level}")
     t = (1.0 + 5.0 ** 0.5) / 2.0
     verts = [(-1, t, 0), (1, t, 0), (-1, -t, 0), (1, -t, 0),
              (0, -1, t), (0, 1, t), (0, -1, -t), (0, 1, -t),

@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from glraster.errors import ArgumentError
+
 
 def rotation(axis, angle_deg: float) -> np.ndarray:
     """(4, 4) rotation about a 3-vector axis by angle_deg degrees (right-handed)."""
@@ -29,6 +31,6 @@ def to_clip(vertices: np.ndarray, mvp: np.ndarray) -> np.ndarray:
     """Transform (V, 3) world positions by a (4, 4) matrix into (V, 4) float64 clip space."""
     v = np.asarray(vertices, dtype=np.float64)
     if v.ndim != 2 or v.shape[1] != 3:
-        raise ValueError(f"vertices must have shape (V, 3), got {v.shape}")
+        raise ArgumentError("vertices", f"vertices must have shape (V, 3), got {v.shape}")
     hom = np.concatenate([v, np.ones((len(v), 1))], axis=1)
     return hom @ np.asarray(mvp, dtype=np.float64).T

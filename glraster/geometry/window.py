@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from glraster import validate
+from glraster.errors import ArgumentError
 
 
 def window_float32(clip: np.ndarray, resolution) -> np.ndarray:
@@ -78,7 +79,7 @@ def clip_to_window(pos, resolution) -> np.ndarray:
     """
     p = validate.float_array("pos", pos, (-1, 4))
     if len(resolution) != 2:
-        raise ValueError(f"resolution must be (H, W), got {resolution!r}")
+        raise ArgumentError("resolution", f"resolution must be (H, W), got {resolution!r}")
     H, W = validate.positive_int("resolution[0]", resolution[0]), validate.positive_int("resolution[1]", resolution[1])
     ndc = p[:, :3] / p[:, 3:4]
     return np.stack([(ndc[:, 0] + 1) * W / 2, (ndc[:, 1] + 1) * H / 2, ndc[:, 2] * 0.5 + 0.5],

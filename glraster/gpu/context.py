@@ -19,7 +19,7 @@ from pathlib import Path
 import moderngl
 import numpy as np
 
-from glraster.errors import BadEnvironment, GLVersionError
+from glraster.errors import ArgumentError, BadEnvironment, GLVersionError
 from glraster.gpu.backends import create_backend
 from glraster.gpu.backends.current import MIN_GL, version_text
 from glraster.gpu.shaders import compile_compute, compile_program
@@ -46,13 +46,14 @@ def parse_gl_version(value, what: str = "max_gl") -> int:
     text = str(value).strip()
     match = re.fullmatch(r"(\d)\.(\d)|(\d)(\d)0?", text)
     if isinstance(value, bool) or match is None:
-        raise ValueError(f"{what} must be an OpenGL version such as 33, 45 or '3.3', got {value!r}")
+        raise ArgumentError(what, f"{what} must be an OpenGL version such as 33, 45 or '3.3', "
+                                  f"got {value!r}")
     major, minor = (match.group(1), match.group(2)) if match.group(1) else (match.group(3),
                                                                           match.group(4))
     number = 10 * int(major) + int(minor)
     if number < MIN_GL // 10:
-        raise ValueError(f"{what} must be at least {version_text(MIN_GL)} (glraster's "
-                         f"least OpenGL), got {value!r}")
+        raise ArgumentError(what, f"{what} must be at least {version_text(MIN_GL)} (glraster's "
+                                  f"least OpenGL), got {value!r}")
     return number
 
 
@@ -287,7 +288,8 @@ class Context:
             for obj in attachments + ([depth] if depth is not None else []):
                 obj.release()
             biggest = max([4 * c for c, _ in color_formats.values()] + [4])
-            raise ValueError(
+            raise ArgumentError(
+                "resolution",
                 f"resolution {height}x{width}: the driver cannot allocate the render targets "
                 f"({', '.join(color_formats)}, depth): {exc}. The largest holds "
                 f"{biggest * height * width / 2**30:.2f} GiB or more; llvmpipe refuses a texture "

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field, replace
 from typing import Callable
 
 
-from glraster.errors import GLVersionError
+from glraster.errors import ArgumentError, GLVersionError
 from glraster.types import INTERPOLATIONS
 from glraster.gpu import homogeneous as _homogeneous
 from glraster.verify.tolerance import ErrorModel
@@ -148,7 +148,7 @@ def get(name) -> Method:
     """The registered method called ``name`` (ValueError naming the choices otherwise)."""
     method = METHODS.get(name) if isinstance(name, str) else None
     if method is None:
-        raise ValueError(f"method must be one of {sorted(METHODS)}, got {name!r}")
+        raise ArgumentError("method", f"method must be one of {sorted(METHODS)}, got {name!r}")
     return method
 
 

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from glraster.errors import GLError
+from glraster.errors import ArgumentError, GLError
 from glraster.gpu.shaders import shader_path
 
 # moderngl dtype name -> NumPy dtype of a read-back target
@@ -189,7 +189,8 @@ def _read_samples(ctx, spec: Draw, targets, resolution) -> dict:
     height, width = resolution
     samples = targets.samples
     if width * samples > ctx.max_texture_size:
-        raise ValueError(
+        raise ArgumentError(
+            "resolution",
             f"resolution {height}x{width} with samples={samples}: the exact readback needs "
             f"a target {width * samples} wide, above the driver's limit of "
             f"{ctx.max_texture_size}; use a width up to {ctx.max_texture_size // samples}")

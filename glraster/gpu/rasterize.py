@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from glraster import validate
+from glraster.errors import ArgumentError
 from glraster.gpu import cull as _cull
 from glraster.gpu import pipeline
 from glraster.gpu.context import Context, default_context
@@ -72,8 +73,8 @@ def _check_out(out, names, shape, value_dtype) -> dict:
     """The arrays of ``out`` (a :class:`Raster`) to fill, by output name; ValueError naming
     the field when one is missing or has the wrong shape, dtype or layout."""
     if not isinstance(out, Raster):
-        raise ValueError(f"out must be a glraster.Raster (e.g. an earlier result), got "
-                         f"{type(out).__name__}")
+        raise ArgumentError("out", f"out must be a glraster.Raster (e.g. an earlier result), got "
+                                   f"{type(out).__name__}")
     height, width = shape
     wanted = {"persp": ((height, width, 3), value_dtype), "screen": ((height, width, 3), value_dtype),
               "depth": ((height, width), np.float32), "tri_id": ((height, width), np.int32),
@@ -83,11 +84,12 @@ def _check_out(out, names, shape, value_dtype) -> dict:
         array = getattr(out, name)
         want_shape, want_dtype = wanted[name]
         if not isinstance(array, np.ndarray):
-            raise ValueError(f"out.{name} must be an array of shape {want_shape} for the "
-                             f"requested outputs, got {type(array).__name__}")
+            raise ArgumentError("out", f"out.{name} must be an array of shape {want_shape} "
+                                       f"for the requested outputs, got {type(array).__name__}")
         if array.shape != want_shape or array.dtype != want_dtype \
                 or not array.flags.c_contiguous or not array.flags.writeable:
-            raise ValueError(
+            raise ArgumentError(
+                "out",
                 f"out.{name} must be a writeable C-contiguous {np.dtype(want_dtype).name} "
                 f"array of shape {want_shape}, got {array.dtype.name} {array.shape}"
                 f"{'' if array.flags.c_contiguous else ' (not C-contiguous)'}"
@@ -205,14 +207,15 @@ def _check_options(outputs, method, samples, interpolation, out, shader_files, a
     samples = validate.samples(samples)
     interpolation = validate.interpolation(interpolation)
     if samples > 1 and out is not None:
-        raise ValueError("out is only supported with samples=1 (multisampled arrays have "
-                         "a sample axis)")
+        raise ArgumentError("out", "out is only supported with samples=1 (multisampled "
+                                   "arrays have a sample axis)")
     if shader_files is not None and method != "hw":
-        raise ValueError(f"shader_files replaces the 'hw' shaders; got method {method!r}")
+        raise ArgumentError(
+            "shader_files", f"shader_files replaces the 'hw' shaders; got method {method!r}")
     if affine not in (None, False):
-        raise ValueError(f"affine must be None (automatic) or False, got {affine!r}")
+        raise ArgumentError("affine", f"affine must be None (automatic) or False, got {affine!r}")
     if cull not in (True, False, "auto"):
-        raise ValueError(f"cull must be True, False or 'auto', got {cull!r}")
+        raise ArgumentError("cull", f"cull must be True, False or 'auto', got {cull!r}")
     return names, samples, interpolation
 
 
@@ -232,10 +235,11 @@ def _culled(ctx, m: Method, pos, tri, resolution, cull, cull_backfaces: bool, in
             kept = culling.kept
             tri = tri[kept]
     if not m.vertex_input and pos.nbytes > ctx.max_storage_block_size:
-        raise ValueError(
+        raise ArgumentError(
+            "pos",
             f"pos takes {pos.nbytes} bytes, above the driver's shader storage block "
-            f"limit of {ctx.max_storage_block_size} bytes ({ctx.max_storage_block_size // 16} vertices)"
-        )
+            f"limit of {ctx.max_storage_block_size} bytes "
+            f"({ctx.max_storage_block_size // 16} vertices)")
     return tri, kept
 
 
@@ -352,12 +356,14 @@ def _check_multisampling(ctx, m: Method, samples: int, interpolation: str) -> No
     ``samples`` per pixel and ``interpolation``."""
     offered = ctx.sample_counts
     if samples not in offered:
-        raise ValueError(
+        raise ArgumentError(
+            "samples",
             f"samples={samples} is not offered by this driver ({ctx.renderer}): choose one "
             f"of {offered} (GL_MAX_SAMPLES and the integer / depth texture limits: "
             f"{ctx.max_samples})")
     if interpolation not in m.interpolations:
-        raise ValueError(
+        raise ArgumentError(
+            "method",
             f"method {m.name!r} computes barycentrics at gl_FragCoord (the pixel center) and "
             f"offers interpolation {m.interpolations}, got {interpolation!r}; use method "
             f"'hw' or 'divw'")
@@ -365,7 +371,8 @@ def _check_multisampling(ctx, m: Method, samples: int, interpolation: str) -> No
         missing = [e for e in ("GL_ARB_shading_language_420pack", "GL_ARB_gpu_shader5")
                    if e not in ctx.mgl.extensions]
         if missing:
-            raise ValueError(
+            raise ArgumentError(
+                "interpolation",
                 f"interpolation={interpolation!r} on the OpenGL 3.3 path needs "
                 f"{' and '.join(missing)}, which this driver ({ctx.renderer}) lacks")
 

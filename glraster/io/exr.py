@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 import OpenImageIO as oiio
 
+from glraster.errors import ArgumentError
 from glraster.io.atomic import atomic_write
 
 ORIENTATION = "upright: file row 0 is the top row (glraster array row H-1)"
@@ -72,7 +73,8 @@ class ExrRaster:
         data window (0 for barycentrics, 1.0 for depth, -1 for tri_id)."""
         data = getattr(self, name)
         if data is None:
-            raise ValueError(f"this EXR holds no {name!r} output (it has {self.outputs})")
+            raise ArgumentError(
+                "name", f"this EXR holds no {name!r} output (it has {self.outputs})")
         h, w = self.resolution
         fill = -1 if name == "tri_id" else EMPTY[name]
         out = np.full((h, w) + data.shape[2:], fill, dtype=data.dtype)
@@ -126,23 +128,25 @@ def write_raster(path, raster=None, *, persp=None, screen=None, depth=None, tri_
         if value is not None:
             arrays[name] = np.asarray(value)
     if not arrays:
-        raise ValueError("write_raster needs at least one of persp, screen, depth, tri_id")
+        raise ArgumentError(
+            "raster", "write_raster needs at least one of persp, screen, depth, tri_id")
     shapes = {n: a.shape[:2] for n, a in arrays.items()}
     if len(set(shapes.values())) != 1:
-        raise ValueError(f"outputs must share one (H, W) resolution, got {shapes}")
+        raise ArgumentError("raster", f"outputs must share one (H, W) resolution, got {shapes}")
     h, w = next(iter(shapes.values()))
     if resolution is not None and tuple(resolution) != (h, w):
-        raise ValueError(f"resolution {tuple(resolution)} does not match the arrays' {(h, w)}")
+        raise ArgumentError(
+            "resolution", f"resolution {tuple(resolution)} does not match the arrays' {(h, w)}")
     for name, arr in arrays.items():
         want = (h, w, 3) if name in ("persp", "screen") else (h, w)
         if arr.shape != want:
-            raise ValueError(f"{name} must have shape {want}, got {arr.shape}")
+            raise ArgumentError(name, f"{name} must have shape {want}, got {arr.shape}")
     if "tri_id" in arrays:
         ids = arrays["tri_id"]
         if not np.issubdtype(ids.dtype, np.integer):
-            raise ValueError(f"tri_id must have an integer dtype, got {ids.dtype}")
+            raise ArgumentError("tri_id", f"tri_id must have an integer dtype, got {ids.dtype}")
         if ids.size and (ids.min() < -1 or ids.max() >= 2**32 - 1):
-            raise ValueError("tri_id values must lie in [-1, 2^32 - 2]")
+            raise ArgumentError("tri_id", "tri_id values must lie in [-1, 2^32 - 2]")
 
     if isinstance(window, str):
         if window == "full":
@@ -156,10 +160,12 @@ def write_raster(path, raster=None, *, persp=None, screen=None, depth=None, tri_
                 mask = np.ones((h, w), bool)
             window = coverage_window(mask)
         else:
-            raise ValueError(f"window must be 'covered', 'full' or (y0, y1, x0, x1), got {window!r}")
+            raise ArgumentError(
+                "window", f"window must be 'covered', 'full' or (y0, y1, x0, x1), got {window!r}")
     y0, y1, x0, x1 = (int(v) for v in window)
     if not (0 <= y0 < y1 <= h and 0 <= x0 < x1 <= w):
-        raise ValueError(f"window {window} must be a non-empty box inside (0, {h}, 0, {w})")
+        raise ArgumentError(
+            "window", f"window {window} must be a non-empty box inside (0, {h}, 0, {w})")
     window = (y0, y1, x0, x1)
 
     from glraster._version import __version__
@@ -214,7 +220,7 @@ def read_raster(path) -> ExrRaster:
     path = Path(path)
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
-        raise ValueError(f"{path}: cannot open as an image ({oiio.geterror()})")
+        raise ArgumentError("path", f"{path}: cannot open as an image ({oiio.geterror()})")
     try:
         found: dict = {}
         meta: dict = {}
@@ -224,7 +230,8 @@ def read_raster(path) -> ExrRaster:
             spec = inp.spec()
             geo = (spec.x, spec.y, spec.width, spec.height, spec.full_width, spec.full_height)
             if geometry is not None and geo != geometry:
-                raise ValueError(f"{path}: parts have different data windows {geometry} and {geo}")
+                raise ArgumentError(
+                    "path", f"{path}: parts have different data windows {geometry} and {geo}")
             geometry = geo
             for attr in spec.extra_attribs:
                 if attr.name.startswith("glraster:"):
@@ -232,7 +239,7 @@ def read_raster(path) -> ExrRaster:
             names = list(spec.channelnames)
             data = inp.read_image(sub, 0, 0, spec.nchannels, oiio.UNKNOWN)
             if data is None:
-                raise ValueError(f"{path}: reading part {sub} failed ({inp.geterror()})")
+                raise ArgumentError("path", f"{path}: reading part {sub} failed ({inp.geterror()})")
             data = np.asarray(data).reshape(spec.height, spec.width, spec.nchannels)
             for i, n in enumerate(names):
                 found[n] = data[..., i][::-1]
@@ -240,22 +247,23 @@ def read_raster(path) -> ExrRaster:
     finally:
         inp.close()
     if geometry is None:
-        raise ValueError(f"{path}: no image parts")
+        raise ArgumentError("path", f"{path}: no image parts")
     x, y, width, height, full_w, full_h = geometry
     window = (full_h - (y + height), full_h - y, x, x + width)
     result = ExrRaster(resolution=(full_h, full_w), window=window, metadata=meta)
     for name, channels in _LAYERS.items():
         present = [c in found for c in channels]
         if any(present) and not all(present):
-            raise ValueError(f"{path}: layer {name!r} is incomplete (needs {channels})")
+            raise ArgumentError("path", f"{path}: layer {name!r} is incomplete (needs {channels})")
         if all(present):
             planes = [np.ascontiguousarray(found[c], dtype=np.float32) for c in channels]
             setattr(result, name, np.stack(planes, -1) if len(planes) == 3 else planes[0])
     if TRI_ID_CHANNEL in found:
         raw = found[TRI_ID_CHANNEL]
         if raw.dtype != np.uint32:
-            raise ValueError(f"{path}: {TRI_ID_CHANNEL} must be a UINT channel, got {raw.dtype}")
+            raise ArgumentError(
+                "path", f"{path}: {TRI_ID_CHANNEL} must be a UINT channel, got {raw.dtype}")
         result.tri_id = raw.astype(np.int64) - 1
     if not result.outputs:
-        raise ValueError(f"{path}: no glraster channels (found {sorted(found)})")
+        raise ArgumentError("path", f"{path}: no glraster channels (found {sorted(found)})")
     return result

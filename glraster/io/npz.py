@@ -41,6 +41,8 @@ import zlib
 
 import numpy as np
 
+from glraster.errors import ArgumentError
+
 __all__ = ["NpzError", "npz_nbytes", "read_npz", "write_npz", "write_npz_into"]
 
 
@@ -147,7 +149,8 @@ def read_npz(data, *, check=None, max_members: int = 64) -> dict[str, np.ndarray
     if check is not None and not callable(check):
         raise TypeError(f"check must be a callable or None, got {type(check).__name__}")
     if isinstance(max_members, bool) or not isinstance(max_members, int) or max_members < 0:
-        raise ValueError(f"max_members must be an int >= 0, got {max_members!r}")
+        raise ArgumentError("max_members",
+                            f"max_members must be an int >= 0, got {max_members!r}")
     src = data if type(data) is bytes or type(data) is bytearray else mv
     members = _read_directory(mv, src, max_members)
     if check is not None:
@@ -557,7 +560,7 @@ def write_npz_into(arrays: dict, out) -> int:
     members, total = _plan(arrays)
     mv = _byte_view(out, "out", writable=True)
     if len(mv) < total:
-        raise ValueError(f"out has {len(mv)} bytes, the archive needs {total}")
+        raise ArgumentError("out", f"out has {len(mv)} bytes, the archive needs {total}")
     u8 = np.frombuffer(mv, np.uint8, total)
     crcs = []
     for name_b, flags, off, extra, header, arr, fortran in members:
@@ -612,7 +615,8 @@ def _plan(arrays) -> tuple[list[tuple], int]:
         raise TypeError(f"arrays must be a dict of name -> numpy array, got "
                         f"{type(arrays).__name__}")
     if len(arrays) > 0xFFFE:
-        raise ValueError(f"arrays has {len(arrays)} entries, more than 65534 (no ZIP64)")
+        raise ArgumentError(
+            "arrays", f"arrays has {len(arrays)} entries, more than 65534 (no ZIP64)")
     members, off, cd_size = [], 0, 0
     for name, arr in arrays.items():
         if not isinstance(name, str):
@@ -621,8 +625,9 @@ def _plan(arrays) -> tuple[list[tuple], int]:
             raise TypeError(f"arrays[{name!r}] must be a numpy.ndarray, got "
                             f"{type(arr).__name__}")
         if not name or "/" in name or "\\" in name or "\0" in name:
-            raise ValueError(f"array name {name!r} must be non-empty, without '/', '\\' "
-                             "or NUL")
+            raise ArgumentError(
+                "arrays", f"array name {name!r} must be non-empty, without '/', '\\' "
+                         "or NUL")
         full = name + ".npy"
         if full.isascii():
             name_b, flags = full.encode("ascii"), 0
@@ -630,18 +635,22 @@ def _plan(arrays) -> tuple[list[tuple], int]:
             try:
                 name_b, flags = full.encode("utf-8"), _FLAG_UTF8
             except UnicodeEncodeError:
-                raise ValueError(f"array name {name!r} is not encodable as UTF-8") from None
+                raise ArgumentError(
+                    "arrays", f"array name {name!r} is not encodable as UTF-8") from None
         if len(name_b) > 0xFFFF:
-            raise ValueError(f"array name {name[:40]!r}... is too long for a zip member name")
+            raise ArgumentError(
+                "arrays", f"array name {name[:40]!r}... is too long for a zip member name")
         dt = arr.dtype
         if dt.hasobject:
-            raise ValueError(f"arrays[{name!r}] has object dtype {dt}; object arrays are not "
-                             "supported (they would need pickle)")
+            raise ArgumentError(
+                "arrays", f"arrays[{name!r}] has object dtype {dt}; object arrays are not "
+                          "supported (they would need pickle)")
         if dt.fields is not None or dt.subdtype is not None or dt.kind not in _ALLOWED_KINDS:
-            raise ValueError(f"arrays[{name!r}] has dtype {dt}; only bool, int, uint, float, "
-                             "complex, 'S' and 'U' dtypes without fields are supported")
+            raise ArgumentError(
+                "arrays", f"arrays[{name!r}] has dtype {dt}; only bool, int, uint, float, "
+                          "complex, 'S' and 'U' dtypes without fields are supported")
         if dt.itemsize == 0:
-            raise ValueError(f"arrays[{name!r}] has dtype {dt} of itemsize 0")
+            raise ArgumentError("arrays", f"arrays[{name!r}] has dtype {dt} of itemsize 0")
         fortran = arr.ndim > 1 and arr.flags.f_contiguous and not arr.flags.c_contiguous
         header = _npy_header_bytes(dt.str, fortran, arr.shape)
         pad = -(off + _LOCAL.size + len(name_b)) % _ALIGN
@@ -651,15 +660,16 @@ def _plan(arrays) -> tuple[list[tuple], int]:
             + bytes(pad - 6)
         size = len(header) + arr.nbytes
         if size > _LIMIT32 - 1:
-            raise ValueError(f"arrays[{name!r}] needs {size} bytes, more than 4 GiB - 1 "
-                             "(ZIP64 is not written)")
+            raise ArgumentError(
+                "arrays", f"arrays[{name!r}] needs {size} bytes, more than 4 GiB - 1 "
+                          "(ZIP64 is not written)")
         members.append((name_b, flags, off, extra, header, arr, fortran))
         off += _LOCAL.size + len(name_b) + pad + size
         cd_size += _CENTRAL.size + len(name_b)
     total = off + cd_size + _EOCD.size
     if total > _LIMIT32:
-        raise ValueError(f"arrays need a {total}-byte archive, more than 4 GiB - 1 "
-                         "(ZIP64 is not written)")
+        raise ArgumentError("arrays", f"arrays need a {total}-byte archive, more than 4 GiB - 1 "
+                                      "(ZIP64 is not written)")
     return members, total
 
 

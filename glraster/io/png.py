@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from glraster.errors import ArgumentError
 from glraster.io.atomic import write_image
 
 __all__ = ["EMPTY_RGB", "NONFINITE_RGB", "ORIENTATION", "bary_rgb", "to_uint8", "write_png"]
@@ -31,9 +32,10 @@ def to_uint8(img) -> np.ndarray:
     if a.dtype == np.uint8:
         return a
     if a.dtype == bool or not np.issubdtype(a.dtype, np.number):
-        raise ValueError(f"image must be uint8 or float, got dtype {a.dtype}")
+        raise ArgumentError("image", f"image must be uint8 or float, got dtype {a.dtype}")
     if np.issubdtype(a.dtype, np.integer):
-        raise ValueError(f"integer images must be uint8 (0..255), got dtype {a.dtype}")
+        raise ArgumentError(
+            "image", f"integer images must be uint8 (0..255), got dtype {a.dtype}")
     a = np.nan_to_num(a.astype(np.float64), nan=0.0)
     return (np.clip(a, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
 
@@ -51,7 +53,8 @@ def write_png(path, rgb, *, bottom_up: bool = True, metadata: dict | None = None
 
     img = to_uint8(rgb)
     if img.ndim != 3 or img.shape[2] not in (3, 4) or 0 in img.shape[:2]:
-        raise ValueError(f"image must have shape (H, W, 3) or (H, W, 4), got {img.shape}")
+        raise ArgumentError(
+            "image", f"image must have shape (H, W, 3) or (H, W, 4), got {img.shape}")
     img = np.ascontiguousarray(img[::-1] if bottom_up else img)
     h, w, c = img.shape
     spec = oiio.ImageSpec(w, h, c, oiio.UINT8)

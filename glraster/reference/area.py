@@ -48,6 +48,7 @@ import numba
 import numpy as np
 
 from glraster import validate
+from glraster.errors import ArgumentError
 from glraster.geometry.clipping import clip_to_planes
 
 __all__ = ["AreaFragments", "area_coverage", "visible_area", "window_polygons"]
@@ -490,10 +491,11 @@ class AreaFragments:
         height, width = self.resolution
         values = np.asarray(tri_values, dtype=np.float64)
         if values.ndim not in (1, 2):
-            raise ValueError(f"tri_values must have shape (T,) or (T, C), got {values.shape}")
+            raise ArgumentError(
+                "tri_values", f"tri_values must have shape (T,) or (T, C), got {values.shape}")
         if len(self.tri_id) and int(self.tri_id.max()) >= len(values):
-            raise ValueError(f"tri_values has {len(values)} rows, but triangle "
-                             f"{int(self.tri_id.max())} covers pixels")
+            raise ArgumentError("tri_values", f"tri_values has {len(values)} rows, but triangle "
+                                              f"{int(self.tri_id.max())} covers pixels")
         flat = values.reshape(len(values), -1)
         channels = flat.shape[1]
         out = np.zeros((height * width, channels))

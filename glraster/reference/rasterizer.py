@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
+from glraster.errors import ArgumentError
 from glraster.reference import kernels
 from glraster import validate
 from glraster.types import OUTPUTS
@@ -125,8 +126,8 @@ def fill_rule_of(fill_rule) -> FillRule | None:
         return fill_rule
     if isinstance(fill_rule, str) and fill_rule == "llvmpipe":
         return LLVMPIPE
-    raise ValueError(f"fill_rule must be 'llvmpipe' or None (or a "
-                     f"glraster.geometry.fill_rule.FillRule), got {fill_rule!r}")
+    raise ArgumentError("fill_rule", f"fill_rule must be 'llvmpipe' or None (or a "
+                                     f"glraster.geometry.fill_rule.FillRule), got {fill_rule!r}")
 
 
 def setup(pos: np.ndarray, tri: np.ndarray, resolution, fill_rule) -> TriangleSetup:
@@ -267,7 +268,8 @@ def rasterize(
     if edge_band_px is None:
         edge_band_px = rule.edge_band_px if rule is not None else DEFAULT_EDGE_BAND_PX
     if not (np.isfinite(edge_band_px) and edge_band_px >= 0):
-        raise ValueError(f"edge_band_px must be a finite number >= 0, got {edge_band_px!r}")
+        raise ArgumentError(
+            "edge_band_px", f"edge_band_px must be a finite number >= 0, got {edge_band_px!r}")
     samples = validate.samples(samples)
     interpolation = validate.interpolation(interpolation)
     positions = standard_positions(samples) if sample_positions is None \

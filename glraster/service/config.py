@@ -14,6 +14,8 @@ import stat
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+from glraster.errors import ArgumentError
+
 MiB = 1 << 20
 
 # The shortest bearer token a token file may hold (a guessable token is no protection).
@@ -75,14 +77,17 @@ class ServiceConfig:
         for name in ("workers", "queue_size"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < (1 if name == "workers" else 0):
-                raise ValueError(f"{name} must be an integer >= {1 if name == 'workers' else 0}, got {value!r}")
+                raise ArgumentError(name, f"{name} must be an integer >= "
+                                          f"{1 if name == 'workers' else 0}, got {value!r}")
         if not (0 <= int(self.port) <= 65535):
-            raise ValueError(f"port must be in [0, 65535], got {self.port}")
+            raise ArgumentError("port", f"port must be in [0, 65535], got {self.port}")
         for name in ("deadline", "check_deadline", "body_timeout", "worker_start_timeout"):
             if not float(getattr(self, name)) > 0:
-                raise ValueError(f"{name} must be > 0 seconds, got {getattr(self, name)!r}")
+                raise ArgumentError(name, f"{name} must be > 0 seconds, "
+                                          f"got {getattr(self, name)!r}")
         if self.backend not in (None, "auto", "egl", "osmesa"):
-            raise ValueError(f"backend must be auto, egl or osmesa, got {self.backend!r}")
+            raise ArgumentError("backend", f"backend must be auto, egl or osmesa, "
+                                           f"got {self.backend!r}")
 
     @property
     def effective_drain_timeout(self) -> float:
@@ -120,10 +125,11 @@ def read_token_file(path) -> tuple[str, ...]:
         mode = p.stat().st_mode
         text = p.read_text()
     except OSError as exc:
-        raise ValueError(f"token file {str(p)!r}: {exc.strerror or exc}") from None
+        raise ArgumentError("token_file",
+                            f"token file {str(p)!r}: {exc.strerror or exc}") from None
     if mode & stat.S_IROTH:
-        raise ValueError(f"token file {str(p)!r} is readable by every user "
-                         f"(mode {stat.filemode(mode)}); chmod o-r it")
+        raise ArgumentError("token_file", f"token file {str(p)!r} is readable by every user "
+                                          f"(mode {stat.filemode(mode)}); chmod o-r it")
     tokens = []
     for n, line in enumerate(text.splitlines(), 1):
         line = line.strip()
@@ -134,13 +140,14 @@ def read_token_file(path) -> tuple[str, ...]:
                    else "it holds a character that is not printable"
                    if not line.isprintable() else None)
         if problem:
-            raise ValueError(f"token file {str(p)!r} line {n}: {problem}; a token must be at "
-                             f"least {MIN_TOKEN_LENGTH} printable characters without spaces "
-                             "(make one with: python -c \"import secrets; "
-                             "print(secrets.token_urlsafe(32))\")")
+            raise ArgumentError(
+                "token_file", f"token file {str(p)!r} line {n}: {problem}; a token must be at "
+                              f"least {MIN_TOKEN_LENGTH} printable characters without spaces "
+                              "(make one with: python -c \"import secrets; "
+                              "print(secrets.token_urlsafe(32))\")")
         tokens.append(line)
     if not tokens:
-        raise ValueError(f"token file {str(p)!r} holds no token")
+        raise ArgumentError("token_file", f"token file {str(p)!r} holds no token")
     return tuple(tokens)
 
 

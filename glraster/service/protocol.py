@@ -42,6 +42,8 @@ from pathlib import Path
 import numpy as np
 from msgspec import UNSET
 
+from glraster import validate
+from glraster.errors import ArgumentError
 from glraster.io.npz import NpzError, npz_nbytes, read_npz, write_npz_into
 
 from glraster.service.models import (  # the names of fields and options, re-exported
@@ -84,12 +86,19 @@ def error_json(status: int, field: str, message: str) -> bytes:
     return json.dumps({"error": message, "field": field, "status": status}).encode()
 
 
-def field_of(message: str, default: str = "body") -> str:
-    """The argument a glraster ValueError names (its messages start with the argument:
-    ``"pos must have shape (V, 4), got (5, 3)"``, ``"tri index 7 is out of range ..."``)."""
-    head = message.split(" ", 1)[0].split(".", 1)[0].strip("'\":,")
-    known = ARRAY_FIELDS + OPTION_FIELDS + CHECK_FIELDS
-    return head if head in known else default
+# glraster's argument names (ArgumentError.argument) -> the request field that carries the
+# value: glraster.rasterize and glraster.reference.rasterize take the request's fields
+# under the same names; sample_positions is what the worker passes the reference for the
+# request's samples. Any other argument is set by the service, not the client: "body".
+ARGUMENT_FIELDS = {**{name: name for name in ARRAY_FIELDS + OPTION_FIELDS},
+                   "sample_positions": "samples"}
+
+
+def invalid(exc: ValueError, status: int = 422) -> "RequestError":
+    """The :class:`RequestError` for a glraster ValueError about a request's values: the
+    field of its ``.argument`` (:data:`ARGUMENT_FIELDS`; "body" when it names none)."""
+    field_name = ARGUMENT_FIELDS.get(getattr(exc, "argument", None), "body")
+    return RequestError(status, field_name, str(exc)[:500])
 
 
 # -- options --------------------------------------------------------------------------------
@@ -188,25 +197,20 @@ def _npz_arrays(body, limits) -> dict:
 
 
 def _resolution(value, limits, driver_max: int | None) -> tuple:
-    if isinstance(value, np.ndarray):
-        if value.dtype.kind not in "iu" or value.shape != (2,):
-            raise RequestError(422, "resolution", f"resolution must be 2 integers (H, W), got "
-                                                  f"{value.dtype} {value.shape}")
-        value = value.tolist()
-    if not isinstance(value, (list, tuple)) or len(value) != 2 \
-            or not all(isinstance(v, int) and not isinstance(v, bool) for v in value):
-        raise RequestError(422, "resolution", f"resolution must be [height, width] integers, "
-                                              f"got {value!r}"[:300])
+    """(height, width) from the request (glraster.validate's check), each at most the
+    server's configured and the driver's maximum."""
+    try:
+        height, width = validate.resolution(value)
+    except ArgumentError as exc:
+        raise invalid(exc) from None
     limit = limits.max_resolution if driver_max is None else min(limits.max_resolution, driver_max)
-    for axis, v in zip(("height", "width"), value):
-        if v <= 0:
-            raise RequestError(422, "resolution", f"resolution {axis} must be > 0, got {v}")
+    for axis, v in (("height", height), ("width", width)):
         if v > limit:
             raise RequestError(422, "resolution",
                                f"resolution {axis} {v} exceeds this server's maximum of {limit} "
                                f"(configured {limits.max_resolution}, driver "
                                f"{driver_max if driver_max is not None else 'unknown'})")
-    return (int(value[0]), int(value[1]))
+    return height, width
 
 
 def _rows_error(exc: ModelError, limits) -> None:

@@ -111,9 +111,7 @@ class Handler:
                     else None)
                 timings["reference"] = time.perf_counter() - t
         except ValueError as exc:
-            msg = str(exc)
-            status = 422
-            raise p.RequestError(status, p.field_of(msg), msg[:500]) from None
+            raise p.invalid(exc) from None
         if req.compare:
             from glraster.conformance.check import evaluate
             from glraster.gpu.methods import error_model

@@ -24,7 +24,7 @@ import time
 
 import torch
 
-from glraster.diff import layout
+from glraster import validate
 
 ID_FLOAT_MAX = 1 << 24          # ids up to here are stored as the float value itself
 ID_BITS_OFFSET = 0x4A800000     # above: the float whose bit pattern is this + id
@@ -70,7 +70,7 @@ def interpolate(attr: torch.Tensor, rast: torch.Tensor, tri: torch.Tensor,
     zero = torch.zeros((), dtype=attr.dtype)
     out = torch.where(keep, u * a0 + v * a1 + w * a2, zero)
     out = out.reshape(batch, height, width, num_attr)
-    selected = list(layout.diff_attrs(diff_attrs, num_attr) or ()) or None
+    selected = list(validate.diff_attrs(diff_attrs, num_attr) or ()) or None
     if selected is None:
         return out, out.new_zeros((batch, height, width, 0))
     index = torch.tensor(selected, dtype=torch.int64)

@@ -39,6 +39,7 @@ import numpy as np
 import torch
 from torch.autograd.function import once_differentiable
 
+from glraster import validate
 from glraster.diff import layout
 from glraster.diff.ops import INTERPOLATE, RASTERIZE, depth_peeler
 from glraster.torch import _checks
@@ -202,14 +203,14 @@ def _rasterize_args(glctx, pos, tri, resolution, ranges, grad_db):
     _check_glctx(glctx)
     _checks.tensor("pos", pos, _checks.FLOAT_DTYPES)
     pos_np = _checks.numpy(pos)
-    pos_np = layout.positions(pos_np, dtype=pos_np.dtype)
+    pos_np = validate.batched_positions(pos_np, dtype=pos_np.dtype)
     _checks.tensor("tri", tri, _checks.INT_DTYPES)
-    tri_np = layout.triangles(_checks.numpy(tri), pos_np.shape[-2])
-    res = layout.resolution(resolution)
+    tri_np = validate.triangles(_checks.numpy(tri), pos_np.shape[-2])
+    res = validate.resolution(resolution)
     ranges_np = None
     if ranges is not None and pos_np.ndim == 2:  # nvdiffrast: ignored in instanced mode
         _checks.tensor("ranges", ranges, _checks.INT_DTYPES)
-        ranges_np = layout.ranges(_checks.numpy(ranges), len(tri_np), pos_np.ndim)
+        ranges_np = validate.ranges(_checks.numpy(ranges), len(tri_np), pos_np.ndim)
     _checks.flag("grad_db", grad_db)
     return tri_np, res, ranges_np
 
@@ -282,12 +283,12 @@ def interpolate(attr, rast, tri, rast_db=None, diff_attrs=None, *, glctx=None):
     _checks.tensor("rast", rast, _checks.FLOAT_DTYPES)
     _checks.same_dtype("rast", rast, "attr", attr.dtype)
     dtype = _checks.numpy(attr).dtype
-    rast_np = layout.image("rast", _checks.numpy(rast), dtype=dtype)
-    attr_np = layout.attributes(_checks.numpy(attr), rast_np.shape[0], dtype=dtype)
+    rast_np = validate.image("rast", _checks.numpy(rast), dtype=dtype)
+    attr_np = validate.attributes(_checks.numpy(attr), rast_np.shape[0], dtype=dtype)
     _checks.tensor("tri", tri, _checks.INT_DTYPES)
-    tri_np = layout.triangles(_checks.numpy(tri), attr_np.shape[-2], "attr")
+    tri_np = validate.triangles(_checks.numpy(tri), attr_np.shape[-2], "attr")
     layout.rast_ids(rast_np, len(tri_np))
-    selected = layout.diff_attrs(diff_attrs, attr_np.shape[-1])
+    selected = validate.diff_attrs(diff_attrs, attr_np.shape[-1])
     if selected is not None and len(selected) == 0:
         selected = None
     if selected is None:
@@ -301,7 +302,7 @@ def interpolate(attr, rast, tri, rast_db=None, diff_attrs=None, *, glctx=None):
         if rast_db.shape[-1:] == (0,):
             raise ValueError("rast_db is empty (B, H, W, 0): the context was made with "
                              "output_db=False, so diff_attrs cannot be computed")
-        layout.image("rast_db", _checks.numpy(rast_db), shape=rast_np.shape, dtype=dtype)
+        validate.image("rast_db", _checks.numpy(rast_db), shape=rast_np.shape, dtype=dtype)
     op = _InterpolateOp(glctx, tri_np, selected)
     return _InterpolateFunction.apply(attr, rast, rast_db, op)
 

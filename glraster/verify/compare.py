@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from glraster.errors import ArgumentError
 from glraster.geometry.triangles import TriangleGeometry
 from glraster.types import VALUE_OUTPUTS, first_covered_sample, per_pixel
 from glraster.verify.interpolation import PointCheck, check_point
@@ -49,7 +50,7 @@ class ErrorMaps:
 
 def _value_output(name: str) -> str:
     if name not in VALUE_OUTPUTS:
-        raise ValueError(f"output must be one of {VALUE_OUTPUTS}, got {name!r}")
+        raise ArgumentError("output", f"output must be one of {VALUE_OUTPUTS}, got {name!r}")
     return name
 
 
@@ -181,18 +182,19 @@ def compare(gpu, ref, model: ErrorModel | None = None) -> Report:
     (:func:`glraster.verify.interpolation.check_point`), not against one reference point.
     """
     if tuple(gpu.resolution) != tuple(ref.resolution):
-        raise ValueError(
+        raise ArgumentError(
+            "gpu",
             f"gpu and ref must have the same resolution, got {gpu.resolution} and {ref.resolution}"
         )
     samples = getattr(gpu, "samples", 1), getattr(ref, "samples", 1)
     if samples[0] != samples[1] or gpu.mask.shape != ref.mask.shape:
-        raise ValueError(f"gpu and ref must have the same samples per pixel, got "
-                         f"{samples[0]} and {samples[1]}")
+        raise ArgumentError("gpu", f"gpu and ref must have the same samples per pixel, got "
+                                   f"{samples[0]} and {samples[1]}")
     if samples[1] == 1:
         return _compare(gpu, ref, model)
     if gpu.interpolation != ref.interpolation:
-        raise ValueError(f"gpu and ref must have the same interpolation, got "
-                         f"{gpu.interpolation!r} and {ref.interpolation!r}")
+        raise ArgumentError("gpu", f"gpu and ref must have the same interpolation, got "
+                                   f"{gpu.interpolation!r} and {ref.interpolation!r}")
     return _compare_samples(gpu, ref, model or ErrorModel())
 
 
@@ -284,7 +286,8 @@ def _merge(reports: list) -> Report:
 def _compare(gpu, ref, model: ErrorModel | None = None, offset=(0.5, 0.5)) -> Report:
     """:func:`compare` of single-sample rasters, values evaluated at ``offset``."""
     if ref.tri_id is None:
-        raise ValueError("ref must include the 'tri_id' output (the tolerance model needs it)")
+        raise ArgumentError(
+            "ref", "ref must include the 'tri_id' output (the tolerance model needs it)")
     model = model or ErrorModel()
     ambiguous = ref.ambiguous
     differ = gpu.mask != ref.mask

@@ -28,6 +28,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from glraster.errors import ArgumentError
 from glraster.geometry.triangles import TriangleGeometry
 from glraster.verify.tolerance import ErrorModel, value_tolerance
 
@@ -79,7 +80,7 @@ def check_point(triangles: TriangleGeometry, tri_id: np.ndarray, judged: np.ndar
     persp / screen : (H, W, 3) GPU values (at least one).
     """
     if persp is None and screen is None:
-        raise ValueError("check_point needs persp or screen")
+        raise ArgumentError("persp", "check_point needs persp or screen")
     ys, xs = np.nonzero(judged)
     out = PointCheck(pixels=len(xs))
     if not len(xs):

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from glraster.errors import ArgumentError
 from glraster.geometry.triangles import TriangleGeometry
 from glraster.types import VALUE_OUTPUTS
 
@@ -147,7 +148,7 @@ def value_tolerance(triangles: TriangleGeometry | None, tri_id: np.ndarray,
     names = tuple(outputs)
     unknown = [o for o in names if o not in VALUE_OUTPUTS]
     if unknown:
-        raise ValueError(f"outputs must be among {VALUE_OUTPUTS}, got {unknown}")
+        raise ArgumentError("outputs", f"outputs must be among {VALUE_OUTPUTS}, got {unknown}")
     height, width = tri_id.shape
     n = height * width
     ts = triangles

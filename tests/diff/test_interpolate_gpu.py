@@ -15,7 +15,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from glraster.diff import compute, interpolate_reference, layout
+from glraster import validate
+from glraster.diff import compute, interpolate_reference
 from glraster.diff import interpolate as ip
 from glraster.diff.ops import INTERPOLATE, RASTERIZE
 from tests.diff.test_rasterize_backward import U32, Err, covered, random_soup
@@ -111,7 +112,7 @@ def within(got, errs, what):
 def test_forward_within_running_error_bound(ctx, scene, diff):
     attr, rast, rast_db, tri, _ = scene
     out, out_da, _ = forward(attr, rast, tri, rast_db, diff, ctx=ctx)
-    chosen = layout.diff_attrs(diff, attr.shape[1]) or ()
+    chosen = validate.diff_attrs(diff, attr.shape[1]) or ()
     px, o, oda, *_ = closed_forms(attr, rast, rast_db, tri, chosen, np.zeros_like(out), None)
     assert out.shape == rast.shape[:3] + (5,) and out.dtype == np.float32
     want = within(out[px], o, "out")

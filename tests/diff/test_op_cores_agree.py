@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from glraster.diff import layout
+from glraster.diff.ids import decode_ids
 from glraster.diff.ops import INTERPOLATE, RASTERIZE, depth_peeler
 
 RES = (40, 56)
@@ -73,8 +73,8 @@ def test_rasterize_cores_agree(ctx, space, needs):
     f32, f64 = both(RASTERIZE.check, POS, tri=TRI, resolution=RES, space=space)
     (rast32, db32), (g32,) = run(RASTERIZE, f32, ctx, upstream(1), needs)
     (rast64, db64), (g64,) = run(RASTERIZE, f64, ctx, upstream(1), needs)
-    ids = layout.decode_ids(rast32[..., 3])
-    np.testing.assert_array_equal(ids, layout.decode_ids(rast64[..., 3]))
+    ids = decode_ids(rast32[..., 3])
+    np.testing.assert_array_equal(ids, decode_ids(rast64[..., 3]))
     assert (ids >= 0).sum() > 500
     agree(rast32[..., :3], rast64[..., :3], 1e-6, "rast")
     agree(db32, db64, 1e-5, "rast_db")
@@ -119,8 +119,8 @@ def test_depth_peelers_agree(ctx):
         for layer in range(3):
             (rast32, db32), s32 = p32.rasterize_next_layer()
             (rast64, db64), s64 = p64.rasterize_next_layer()
-            ids = layout.decode_ids(rast32[..., 3])
-            np.testing.assert_array_equal(ids, layout.decode_ids(rast64[..., 3]))
+            ids = decode_ids(rast32[..., 3])
+            np.testing.assert_array_equal(ids, decode_ids(rast64[..., 3]))
             if layer == 2:
                 assert not (ids >= 0).any(), "two surfaces at most: layer 3 is empty"
                 break

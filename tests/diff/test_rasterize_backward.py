@@ -23,7 +23,8 @@ import numpy as np
 import pytest
 
 from glraster.conformance.scenes import load_scene
-from glraster.diff import compute, layout, rasterize_reference
+from glraster.diff import compute, rasterize_reference
+from glraster.diff.ids import decode_ids
 from glraster.diff import rasterize as dr
 from glraster.diff.ops import RASTERIZE
 from glraster.diff.saved import RasterizeSaved
@@ -104,7 +105,7 @@ def vadd(a, b):
 
 def covered(rast, tri):
     """(b, y, x, t) of the covered pixels of a GPU rast (t: triangle index)."""
-    ids = layout.decode_ids(rast[..., 3])
+    ids = decode_ids(rast[..., 3])
     b, y, x = np.nonzero(ids >= 0)
     return b, y, x, ids[b, y, x]
 
@@ -405,7 +406,7 @@ def test_pixels_whose_ids_differ_from_the_reference_are_masked_and_counted(ctx):
     pos, tri, res = _scene("grid_perspective_jitter")
     rast = gpu_rast(ctx, pos, tri, res)
     _, saved = RASTERIZE.forward(pos.astype(np.float64), tri=tri, resolution=res)
-    gpu_ids = layout.decode_ids(rast[..., 3])
+    gpu_ids = decode_ids(rast[..., 3])
     differ = gpu_ids != saved.tri_id
     n_covered = int((gpu_ids >= 0).sum())
     assert n_covered > 0

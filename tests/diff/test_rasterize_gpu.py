@@ -15,7 +15,7 @@ import pytest
 
 from glraster import reference
 from glraster.conformance.scenes import load_scene
-from glraster.diff import layout
+from glraster.diff.ids import MAX_ID, decode_ids, encode_ids
 from glraster.diff import rasterize as dr
 from glraster.diff import rasterize_reference
 from glraster.diff.ops import RASTERIZE, depth_peeler
@@ -133,7 +133,7 @@ def compare(gpu_rast, gpu_db, want):
     id mismatch count (and how many lie outside the ambiguous pixels), per-channel-group
     absolute errors on the pixels where both have the same triangle, and the worst
     error / bound ratio."""
-    gpu_ids = layout.decode_ids(gpu_rast[..., 3])
+    gpu_ids = decode_ids(gpu_rast[..., 3])
     same = (gpu_ids == want["tri_id"])
     differ = ~same
     valid = same & (want["tri_id"] >= 0)
@@ -221,13 +221,13 @@ def test_grad_db_false_returns_the_same_rast_and_no_rast_db(ctx):
 
 
 def test_id_encoding_is_exact_and_monotone_above_2_24():
-    """layout.encode_ids / decode_ids on ids around 2^24 and up to the largest finite
+    """encode_ids / decode_ids on ids around 2^24 and up to the largest finite
     encoding, without rendering 16M triangles."""
     index = np.array([0, 1, 2**24 - 2, 2**24 - 1, 2**24, 2**24 + 1, 2**25, 2**29, 123456789,
-                      layout.MAX_ID - 1])
-    values = layout.encode_ids(index)
+                      MAX_ID - 1])
+    values = encode_ids(index)
     assert values.dtype == np.float32
-    np.testing.assert_array_equal(layout.decode_ids(values), index)
+    np.testing.assert_array_equal(decode_ids(values), index)
     order = np.argsort(index)
     assert (np.diff(values[order].astype(np.float64)) > 0).all()
     assert values[2] == 2.0**24 - 1 and values[3] == 2.0**24       # the value itself
@@ -236,7 +236,7 @@ def test_id_encoding_is_exact_and_monotone_above_2_24():
 
 def test_shader_encodes_ids_beyond_2_24_as_layout_does(ctx):
     """The fragment shader's encode_id, driven with a draw whose first triangle has a
-    large index (the id_base uniform the range mode sets), writes layout.encode_ids's bits."""
+    large index (the id_base uniform the range mode sets), writes encode_ids's bits."""
     pos, tri = synthetic.random_soup(40, seed=2)
     res = (64, 64)
     job = dr._Forward(np.asarray(pos, np.float32), np.asarray(tri, np.int32), res, None, False,
@@ -246,8 +246,8 @@ def test_shader_encodes_ids_beyond_2_24_as_layout_does(ctx):
         spec.uniforms["id_base"] = first
         values = pipeline.draw(ctx, spec, p, t, res)["rast"]
         plain, _, _ = forward(pos, tri, res, ctx=ctx, grad_db=False)
-        index = layout.decode_ids(plain[0, ..., 3])
-        want = np.where(index >= 0, layout.encode_ids(np.where(index >= 0, index + first, 0)), 0)
+        index = decode_ids(plain[0, ..., 3])
+        want = np.where(index >= 0, encode_ids(np.where(index >= 0, index + first, 0)), 0)
         np.testing.assert_array_equal(values[..., 3].view(np.uint32),
                                       want.astype(np.float32).view(np.uint32))
         np.testing.assert_array_equal(values[..., :3], plain[0, ..., :3])
@@ -280,8 +280,8 @@ def test_range_batch_equals_separate_calls_with_ids_into_the_whole_tri(ctx):
     np.testing.assert_array_equal(saved.ranges, ranges)
     for b, (first, count) in enumerate(ranges):
         r1, d1, _ = forward(pos, tri[first:first + count], res, ctx=ctx)
-        ids = layout.decode_ids(r1[0, ..., 3])
-        np.testing.assert_array_equal(layout.decode_ids(rast[b, ..., 3]),
+        ids = decode_ids(r1[0, ..., 3])
+        np.testing.assert_array_equal(decode_ids(rast[b, ..., 3]),
                                       np.where(ids >= 0, ids + first, -1))
         np.testing.assert_array_equal(rast[b, ..., :3], r1[0, ..., :3])
         np.testing.assert_array_equal(db[b], d1[0])
@@ -329,8 +329,8 @@ def test_depth_peel_layers_match_the_float64_layers(ctx):
     np.testing.assert_array_equal(layers[0][0], first)
     assert ambiguous.mean() < 0.01
     for k, ((rast, db, saved), (want_rast, _, _)) in enumerate(zip(layers, want_layers)):
-        gpu_ids = layout.decode_ids(rast[0, ..., 3])
-        want_ids = layout.decode_ids(want_rast[0, ..., 3])
+        gpu_ids = decode_ids(rast[0, ..., 3])
+        want_ids = decode_ids(want_rast[0, ..., 3])
         differ = (gpu_ids != want_ids) & ~ambiguous
         assert not differ.any(), f"layer {k + 1}: {differ.sum()} pixels with other ids"
         assert (gpu_ids >= 0).sum() > 500, "the scene must overlap in every layer"

@@ -22,7 +22,8 @@ import numpy as np
 import pytest
 
 from glraster import reference as gref
-from glraster.diff import interpolate_reference, layout, rasterize_reference
+from glraster.diff import interpolate_reference, rasterize_reference
+from glraster.diff.ids import MAX_ID, decode_ids, encode_ids
 from glraster.diff.ops import INTERPOLATE, RASTERIZE, depth_peeler
 from glraster.diff.rasterize_reference import rasterize_values
 
@@ -185,7 +186,7 @@ def test_rast_matches_the_glraster_reference_per_batch(batch):
                 ref_id = ref.tri_id
             m = ref.mask
             assert m.sum() > 50
-            np.testing.assert_array_equal(layout.decode_ids(rast[b, ..., 3]), ref_id)
+            np.testing.assert_array_equal(decode_ids(rast[b, ..., 3]), ref_id)
             np.testing.assert_array_equal(saved.tri_id[b], ref_id)
             np.testing.assert_allclose(rast[b][m][:, :2], getattr(ref, field)[m][:, :2],
                                        rtol=0, atol=1e-12)
@@ -197,7 +198,7 @@ def test_rast_matches_the_glraster_reference_per_batch(batch):
 def test_range_mode_ids_index_the_whole_tri():
     pos, tri, ranges = BATCHES["ranges"]
     rast, _, _ = rasterize(pos, tri, RES, ranges=ranges)
-    ids = layout.decode_ids(rast[..., 3])
+    ids = decode_ids(rast[..., 3])
     for b, (first, count) in enumerate(ranges):
         seen = set(np.unique(ids[b])) - {-1}
         assert seen and seen <= set(range(first, first + count)), (b, seen)
@@ -431,7 +432,7 @@ def test_depth_peeling_layers_lie_strictly_behind_each_other():
         m = covered(layers[k][0])
         assert (layers[k][0][..., 2][m] > layers[k - 1][0][..., 2][m]).all()
     # drawn far to near: layer 0 is the near triangle, layer 1 the middle, layer 2 the far
-    ids1 = layout.decode_ids(layers[1][0][..., 3])[two]
+    ids1 = decode_ids(layers[1][0][..., 3])[two]
     assert set(np.unique(ids1)) == {0, 1}
 
 
@@ -458,18 +459,18 @@ def test_depth_peeling_layer_backward_matches_differences():
 
 def test_ids_encode_as_floats_then_as_bit_patterns_monotone_and_exact():
     tri_id = np.array([-1, 0, 1, 2**24 - 2, 2**24 - 1, 2**24, 2**24 + 1, 10**8, 2**29,
-                       layout.MAX_ID - 1])
-    enc = layout.encode_ids(tri_id)
+                       MAX_ID - 1])
+    enc = encode_ids(tri_id)
     assert enc.dtype == np.float32
     assert enc[0] == 0 and enc[1] == 1 and enc[4] == 2.0**24       # id = index + 1
     assert enc.view(np.uint32)[5] == 0x4A800000 + 2**24 + 1
     assert np.isfinite(enc).all() and (np.diff(enc) > 0).all()       # monotone as floats
-    np.testing.assert_array_equal(layout.decode_ids(enc), tri_id)
-    np.testing.assert_array_equal(layout.decode_ids(enc.astype(np.float64)), tri_id)
+    np.testing.assert_array_equal(decode_ids(enc), tri_id)
+    np.testing.assert_array_equal(decode_ids(enc.astype(np.float64)), tri_id)
     with pytest.raises(ValueError, match="tri_id must be <"):
-        layout.encode_ids([layout.MAX_ID])
+        encode_ids([MAX_ID])
     with pytest.raises(ValueError, match="rast id channel must hold encoded"):
-        layout.decode_ids(np.array([1.5]))
+        decode_ids(np.array([1.5]))
 
 
 # --------------------------------------------------------------------------- bad input

@@ -23,7 +23,7 @@ import glraster as gr
 from glraster import camera as cam
 from glraster.conformance import mutants
 from glraster.conformance.scenes import load_scene_file
-from glraster.diff import layout
+from glraster import validate
 from tests.docs import markdown_blocks as mb
 
 
@@ -74,12 +74,12 @@ def test_quoted_validation_messages_are_the_ones_raised(tmp_path, monkeypatch):
         ("docs/cameras.md", "K must have shape (3, 3), got (2, 3)",
          lambda: cam.from_intrinsics([[1, 0, 0], [0, 1, 0]], 64, 48, near=0.1, far=10)),
         ("docs/differentiable.md", "pos must have shape (V, 4) or (B, V, 4), got (5, 3)",
-         lambda: layout.positions(np.zeros((5, 3)))),
+         lambda: validate.batched_positions(np.zeros((5, 3)))),
         ("docs/differentiable.md",
          "ranges row 0 = [1, 3] reaches triangle 3, beyond tri's 3 triangles",
-         lambda: layout.ranges(np.array([[1, 3]]), 3, 2)),
+         lambda: validate.ranges(np.array([[1, 3]]), 3, 2)),
         ("docs/differentiable.md", "grad_rast must have shape (1, 24, 32, 4), got",
-         lambda: layout.image("grad_rast", np.zeros((1, 24, 32, 3)), (1, 24, 32, 4))),
+         lambda: validate.image("grad_rast", np.zeros((1, 24, 32, 3)), (1, 24, 32, 4))),
     ]
     monkeypatch.chdir(tmp_path)
     (tmp_path / "scene.json").write_text(json.dumps(

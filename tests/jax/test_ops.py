@@ -27,7 +27,7 @@ import jax.numpy as jnp  # noqa: E402
 from jax.test_util import check_grads  # noqa: E402
 
 import glraster.jax as dr  # noqa: E402
-from glraster.diff import layout  # noqa: E402
+from glraster.diff.ids import decode_ids  # noqa: E402
 from glraster.diff.ops import INTERPOLATE, RASTERIZE  # noqa: E402
 from glraster.errors import ArgumentError  # noqa: E402
 from tests.diff.test_antialias_reference import soup_scene  # noqa: E402
@@ -92,7 +92,7 @@ def test_float32_matches_the_float64_reference(glctx, x64, mode):
     assert gpu[0][0].dtype == jnp.float32 and cpu[0][0].dtype == jnp.float64
     ids = np.asarray(gpu[0][0][..., 3])
     np.testing.assert_array_equal(ids, np.asarray(cpu[0][0][..., 3]).astype(np.float32))
-    assert (layout.decode_ids(ids) >= 0).sum() > 50
+    assert (decode_ids(ids) >= 0).sum() > 50
     close("rast", gpu[0][0][..., :3], cpu[0][0][..., :3], FORWARD_TOL)
     for k, name in enumerate(("rast", "rast_db", "out", "out_da")[1:], start=1):
         close(name, gpu[0][k], cpu[0][k], FORWARD_TOL)
@@ -286,7 +286,7 @@ def test_depth_peeler_layers_match_torch_and_have_gradients(glctx, dtype):
             t_layers = [peeler.rasterize_next_layer()[0] for _ in range(2)]
         sum(r[..., :2].sum() for r in t_layers).backward()
     np.testing.assert_array_equal(np.asarray(second), t_layers[1].detach().numpy())
-    assert (layout.decode_ids(np.asarray(second[..., 3]).astype(np.float32)) >= 0).any()
+    assert (decode_ids(np.asarray(second[..., 3]).astype(np.float32)) >= 0).any()
     close("peeled grad pos", grad, tpos.grad.numpy(), SAME_TOL)
 
 

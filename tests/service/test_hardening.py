@@ -110,6 +110,10 @@ BAD_REQUESTS = [
      "outputs"),
     ("outputs empty", _scene(outputs=[]), "application/json", None, "", None, 422, "outputs"),
     ("method unknown", _scene(method="magic"), "application/json", None, "", None, 422, "method"),
+    # "samples=64 is not offered by this driver": the field comes from the error's argument
+    # (the message's first word, "samples=64", names no field)
+    ("samples the driver lacks", _scene(samples=64), "application/json", None, "", None, 422,
+     "samples"),
     ("compare not bool", _scene(compare=3), "application/json", None, "", None, 422, "compare"),
     ("reference with method", _scene(reference=True, method="divw"), "application/json", None,
      "", None, 422, "method"),

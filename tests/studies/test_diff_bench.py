@@ -13,7 +13,7 @@ import pytest
 torch = pytest.importorskip("torch")
 
 import glraster.torch as dr  # noqa: E402
-from glraster.diff import layout  # noqa: E402
+from glraster.diff.ids import MAX_ID, encode_ids  # noqa: E402
 from glraster.studies import diff_bench  # noqa: E402
 from glraster.studies.bench import make_bench_scene  # noqa: E402
 from glraster.studies import torch_interpolate_baseline as baseline  # noqa: E402
@@ -118,8 +118,8 @@ def test_baseline_is_the_same_math_as_glraster(glctx, case):
 
 def test_baseline_decodes_ids_as_layout():
     index = np.array([-1, 0, 1, 2**24 - 2, 2**24 - 1, 2**24, 2**24 + 1, 123456789,
-                      layout.MAX_ID - 1])
-    encoded = layout.encode_ids(index)
+                      MAX_ID - 1])
+    encoded = encode_ids(index)
     got = baseline.decode_ids(torch.from_numpy(encoded)).numpy()
     np.testing.assert_array_equal(got, index + 1)
 

@@ -18,7 +18,7 @@ import pytest
 import torch
 
 import glraster.torch as dr
-from glraster.diff import layout
+from glraster.diff.ids import decode_ids
 from tests.torch import scenes
 
 FORWARD_TOL = 2e-6
@@ -75,7 +75,7 @@ def test_gpu_path_matches_float64_reference(glctx, mode):
     assert gpu["rast"].dtype == torch.float32 and ref["rast"].dtype == torch.float64
     ids = gpu["rast"][..., 3].detach().numpy()
     np.testing.assert_array_equal(ids, ref["rast"][..., 3].detach().numpy().astype(np.float32))
-    assert (layout.decode_ids(ids) >= 0).sum() > 50
+    assert (decode_ids(ids) >= 0).sum() > 50
     _close("rast", gpu["rast"][..., :3], ref["rast"][..., :3], FORWARD_TOL)
     for name in ("rast_db", "out", "out_da"):
         _close(name, gpu[name], ref[name], FORWARD_TOL)
@@ -145,7 +145,7 @@ def test_depth_peeler_layers_and_their_gradients(glctx, dtype):
         for _ in range(3):
             layers.append(peeler.rasterize_next_layer())
     assert glctx.active_depth_peeler is None
-    ids = [layout.decode_ids(r[..., 3].detach().numpy()) for r, _ in layers]
+    ids = [decode_ids(r[..., 3].detach().numpy()) for r, _ in layers]
     np.testing.assert_array_equal(layers[0][0].detach().numpy(), first.detach().numpy())
     front = ids[0] == 2
     assert front.sum() > 5

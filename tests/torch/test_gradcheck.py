@@ -16,7 +16,7 @@ import pytest
 import torch
 
 import glraster.torch as dr
-from glraster.diff import layout
+from glraster.diff.ids import decode_ids
 from tests.torch import scenes
 
 ATOL, RTOL, EPS = 1e-5, 1e-4, 1e-6
@@ -47,7 +47,7 @@ def test_rasterize_gradcheck_wrt_pos(glctx):
         return rast[..., :2], rast_db      # z/w and id carry no gradient by design
 
     rast, _ = dr.rasterize(glctx, pos, TRI, scenes.RESOLUTION)
-    ids = layout.decode_ids(rast[..., 3].detach().numpy())
+    ids = decode_ids(rast[..., 3].detach().numpy())
     assert set(np.unique(ids)) == {-1, 0, 1, 2}, "every triangle must cover pixels"
     assert torch.autograd.gradcheck(f, (pos,), eps=EPS, atol=ATOL, rtol=RTOL)
 
@@ -88,7 +88,7 @@ def test_rasterize_gradcheck_range_mode(glctx):
         return rast[..., :2], rast_db
 
     rast, _ = dr.rasterize(glctx, pos, TRI, scenes.RESOLUTION, ranges=ranges)
-    ids = layout.decode_ids(rast[..., 3].detach().numpy())
+    ids = decode_ids(rast[..., 3].detach().numpy())
     assert set(np.unique(ids[0])) == {-1, 0, 1} and set(np.unique(ids[1])) == {-1, 2}
     assert torch.autograd.gradcheck(f, (pos,), eps=EPS, atol=ATOL, rtol=RTOL)
 

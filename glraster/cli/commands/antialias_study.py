@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from glraster.cli import exit_codes
 from glraster.cli.commands import add_backend_argument, add_command
+from glraster.errors import ArgumentError
 
 
 def register(subparsers) -> None:
@@ -32,7 +33,7 @@ def _run(args) -> int:
     from glraster.studies.antialias import write_study
 
     if args.size < 16:
-        raise ValueError(f"--size must be at least 16 pixels, got {args.size}")
+        raise ArgumentError("--size", f"--size must be at least 16 pixels, got {args.size}")
     ctx = Context(backend=args.backend)
     result = write_study(args.out, (args.size, args.size), args.repeats, ctx=ctx)
     print(f"{result['renderer']} ({result['backend']}), {args.size}x{args.size}, median of "

@@ -14,7 +14,9 @@ from __future__ import annotations
 import sys
 
 from glraster.cli import exit_codes
+from glraster.cli.errors import describe
 from glraster.cli.commands import add_backend_argument, add_command
+from glraster.errors import ArgumentError
 
 
 def register(subparsers) -> None:
@@ -61,11 +63,13 @@ def run(args) -> int:
         inputs.list_items(args.input)  # a bad IN is a usage error before Ray starts
         shard_size = dataset.DEFAULT_SHARD_SIZE if args.shard_size is None else args.shard_size
         if shard_size < 1:
-            raise ValueError(f"--shard-size must be a positive integer, got {shard_size}")
+            raise ArgumentError(
+                "--shard-size", f"--shard-size must be a positive integer, got {shard_size}")
         if args.workers is not None and args.workers < 1:
-            raise ValueError(f"--workers must be a positive integer, got {args.workers}")
+            raise ArgumentError(
+                "--workers", f"--workers must be a positive integer, got {args.workers}")
     except ValueError as exc:
-        print(f"glraster batch: {exc}", file=sys.stderr)
+        print(f"glraster batch: {describe(exc, args)}", file=sys.stderr)
         return exit_codes.USAGE
     from glraster.cli.commands.check import Progress
 
@@ -75,10 +79,10 @@ def run(args) -> int:
                                          outputs=outputs, workers=args.workers,
                                          backend=args.backend, progress=Progress())
     except ValueError as exc:
-        print(f"glraster batch: {exc}", file=sys.stderr)
+        print(f"glraster batch: {describe(exc, args)}", file=sys.stderr)
         return exit_codes.USAGE
     except RuntimeError as exc:  # GL came up on no worker
-        print(f"glraster batch: {exc}", file=sys.stderr)
+        print(f"glraster batch: {describe(exc, args)}", file=sys.stderr)
         return exit_codes.NO_BACKEND
     print(summary.text())
     return exit_codes.OK if summary.ok else exit_codes.FAIL

@@ -13,6 +13,7 @@ import json
 import sys
 
 from glraster.cli import exit_codes
+from glraster.cli.errors import describe
 from glraster.cli.commands import add_command
 from glraster.io.atomic import write_text
 
@@ -139,7 +140,7 @@ def run(args) -> int:
                            with_pyrender=not args.no_pyrender,
                            max_reference_pixels=args.max_reference_pixels, **overrides)
     except ValueError as exc:
-        print(f"glraster bench: {exc}", file=sys.stderr)
+        print(f"glraster bench: {describe(exc, args)}", file=sys.stderr)
         return exit_codes.USAGE
     _print_cases(result["cases"])
     head = result["headline"]

@@ -11,6 +11,7 @@ import sys
 import time
 
 from glraster.cli import exit_codes
+from glraster.cli.errors import describe as describe_error
 from glraster.cli.commands import add_backend_argument, add_command
 
 
@@ -125,14 +126,14 @@ def run(args) -> int:
         try:
             mutants.select(args.mutants)
         except ValueError as exc:
-            print(f"glraster check: {exc}", file=sys.stderr)
+            print(f"glraster check: {describe_error(exc, args)}", file=sys.stderr)
             return exit_codes.USAGE
     if args.ray is not None:
         return _run_fleet(args, names)
     try:
         ctx = Context(backend=args.backend)
     except (BackendUnavailable, ValueError) as exc:
-        print(f"glraster check: {exc}", file=sys.stderr)
+        print(f"glraster check: {describe_error(exc, args)}", file=sys.stderr)
         return exit_codes.NO_BACKEND
     report = None
     if args.html:
@@ -176,7 +177,7 @@ def _run_fleet(args, names) -> int:
         try:
             drivers = runtime.check_driver_names(args.drivers)
         except ValueError as exc:
-            print(f"glraster check: {exc}", file=sys.stderr)
+            print(f"glraster check: {describe_error(exc, args)}", file=sys.stderr)
             return exit_codes.USAGE
 
     def show_nodes(nodes):

@@ -23,6 +23,7 @@ from pathlib import Path
 
 from glraster.cli import exit_codes
 from glraster.cli.commands import add_backend_argument, add_command
+from glraster.errors import ArgumentError
 
 CUBE_GOAL = 0.05    # mean vertex error
 FRAMEWORKS = ("torch", "jax")
@@ -68,15 +69,16 @@ def _ints(text: str, name: str) -> list[int]:
     try:
         values = [int(v) for v in text.split(",") if v.strip()]
     except ValueError:
-        raise ValueError(f"--{name} must be comma-separated integers, got {text!r}") from None
+        raise ArgumentError(f"--{name}", f"--{name} must be comma-separated integers, "
+                                         f"got {text!r}") from None
     if not values or min(values) < 1:
-        raise ValueError(f"--{name} must be positive integers, got {text!r}")
+        raise ArgumentError(f"--{name}", f"--{name} must be positive integers, got {text!r}")
     return values
 
 
 def _positive(name: str, value: int) -> int:
     if value < 1:
-        raise ValueError(f"--{name} must be >= 1, got {value}")
+        raise ArgumentError(f"--{name}", f"--{name} must be >= 1, got {value}")
     return value
 
 
@@ -273,7 +275,8 @@ def _run_texture(args) -> int:
     for name in ("resolution", "texture_size", "views", "pool", "eval_every"):
         _positive(name.replace("_", "-"), getattr(args, name))
     if args.views > args.pool:
-        raise ValueError(f"--views ({args.views}) must not exceed --pool ({args.pool})")
+        raise ArgumentError(
+            "--views", f"--views ({args.views}) must not exceed --pool ({args.pool})")
     with _session(args) as glctx:
         pairs, first_data = [], None
         for seed in _seeds(args):

@@ -11,6 +11,7 @@ import time
 
 from glraster.cli import exit_codes
 from glraster.cli.commands import add_command
+from glraster.errors import ArgumentError
 
 GOLDEN_BUDGET_BYTES = 20 * 1024 * 1024
 
@@ -48,8 +49,8 @@ def _names(patterns):
     names = list_scenes(",".join(patterns))
     unmatched = [p for p in patterns if not list_scenes(p)]
     if unmatched:
-        raise ValueError(f"no scene matches {', '.join(unmatched)}; known: "
-                         f"{', '.join(list_scenes())}")
+        raise ArgumentError("names", f"no scene matches {', '.join(unmatched)}; known: "
+                                     f"{', '.join(list_scenes())}")
     return names
 
 
@@ -62,8 +63,9 @@ def _update(args) -> int:
     unsafe = unsafe_default(args.dir)
     if unsafe:
         target = golden.golden_dir(args.dir)
-        raise ValueError(f"not writing goldens to {target}: it is {unsafe}; pass --dir "
-                         f"{target} to write there anyway, or --dir DIR for another folder")
+        raise ArgumentError(
+            "--dir", f"not writing goldens to {target}: it is {unsafe}; pass --dir "
+                   f"{target} to write there anyway, or --dir DIR for another folder")
     t0 = time.perf_counter()
     written = 0
     for name in names:

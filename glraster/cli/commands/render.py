@@ -12,7 +12,9 @@ import sys
 import time
 
 from glraster.cli import exit_codes
+from glraster.cli.errors import describe
 from glraster.cli.commands import add_backend_argument, add_command
+from glraster.errors import ArgumentError
 
 
 def register(subparsers) -> None:
@@ -51,22 +53,23 @@ def run(args) -> int:
 
             outputs = check_outputs([o.strip() for o in args.outputs.split(",") if o.strip()])
         if not str(args.output).lower().endswith(".exr"):
-            raise ValueError(f"output must end in .exr, got {args.output!r}")
+            raise ArgumentError("output", f"output must end in .exr, got {args.output!r}")
         if args.server is not None and not args.server.strip():
-            raise ValueError("--server needs the service's URL (http://HOST:PORT), got an "
-                             "empty string")
+            raise ArgumentError(
+                "--server", "--server needs the service's URL (http://HOST:PORT), got an "
+                            "empty string")
     except ValueError as exc:
-        print(f"glraster render: {exc}", file=sys.stderr)
+        print(f"glraster render: {describe(exc, args)}", file=sys.stderr)
         return exit_codes.USAGE
     t = time.perf_counter()
     if args.server is not None:
         try:
             raster, producer = _remote(args, scene, outputs)
         except ValueError as exc:
-            print(f"glraster render: {exc}", file=sys.stderr)
+            print(f"glraster render: {describe(exc, args)}", file=sys.stderr)
             return exit_codes.USAGE
         except ConnectionError as exc:
-            print(f"glraster render: {exc}", file=sys.stderr)
+            print(f"glraster render: {describe(exc, args)}", file=sys.stderr)
             return exit_codes.NO_BACKEND
     elif args.reference:
         from glraster.reference import rasterize as ref_rasterize
@@ -81,12 +84,12 @@ def run(args) -> int:
         try:
             ctx = Context(backend=args.backend)
         except (BackendUnavailable, ValueError) as exc:
-            print(f"glraster render: {exc}", file=sys.stderr)
+            print(f"glraster render: {describe(exc, args)}", file=sys.stderr)
             return exit_codes.NO_BACKEND
         try:
             raster = rasterize(scene.pos, scene.tri, scene.resolution, ctx=ctx, outputs=outputs)
         except ValueError as exc:
-            print(f"glraster render: {exc}", file=sys.stderr)
+            print(f"glraster render: {describe(exc, args)}", file=sys.stderr)
             return exit_codes.USAGE
         producer = f"glraster.rasterize on {ctx.renderer} via {ctx.backend}, {ctx.gl_version}"
     seconds = time.perf_counter() - t
@@ -118,10 +121,11 @@ def _token(args):
         try:
             lines = [ln.strip() for ln in Path(args.token_file).read_text().splitlines()]
         except OSError as exc:
-            raise ValueError(f"token file {args.token_file!r}: {exc.strerror or exc}") from None
+            raise ArgumentError(
+                "token_file", f"token file {args.token_file!r}: {exc.strerror or exc}") from None
         tokens = [ln for ln in lines if ln and not ln.startswith("#")]
         if not tokens:
-            raise ValueError(f"token file {args.token_file!r} holds no token")
+            raise ArgumentError("token_file", f"token file {args.token_file!r} holds no token")
         return tokens[0]
     return os.environ.get("GLRASTER_TOKEN") or None
 
@@ -142,7 +146,9 @@ def _remote(args, scene, outputs):
             raise ConnectionError(str(exc)) from None
         raise ConnectionError(f"the service at {args.server} could not render: {exc}") from None
     except ServiceError as exc:
-        raise ValueError(f"the service at {args.server} refused the request: {exc}") from None
+        raise ArgumentError(   # the request field the service names (pos, tri, resolution)
+            exc.field or "scene",
+            f"the service at {args.server} refused the request: {exc}") from None
     if renderer == "reference":
         producer = (f"glraster.reference.rasterize (float64, fill rule llvmpipe) at "
                     f"{args.server}, rounded to float32")

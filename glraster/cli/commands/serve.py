@@ -14,6 +14,7 @@ import sys
 
 from glraster.cli import exit_codes
 from glraster.cli.commands import add_backend_argument, add_command
+from glraster.errors import ArgumentError
 
 
 def register(subparsers) -> None:
@@ -88,9 +89,10 @@ def _config(args):
                     max_deadline=args.max_deadline if args.max_deadline else args.deadline)
     for name in ("max_vertices", "max_triangles", "max_resolution"):
         if getattr(limits, name) < 1:
-            raise ValueError(f"--{name.replace('_', '-')} must be >= 1")
+            option = "--" + name.replace("_", "-")
+            raise ArgumentError(option, f"{option} must be >= 1")
     if limits.max_body_bytes < 1024:
-        raise ValueError("--max-body must be at least 1 KiB")
+        raise ArgumentError("--max-body", "--max-body must be at least 1 KiB")
     return ServiceConfig(
         host=args.host, port=args.port, workers=workers,
         queue_size=args.queue if args.queue is not None else 4 * workers,

@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from glraster import validate
+from glraster.errors import ArgumentError
 
 from glraster.conformance.scenes.builders import BUILDERS
 
@@ -97,7 +98,7 @@ def describe(name: str) -> str:
 def _entry(name: str) -> dict:
     cat = _catalog()
     if name not in cat:
-        raise ValueError(f"unknown scene {name!r}; known scenes: {', '.join(cat)}")
+        raise ArgumentError("name", f"unknown scene {name!r}; known scenes: {', '.join(cat)}")
     return cat[name]
 
 
@@ -108,11 +109,13 @@ def load_scene(name: str) -> Scene:
     base, at, count = name.partition("@")
     if at:
         if not (count.endswith("x") and count[:-1].isdigit() and int(count[:-1]) >= 1):
-            raise ValueError(f"scene name {name!r}: a sample count is written <name>@<S>x, "
-                             f"e.g. {base}@4x")
+            raise ArgumentError(
+                "name", f"scene name {name!r}: a sample count is written <name>@<S>x, "
+                         f"e.g. {base}@4x")
         scene = load_scene(base)
         if scene.samples == 1:
-            raise ValueError(f"scene name {name!r}: {base!r} is a single-sample scene")
+            raise ArgumentError("name",
+                                f"scene name {name!r}: {base!r} is a single-sample scene")
         return with_samples(scene, int(count[:-1]))
     return build_scene(_entry(name), source=f"catalog scene {name!r}")
 
@@ -121,19 +124,20 @@ def build_scene(entry: dict, source: str = "scene") -> Scene:
     """Build a Scene from a recipe dict (the catalog format) and validate it."""
     for key in ("name", "resolution", "builder"):
         if key not in entry:
-            raise ValueError(f"{source}: missing field {key!r}")
+            raise ArgumentError("entry", f"{source}: missing field {key!r}")
     fn = BUILDERS.get(entry["builder"])
     if fn is None:
-        raise ValueError(f"{source}: unknown builder {entry['builder']!r}; "
-                         f"known: {', '.join(sorted(BUILDERS))}")
+        raise ArgumentError("entry", f"{source}: unknown builder {entry['builder']!r}; "
+                                     f"known: {', '.join(sorted(BUILDERS))}")
     try:
         resolution = validate.resolution(entry["resolution"], MAX_RESOLUTION)
-    except ValueError as exc:
-        raise ValueError(f"{source}: {exc}") from None
+    except ArgumentError as exc:
+        raise ArgumentError(exc.argument, f"{source}: {exc}") from None
     try:
         pos, tri = fn(resolution, **entry.get("params", {}))
     except TypeError as exc:
-        raise ValueError(f"{source}: bad parameters for builder {entry['builder']!r}: {exc}") from exc
+        raise ArgumentError("entry", f"{source}: bad parameters for builder "
+                                     f"{entry['builder']!r}: {exc}") from exc
     outputs = tuple(entry.get("outputs", ALL_OUTPUTS))
     return make_scene(entry["name"], pos, tri, resolution, entry.get("description", ""),
                       outputs=outputs, tags=tuple(entry.get("tags", ())), source=source,
@@ -144,7 +148,8 @@ def build_scene(entry: dict, source: str = "scene") -> Scene:
 def make_scene(name, pos, tri, resolution, description="", outputs=ALL_OUTPUTS, tags=(),
                source="scene", samples=1, interpolation="center") -> Scene:
     """Validate arrays and wrap them in a read-only Scene (pos -> float32, tri -> int32).
-    Errors are glraster.validate's, prefixed with ``source`` (the file or catalog entry)."""
+    Errors are glraster.validate's (the same ``.argument``), prefixed with ``source`` (the
+    file or catalog entry)."""
     try:
         resolution = validate.resolution(resolution, MAX_RESOLUTION)
         pos32 = validate.positions(pos)
@@ -152,8 +157,8 @@ def make_scene(name, pos, tri, resolution, description="", outputs=ALL_OUTPUTS, 
         outputs = validate.outputs(outputs)
         samples = validate.samples(samples)
         interpolation = validate.interpolation(interpolation)
-    except ValueError as exc:
-        raise ValueError(f"{source}: {exc}") from None
+    except ArgumentError as exc:        # the argument at fault, its message after the source
+        raise ArgumentError(exc.argument, f"{source}: {exc}") from None
     pos32.setflags(write=False)
     tri32.setflags(write=False)
     return Scene(str(name), pos32, tri32, resolution, description, tuple(outputs), tuple(tags),
@@ -182,18 +187,18 @@ def load_scene_file(path) -> Scene:
     path = Path(path)
     src = str(path)
     if not path.is_file():
-        raise ValueError(f"{src}: no such scene file")
+        raise ArgumentError("path", f"{src}: no such scene file")
     suffix = path.suffix.lower()
     if suffix == ".npz":
         try:
             data = np.load(path, allow_pickle=False)
         except Exception as exc:  # zipfile/pickle errors from a corrupt file
-            raise ValueError(f"{src}: not a readable .npz file ({exc})") from None
+            raise ArgumentError("path", f"{src}: not a readable .npz file ({exc})") from None
         with data:
             missing = [k for k in ("pos", "tri", "resolution") if k not in data.files]
             if missing:
-                raise ValueError(f"{src}: missing array(s) {', '.join(missing)} "
-                                 f"(found: {', '.join(data.files) or 'none'})")
+                raise ArgumentError("path", f"{src}: missing array(s) {', '.join(missing)} "
+                                            f"(found: {', '.join(data.files) or 'none'})")
             name = str(data["name"]) if "name" in data.files else path.stem
             return make_scene(name, data["pos"], data["tri"], data["resolution"],
                               source=src)
@@ -201,25 +206,27 @@ def load_scene_file(path) -> Scene:
         try:
             entry = json.loads(path.read_text())
         except json.JSONDecodeError as exc:
-            raise ValueError(f"{src}: invalid JSON ({exc})") from None
+            raise ArgumentError("path", f"{src}: invalid JSON ({exc})") from None
         if not isinstance(entry, dict):
-            raise ValueError(f"{src}: top level must be a JSON object")
+            raise ArgumentError("path", f"{src}: top level must be a JSON object")
         if "builder" in entry:
             entry = dict(entry)
             entry.setdefault("name", path.stem)
             return build_scene(entry, source=src)
         missing = [k for k in ("pos", "tri", "resolution") if k not in entry]
         if missing:
-            raise ValueError(f"{src}: missing field(s) {', '.join(missing)}")
+            raise ArgumentError("path", f"{src}: missing field(s) {', '.join(missing)}")
         try:
             pos = np.array(entry["pos"], dtype=np.float64)
             tri = np.array(entry["tri"])             # integers stay integers
         except (TypeError, ValueError) as exc:
-            raise ValueError(f"{src}: pos and tri must be rectangular numeric lists ({exc})") from None
+            raise ArgumentError(
+                "path", f"{src}: pos and tri must be rectangular numeric lists ({exc})") from None
         return make_scene(entry.get("name", path.stem), pos, tri, entry["resolution"],
                           entry.get("description", ""),
                           outputs=tuple(entry.get("outputs", ALL_OUTPUTS)), source=src)
-    raise ValueError(f"{src}: unsupported scene file type {suffix!r} (use .npz or .json)")
+    raise ArgumentError(
+        "path", f"{src}: unsupported scene file type {suffix!r} (use .npz or .json)")
 
 
 def resolve(name_or_path) -> Scene:
@@ -229,8 +236,8 @@ def resolve(name_or_path) -> Scene:
         return load_scene(s)
     if Path(s).suffix.lower() in (".npz", ".json") or Path(s).exists():
         return load_scene_file(s)
-    raise ValueError(f"{s!r} is neither a catalog scene nor a scene file; "
-                     f"known scenes: {', '.join(_catalog())}")
+    raise ArgumentError("name_or_path", f"{s!r} is neither a catalog scene nor a scene file; "
+                                        f"known scenes: {', '.join(_catalog())}")
 
 
 __all__ = ["Scene", "list_scenes", "load_scene", "load_scene_file", "make_scene",

@@ -12,6 +12,7 @@ from typing import Callable
 
 import numpy as np
 
+from glraster.errors import ArgumentError
 from glraster.geometry import shapes as meshes
 from glraster.geometry.camera import look_at, orthographic, perspective
 from glraster.geometry.transforms import rotation, to_clip
@@ -39,7 +40,8 @@ def _camera_matrix(resolution, camera: dict) -> np.ndarray:
         proj = orthographic(-half_w, half_w, -half_h, half_h, camera.get("near", 0.1),
                             camera.get("far", 100.0))
     else:
-        raise ValueError(f"camera kind must be 'perspective' or 'orthographic', got {kind!r}")
+        raise ArgumentError(
+            "kind", f"camera kind must be 'perspective' or 'orthographic', got {kind!r}")
     return proj @ view
 
 
@@ -71,7 +73,7 @@ def mesh(resolution, mesh, camera, model=None):
            "bumpy_sphere": meshes.bumpy_sphere, "plane_grid": meshes.plane_grid,
            "box": meshes.box}.get(kind)
     if gen is None:
-        raise ValueError(f"unknown mesh kind {kind!r}")
+        raise ArgumentError("kind", f"unknown mesh kind {kind!r}")
     verts, faces = gen(**args)
     m = np.eye(4)
     for step in model or []:

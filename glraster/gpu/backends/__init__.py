@@ -26,6 +26,7 @@ from __future__ import annotations
 import os
 
 from glraster.errors import (
+    ArgumentError,
     BackendCrashed,
     BackendUnavailable,
     BadEnvironment,
@@ -53,7 +54,7 @@ def resolve_backend_name(backend: str | None) -> str:
         if backend is None:
             raise BadEnvironment(f"{message} (from GLRASTER_BACKEND): unset it or set one "
                                  "of those", "GLRASTER_BACKEND")
-        raise ValueError(message)
+        raise ArgumentError("backend", message)
     return name.strip().lower()
 
 

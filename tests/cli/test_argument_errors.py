@@ -1,0 +1,67 @@
+"""CLI one-line errors name the option at fault from the error's ``.argument``."""
+
+from __future__ import annotations
+
+import argparse
+
+import pytest
+
+from glraster.cli import build_parser, exit_codes, main
+from glraster.cli.errors import describe, options_of
+from glraster.errors import ArgumentError
+
+
+def _args(*argv):
+    return build_parser().parse_args(list(argv))
+
+
+def test_options_are_spelled_as_typed():
+    args = _args("render", "torus", "-o", "x.exr")
+    assert args.cli_options["output"] == "-o/--output"
+    assert args.cli_options["token_file"] == "--token-file"
+    assert args.cli_options["scene"] == "SCENE_OR_FILE"
+    nested = _args("fit", "cube", "--out", "o")    # a subcommand of a subcommand
+    assert nested.cli_options["resolutions"] == "--resolutions"
+
+
+@pytest.mark.parametrize("exc, expected", [
+    (ArgumentError("outputs", "outputs has unknown names ['x']"),
+     "argument --outputs: outputs has unknown names ['x']"),
+    (ArgumentError("output", "output must end in .exr, got 'x.png'"),
+     "argument -o/--output: output must end in .exr, got 'x.png'"),
+    # the message already starts with the option: unchanged
+    (ArgumentError("--server", "--server needs the service's URL"),
+     "--server needs the service's URL"),
+    # an argument the command line does not have (a scene's pos): the message alone
+    (ArgumentError("pos", "pos must have shape (V, 4), got (3, 3)"),
+     "pos must have shape (V, 4), got (3, 3)"),
+    # a plain ValueError carries no argument: its wording is not read
+    (ValueError("outputs has unknown names"), "outputs has unknown names"),
+])
+def test_describe_names_the_option_from_the_argument(exc, expected):
+    assert describe(exc, _args("render", "torus", "-o", "x.exr")) == expected
+
+
+def test_describe_without_a_command_line():
+    assert describe(ArgumentError("outputs", "outputs is bad")) == "outputs is bad"
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--max-body", type=int)
+    assert options_of(parser) == {"max_body": "--max-body"}
+
+
+def test_render_with_an_unknown_output_names_the_option(capsys, tmp_path):
+    code = main(["render", "torus", "-o", str(tmp_path / "x.exr"), "--outputs", "persp,normal"])
+    err = capsys.readouterr().err.strip()
+    assert code == exit_codes.USAGE
+    assert err.splitlines() == [
+        "glraster render: argument --outputs: outputs has unknown names ['normal']; choose "
+        "from ('persp', 'screen', 'depth', 'tri_id')"]
+    assert not (tmp_path / "x.exr").exists()
+
+
+def test_an_option_check_of_the_cli_is_one_line_naming_the_option(capsys, tmp_path):
+    code = main(["antialias-study", "--out", str(tmp_path / "o"), "--size", "8"])
+    assert code == exit_codes.USAGE
+    assert capsys.readouterr().err.strip() == (
+        "glraster antialias-study: error: --size must be at least 16 pixels, got 8")
+    assert not (tmp_path / "o").exists()
