@@ -5,7 +5,6 @@ import numpy as np
 import pytest
 
 from glraster.diff import ids
-from glraster.diff.ids import ID_BIAS, MAX_ID, decode_ids, encode_ids
 from glraster.errors import ArgumentError
 
 
@@ -17,6 +16,15 @@ def test_encoding_is_the_value_then_the_bits_without_a_gap():
     assert np.all(np.diff(enc) > 0)                          # ids order as floats
 
 
+@pytest.mark.parametrize("call, argument, message", [
+    (lambda: ids.encode_ids(np.array([0.5])), "tri_id", "tri_id must have an integer dtype"),
+    (lambda: ids.encode_ids([-2]), "tri_id", r"tri_id must be >= -1 \(-1: empty\), got -2"),
+    (lambda: ids.encode_ids([ids.MAX_ID]), "tri_id", "to encode as a finite float32"),
+    (lambda: ids.decode_ids(np.array([1, 2])), "rast id channel", "must be a float array"),
+    (lambda: ids.decode_ids(np.array([0.0, 2.5]), "rast"), "rast",
+     r"rast must hold encoded triangle ids \(0: empty\), got 2\.5 at \(1,\)"),
+    (lambda: ids.decode_ids(np.array([np.nan], np.float32)), "rast id channel", "got nan"),
+])
 def test_bad_values_raise_an_argument_error_naming_the_argument(call, argument, message):
     with pytest.raises(ArgumentError, match=message) as info:
         call()
