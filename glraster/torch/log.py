@@ -1,23 +1,12 @@
 """nvdiffrast's ``get_log_level`` / ``set_log_level`` over Python :mod:`logging`.
 
-The level is an int with nvdiffrast's (Torch's C++) meaning: messages of this severity or
-higher are printed, the others discarded. It is the level of the ``"glraster"`` logger
-(every glraster module logs to a child of it), so ``logging`` configuration works too:
-
-    ====  ========  =================  ==================================================
-    int   name      logging level      what glraster logs at it
-    ====  ========  =================  ==================================================
-    0     info      ``logging.INFO``   an OpenGL context made for a RasterizeGLContext
-                                       (backend, renderer); a mip pyramid built by
-                                       ``texture_construct_mip`` (levels, shapes)
-    1     warning   ``logging.WARNING``  ``texture(..., mip=)`` given a pyramid whose
-                                       texture changed since it was built (it is rebuilt)
-    2     error     ``logging.ERROR``  nothing: glraster raises exceptions for errors
-    3     fatal     ``logging.CRITICAL``  nothing
-    ====  ========  =================  ==================================================
-
-The default is 1 (logging's default, WARNING). A ``logging`` level in between reads as the
-next int up (DEBUG reads 0, anything above CRITICAL 3).
+The level is an int with nvdiffrast's meaning: messages of this severity or higher are
+printed. It is the level of the ``"glraster"`` logger (every glraster module logs to a
+child of it), so ``logging`` configuration works too: 0 info (``logging.INFO``: an OpenGL
+context made, a mip pyramid built), 1 warning (the default, ``logging.WARNING``: a mip
+pyramid rebuilt because its texture changed), 2 error and 3 fatal (``logging.ERROR`` and
+``CRITICAL``: nothing; glraster raises exceptions). A ``logging`` level in between reads
+as the next int up (DEBUG reads 0, anything above CRITICAL 3).
 """
 
 from __future__ import annotations
