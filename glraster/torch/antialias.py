@@ -14,8 +14,6 @@ from glraster.diff.antialias_reference import antialias_construct_topology_hash 
 from glraster.diff.ops import ANTIALIAS
 from glraster.torch import bridge
 
-__all__ = ["antialias", "antialias_construct_topology_hash"]
-
 
 def antialias_construct_topology_hash(tri, *, pos=None):
     """The topology hash of ``tri`` (nvdiffrast's ``antialias_construct_topology_hash``):
@@ -34,12 +32,9 @@ def antialias(color, rast, pos, tri, topology_hash=None, pos_gradient_boost=1.0,
     """Antialias ``color`` across the mesh's silhouette edges (nvdiffrast's ``antialias``).
 
     topology_hash: from :func:`antialias_construct_topology_hash` (None: built from tri);
-    pos_gradient_boost: factor on the gradients sent to pos. glraster's additions: glctx,
-    the context float32 runs on (None: the default); convex, scale a pixel's blend weights
-    to sum to 1 where they would sum past it, so that out stays within the inputs' range
-    (False: the plain sum).
-    """
-    call = bridge.Call(ANTIALIAS, (color, rast, pos), glctx, tri=bridge.integers("tri", tri),
+    pos_gradient_boost: factor on pos' gradients. glraster's: glctx, the context float32
+    runs on; convex, scale a pixel's blend weights to sum to 1 where they would sum past it
+    (out stays within the inputs' range; False: the plain sum)."""
+    return bridge.Call(ANTIALIAS, (color, rast, pos), glctx, tri=bridge.integers("tri", tri),
                        topology_hash=topology_hash, pos_gradient_boost=pos_gradient_boost,
-                       convex=convex)
-    return call()[0]
+                       convex=convex)()[0]

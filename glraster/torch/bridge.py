@@ -1,17 +1,18 @@
 """The one autograd bridge: any :class:`glraster.diff.op.Op` as a torch function.
 
-:class:`Call` checks the tensors (CPU, strided, float32 or float64, all of one dtype;
-:func:`integers` for ``tri`` and ``ranges``), hands NumPy views of them to ``op.check``
-(the one validation of shapes and values) and, called, runs the core the dtype selects
-(float32: OpenGL, float64: the float64 reference) in one private autograd Function. Its
-backward hands the output gradients (None: zero) to ``core.backward(saved, *grads,
-needs=...)``, ``needs`` naming the inputs that require grad, and returns a tensor of each
-input's shape. Inputs and outputs are saved for backward, so that changing one in place
-after the forward makes the backward raise instead of using changed values (the cores
-keep views of both). No double backward.
+:class:`Call` checks the tensors (CPU, strided, float32 or float64 of one dtype; integer
+``tri``, ``ranges``), hands NumPy views of them to ``op.check`` (the one validation) and
+runs the core the dtype selects (float32: OpenGL, float64: the float64 reference) in one
+autograd Function, whose backward runs ``core.backward(saved, *grads, needs=...)`` (None
+grads: zero; ``needs``: the inputs that require grad). Inputs and outputs are saved for
+backward, so that an in-place change of one after the forward makes the backward raise
+(the cores keep views of both). No double backward.
 """
 
 from __future__ import annotations
+
+import functools
+import inspect
 
 import numpy as np
 import torch
@@ -77,12 +78,12 @@ class Call:
         glctx = None if glctx is None else context(glctx)
         names = [n for n in op.inputs if not n.startswith("*")]
         names += [f"{op.inputs[-1][1:]}[{k}]" for k in range(len(inputs) - len(names))]
-        first = next(k for k, t in enumerate(inputs) if t is not None)
-        views = [None if t is None else tensor(n, t) for n, t in zip(names, inputs)]
-        for name, value in zip(names, inputs):
-            if value is not None and value.dtype != inputs[first].dtype:
-                raise ArgumentError(name, f"{name} must have the dtype of {names[first]} "
-                                          f"({inputs[first].dtype}), got {value.dtype}: "
+        views = [None if t is None and n in _optional(op) else tensor(n, t)
+                 for n, t in zip(names, inputs)]
+        for name, value in zip(names, inputs):  # the first input is never optional
+            if value is not None and value.dtype != inputs[0].dtype:
+                raise ArgumentError(name, f"{name} must have the dtype of {names[0]} "
+                                          f"({inputs[0].dtype}), got {value.dtype}: "
                                           "float32 runs on the GPU, float64 through the "
                                           "float64 reference, and one op does not mix them")
         self.op, self.inputs, self.frozen = op, tuple(inputs), tuple(frozen)
@@ -92,12 +93,17 @@ class Call:
             self.params["ctx"] = None if glctx is None else glctx.context
 
     def __call__(self, forward=None) -> tuple[torch.Tensor, ...]:
-        """The outputs, differentiable w.r.t. the inputs. ``forward``: a callable giving
-        ``(outputs, saved)`` for the core's backward (default: the core's forward)."""
+        """The outputs; ``forward()`` gives ``(outputs, saved)`` (default: the core's)."""
         core = self.op.core(self.dtype)
         if forward is None:
             forward = lambda: core.forward(*self.arrays, **self.params)  # noqa: E731
         return _Function.apply((core, self.dtype, self.frozen), forward, *self.inputs)
+
+
+@functools.cache
+def _optional(op) -> frozenset[str]:  # the inputs op.check lets be None
+    return frozenset(p.name for p in inspect.signature(op.check).parameters.values()
+                     if p.default is None)
 
 
 class _Function(torch.autograd.Function):

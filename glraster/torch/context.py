@@ -1,6 +1,5 @@
-"""Rasterizer contexts with nvdiffrast's names: a thin holder of a :class:`glraster.Context`,
-made on the first float32 call (float64 runs the float64 reference and never opens OpenGL).
-"""
+"""Rasterizer contexts with nvdiffrast's names: a holder of a :class:`glraster.Context`,
+made on the first float32 call (float64 runs the float64 reference, never opening OpenGL)."""
 
 from __future__ import annotations
 
@@ -17,17 +16,13 @@ MODES = ("automatic", "manual")
 class RasterizeGLContext:
     """A rasterizer context for :func:`glraster.torch.rasterize` and :class:`DepthPeeler`.
 
-    output_db : True: ``rasterize`` returns ``rast_db`` (B, H, W, 4); False: an empty
-        (B, H, W, 0) tensor, and ``grad_db`` is ignored (as nvdiffrast)
-    mode : "automatic" or "manual", for nvdiffrast compatibility: glraster makes its
-        context current around every call and restores the caller's, so both behave the
-        same; :meth:`set_context` / :meth:`release_context` are allowed in "manual" only
-    device : None or "cpu" (tensors live on the CPU; anything else is a ValueError)
-    backend : keyword-only, "auto", "egl" or "osmesa" (None: ``$GLRASTER_BACKEND``)
-    context : keyword-only, an existing glraster.Context to draw with
-
-    Attributes: output_db, mode, device (cpu) and active_depth_peeler (the
-    :class:`DepthPeeler` inside its ``with`` block, or None).
+    output_db : False: ``rasterize`` returns an empty (B, H, W, 0) ``rast_db``
+    mode : "automatic" or "manual" (nvdiffrast's; glraster makes its context current around
+        every call, so both behave the same; set/release_context need "manual")
+    device : None or "cpu" (tensors live on the CPU)
+    backend, context (keyword-only): the OpenGL backend ("auto", "egl", "osmesa"; None:
+        ``$GLRASTER_BACKEND``), or an existing glraster.Context to draw with
+    active_depth_peeler : the :class:`DepthPeeler` inside its ``with`` block, or None
     """
 
     def __init__(self, output_db: bool = True, mode: str = "automatic", device=None, *,
@@ -42,14 +37,11 @@ class RasterizeGLContext:
             if not isinstance(context, Context):
                 raise ValueError(f"context must be a glraster.Context, got "
                                  f"{type(context).__name__}")
-        try:
-            self.device = torch.device("cpu" if device is None else device)
-        except (RuntimeError, TypeError):
-            self.device = None
-        if self.device is None or self.device.type != "cpu":
+        if str(device) not in ("None", "cpu"):
             raise ValueError(f"device must be None or 'cpu' (glraster.torch runs on the CPU, "
                              f"OpenGL reads back to host memory), got {device!r}")
         self.output_db, self.mode, self.backend = output_db, mode, backend
+        self.device = torch.device("cpu")
         self._context, self._lock = context, threading.Lock()
         self.active_depth_peeler = None
 

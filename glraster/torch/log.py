@@ -15,8 +15,6 @@ import logging
 import numbers
 import sys
 
-__all__ = ["LOGGER_NAME", "get_log_level", "set_log_level"]
-
 LOGGER_NAME = "glraster"
 LEVELS = (logging.INFO, logging.WARNING, logging.ERROR, logging.CRITICAL)
 
@@ -24,20 +22,13 @@ LEVELS = (logging.INFO, logging.WARNING, logging.ERROR, logging.CRITICAL)
 def get_log_level() -> int:
     """The current log level, 0 (info) .. 3 (fatal); see :func:`set_log_level`."""
     effective = logging.getLogger(LOGGER_NAME).getEffectiveLevel()
-    for level, value in enumerate(LEVELS):
-        if effective <= value:
-            return level
-    return len(LEVELS) - 1
+    return next((k for k, value in enumerate(LEVELS) if effective <= value), len(LEVELS) - 1)
 
 
 def set_log_level(level: int) -> None:
     """Print glraster's messages of severity ``level`` or higher: 0 info, 1 warning (the
-    default), 2 error, 3 fatal (nvdiffrast's convention).
-
-    Sets the ``"glraster"`` logger's level; when no handler would print its records (no
-    handler on it or its ancestors), adds one writing to stderr, as nvdiffrast prints its
-    messages there.
-    """
+    default), 2 error, 3 fatal (nvdiffrast's convention): the ``"glraster"`` logger's
+    level, with a handler writing to stderr (as nvdiffrast) when none would print them."""
     if isinstance(level, (bool, float)) or not isinstance(level, numbers.Integral) \
             or not 0 <= level < len(LEVELS):
         raise ValueError(f"level must be an int 0 (info), 1 (warning), 2 (error) or 3 "

@@ -28,11 +28,10 @@ from glraster.torch import bridge
 
 
 def _rasterize_call(glctx, pos, tri, resolution, ranges, grad_db):
-    bridge.context(glctx)
-    bridge.flag("grad_db", grad_db)
-    return bridge.Call(RASTERIZE, (pos,), glctx, tri=bridge.integers("tri", tri),
+    return bridge.Call(RASTERIZE, (pos,), bridge.context(glctx), tri=bridge.integers("tri", tri),
                        resolution=resolution, ranges=bridge.integers("ranges", ranges),
-                       grad_db=glctx.output_db, frozen=() if grad_db else (1,))
+                       grad_db=glctx.output_db,
+                       frozen=() if bridge.flag("grad_db", grad_db) else (1,))
 
 
 def rasterize(glctx, pos, tri, resolution, ranges=None, grad_db=True):
@@ -59,10 +58,6 @@ def interpolate(attr, rast, tri, rast_db=None, diff_attrs=None, *, glctx=None):
     """
     if diff_attrs is None or (isinstance(diff_attrs, (list, tuple)) and not diff_attrs):
         rast_db, diff_attrs = None, None  # as nvdiffrast: rast_db is then not used
-    elif rast_db is not None and rast_db.shape[-1:] == (0,):
-        raise bridge.ArgumentError("rast_db", "rast_db is empty (B, H, W, 0): the context "
-                                   "was made with output_db=False, so diff_attrs cannot be "
-                                   "computed")
     if bridge.tensor("attr", attr).ndim == 3 and attr.shape[0] == 1:
         attr = attr[0]  # a batch of 1 broadcasts (as (V, A))
     return bridge.Call(INTERPOLATE, (attr, rast, rast_db), glctx,
@@ -76,11 +71,10 @@ class DepthPeeler:
             for _ in range(layers):
                 rast, rast_db = peeler.rasterize_next_layer()
 
-    Arguments are :func:`rasterize`'s; each layer is ``(rast, rast_db)`` as it returns,
-    keeping per pixel the nearest surface strictly behind the previous layer's (the first
-    layer equals :func:`rasterize`'s; a pixel empty in one layer stays empty), and is
-    differentiable w.r.t. ``pos`` the same way. While the peeler is active, ``rasterize``
-    on its context raises RuntimeError; one context has one active peeler at a time.
+    Arguments are :func:`rasterize`'s; a layer is its ``(rast, rast_db)`` for the nearest
+    surface strictly behind the previous layer's (a pixel empty once stays empty),
+    differentiable w.r.t. ``pos`` the same way. While a peeler is active (one per context),
+    ``rasterize`` on its context raises RuntimeError.
     """
 
     def __init__(self, glctx, pos, tri, resolution, ranges=None, grad_db=True):

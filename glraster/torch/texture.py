@@ -23,14 +23,11 @@ import torch
 from glraster.diff.ops import TEXTURE
 from glraster.torch import bridge
 
-__all__ = ["TextureMip", "texture", "texture_construct_mip"]
-
 _log = logging.getLogger(__name__)
 
 
 def _source_key(tex: torch.Tensor) -> tuple:
-    """What identifies ``tex``'s values while the tensor is alive: its memory, view and
-    version counter (bumped by every in-place change, optimizer steps included)."""
+    """``tex``'s memory, view and version counter (bumped by every in-place change)."""
     return (tex.untyped_storage().data_ptr(), tex.storage_offset(), tuple(tex.shape),
             tuple(tex.stride()), tex.dtype, tex._version)
 
@@ -40,18 +37,13 @@ def _shapes(levels) -> str:
 
 
 class TextureMip:
-    """A mip pyramid built once by :func:`texture_construct_mip`, for ``texture(..., mip=)``.
+    """A mip pyramid built once by :func:`texture_construct_mip`, for ``texture(..., mip=)``:
+    used while its texture is unchanged (the same memory, no in-place change since), else
+    rebuilt once with a warning (nvdiffrast would use stale levels). It is tex's own, so
+    tex's gradient is as without ``mip``; :attr:`levels` get none of their own.
 
-    While the texture it was built from is unchanged (the same tensor, or a view of the same
-    memory, with no in-place change since), ``texture`` uses :attr:`levels` instead of
-    building the pyramid; a changed texture (an optimizer step, another tensor) rebuilds them
-    once, with a warning (nvdiffrast would use the stale levels). The pyramid is tex's own,
-    so tex's gradient is the same as without ``mip``; :attr:`levels` get none of their own.
-
-    levels : list of torch.Tensor, levels 1, 2, ...: (B or 1, Ht_k, Wt_k, C) (cube: (B or 1,
-        6, N_k, N_k, C)) with Ht_k = max(1, Ht_{k-1} // 2), tex's dtype, no grad
-    max_mip_level : int or None, at most this many levels below the base (None: to 1 x 1)
-    cube_mode : bool, True: built from a cube map (texture it with boundary_mode="cube")
+    levels : levels 1, 2, ... as tensors (B or 1, Ht_k, Wt_k, C) (cube: (B or 1, 6, N_k,
+        N_k, C)), Ht_k = max(1, Ht_{k-1} // 2); max_mip_level, cube_mode: as built
     """
 
     def __init__(self, tex: torch.Tensor, max_mip_level, cube_mode: bool, glctx):
@@ -72,7 +64,7 @@ class TextureMip:
                              "in-place change of this one: rebuilding it (call "
                              "texture_construct_mip again after changing the texture, or "
                              "pass mip=None for a texture that changes every call)")
-            corner = torch.zeros(tex.shape[0], 1, 1, 2 + self.cube_mode, dtype=tex.dtype)
+            corner = torch.zeros(*tex.shape[:1], 1, 1, 2 + self.cube_mode, dtype=tex.dtype)
             call = bridge.Call(TEXTURE, (tex, corner), self._glctx, filter_mode="linear",
                                boundary_mode="cube" if self.cube_mode else "wrap",
                                max_mip_level=self.max_mip_level)
@@ -96,11 +88,8 @@ class TextureMip:
 
 
 def texture_construct_mip(tex, max_mip_level=None, cube_mode=False, *, glctx=None):
-    """The mip pyramid of ``tex`` (a box filter over each texel's footprint, as ``texture``
-    builds it), built once for ``texture(..., mip=)`` (nvdiffrast's
-    ``texture_construct_mip``): a :class:`TextureMip`. float32 builds on OpenGL (``glctx``,
-    glraster's addition; None: the default context), float64 in the float64 reference.
-    """
+    """The mip pyramid of ``tex`` (the box filter ``texture`` builds) as a :class:`TextureMip`
+    (nvdiffrast's ``texture_construct_mip``); float32 builds on ``glctx`` (glraster's)."""
     bridge.tensor("tex", tex)
     return TextureMip(tex, max_mip_level, bridge.flag("cube_mode", cube_mode), glctx)
 
