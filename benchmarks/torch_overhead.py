@@ -103,7 +103,8 @@ def _cases(size: int, glctx):
 
 
 def worker(sizes, calls: int) -> dict:
-    """{op: {size: [wrapper s, core s]}}: medians of ``calls`` alternating pairs."""
+    """{op: {size: [wrapper s, core s, overhead s]}}: medians over ``calls`` alternating
+    (wrapper, core) pairs, the overhead that of each pair's difference."""
     import glraster.torch as dr
 
     glctx = dr.RasterizeGLContext()
@@ -117,7 +118,8 @@ def worker(sizes, calls: int) -> dict:
                     start = time.perf_counter()
                     fn()
                     times[k].append(time.perf_counter() - start)
-            out[name][str(size)] = [statistics.median(t) for t in times]
+            out[name][str(size)] = [statistics.median(t) for t in times] + [
+                statistics.median(a - b for a, b in zip(*times))]
     return out
 
 
@@ -132,7 +134,7 @@ def _run_worker(tree: Path, sizes, calls: int) -> dict:
 
 
 def compare(before: Path, after: Path, sizes, rounds: int, calls: int) -> list[dict]:
-    """Rows (op, size, core and wrapper ms, overheads, ratio), medians over rounds."""
+    """Rows (op, size, core ms, overheads ms: median and range over rounds, ratio)."""
     trees = {"before": before, "after": after}
     results = {name: [] for name in trees}
     for r in range(rounds):
@@ -144,9 +146,11 @@ def compare(before: Path, after: Path, sizes, rounds: int, calls: int) -> list[d
             row = {"op": op, "size": int(size)}
             for name, runs in results.items():
                 row[f"core_{name}_ms"] = 1e3 * statistics.median(x[op][size][1] for x in runs)
-                row[f"overhead_{name}_ms"] = 1e3 * statistics.median(
-                    x[op][size][0] - x[op][size][1] for x in runs)
-            row["ratio"] = row["overhead_before_ms"] / max(row["overhead_after_ms"], 1e-6)
+                overheads = [1e3 * x[op][size][2] for x in runs]
+                row[f"overhead_{name}_ms"] = statistics.median(overheads)
+                row[f"range_{name}_ms"] = (min(overheads), max(overheads))
+            before, after = row["overhead_before_ms"], row["overhead_after_ms"]
+            row["ratio"] = before / after if before > 0 and after > 0 else None
             rows.append(row)
     return rows
 
@@ -158,7 +162,7 @@ def main(argv=None) -> int:
     parser.add_argument("--after", type=Path, default=HERE.parents[1])
     parser.add_argument("--sizes", type=int, nargs="+", default=[64, 1024])
     parser.add_argument("--rounds", type=int, default=5)
-    parser.add_argument("--calls", type=int, default=7)
+    parser.add_argument("--calls", type=int, default=9)
     parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.worker:
@@ -180,13 +184,16 @@ def main(argv=None) -> int:
                 subprocess.run(["git", "-C", str(args.after), "worktree", "remove", "--force",
                                 str(before)], check=False)
     print(f"medians of {args.rounds} rounds (one fresh interpreter per tree and round, "
-          f"alternating), each the median of {args.calls} calls; float32 on OpenGL")
+          f"alternating), each the median of {args.calls} (wrapper - core) pairs [range over "
+          "rounds]; float32 on OpenGL")
     print("| op | size | core ms | overhead before ms | overhead after ms | before / after |")
     print("|---|---|---|---|---|---|")
+    span = lambda r: f"{r[0]:.2f} .. {r[1]:.2f}"  # noqa: E731
     for row in rows:
+        ratio = "noise" if row["ratio"] is None else f"{row['ratio']:.2f}"
         print(f"| {row['op']} | {row['size']}² | {row['core_after_ms']:.1f} | "
-              f"{row['overhead_before_ms']:.2f} | {row['overhead_after_ms']:.2f} | "
-              f"{row['ratio']:.1f} |")
+              f"{row['overhead_before_ms']:.2f} [{span(row['range_before_ms'])}] | "
+              f"{row['overhead_after_ms']:.2f} [{span(row['range_after_ms'])}] | {ratio} |")
     return 0
 
 

@@ -99,8 +99,8 @@ def _levels(tex, mip, uv_da, mip_level_bias, filter_mode, boundary_mode):
     if mip is None or isinstance(mip, (list, tuple)):
         return tuple(mip or ()), False
     if not isinstance(mip, TextureMip):
-        raise bridge.ArgumentError("mip", f"mip must be None, a TextureMip or a list of "
-                                   f"tensors, got {type(mip).__name__}")
+        raise bridge.ArgumentError("mip", "mip must be None, a TextureMip (texture_construct_"
+                                   f"mip) or a list of levels, got {type(mip).__name__}")
     if mip.cube_mode != (boundary_mode == "cube"):
         need = "'cube'" if mip.cube_mode else "other than 'cube'"
         raise bridge.ArgumentError("mip", f"mip was built with cube_mode={mip.cube_mode}, "
