@@ -7,10 +7,11 @@
 ``--before`` is a checkout of the older tree (``--before-commit`` makes a temporary git
 worktree of that commit instead and removes it afterwards); ``--after`` is this tree. Each
 round runs one fresh interpreter per tree, in alternating order (interleaved A/B); a
-worker times ``--calls`` alternating (wrapper, core) pairs per op and size and reports the
-medians. The overhead is median(wrapper) - median(core): the wrapper's tensor checks,
-validation, NumPy and torch conversions and autograd bookkeeping. The table gives the
-median over rounds and before / after. Scene: a 16 x 16 grid of quads (512 triangles,
+worker times ``--calls`` alternating (wrapper, core) pairs per op and size, and its
+overhead is the median of the pairs' differences: the wrapper's tensor checks, validation,
+NumPy and torch conversions and autograd's bookkeeping (gradients by
+``torch.autograd.grad``, so nothing accumulates into the leaves' ``.grad``). The table
+gives the median and range over rounds and before / after. Scene: a 16 x 16 grid of quads (512 triangles,
 w from 1 to 1.8) over 80% of an N x N float32 image on OpenGL, 3 attributes, a 256² RGB
 texture (linear), antialias with a prebuilt topology hash; every float input wants its
 gradient. Timings on a shared machine are noisy: read the ratio, not the milliseconds.
@@ -90,9 +91,9 @@ def _cases(size: int, glctx):
         core = op.core(np.float32)
 
         def wrapper(call=call, tensors=tensors, grads_t=grads_t):
-            outs = call(tensors)
-            torch.autograd.backward([o for o, g in zip(outs, grads_t) if g.numel()],
-                                    [g for g in grads_t if g.numel()])
+            outs = call(tensors)   # autograd.grad: no .grad accumulated into the leaves
+            torch.autograd.grad([o for o, g in zip(outs, grads_t) if g.numel()], tensors,
+                                [g for g in grads_t if g.numel()], allow_unused=True)
 
         def bare(core=core, arrays=arrays, checked=checked, grads=grads):
             _, saved = core.forward(*arrays, **checked)
