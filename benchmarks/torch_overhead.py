@@ -11,10 +11,11 @@ worker times ``--calls`` alternating (wrapper, core) pairs per op and size, and 
 overhead is the median of the pairs' differences: the wrapper's tensor checks, validation,
 NumPy and torch conversions and autograd's bookkeeping (gradients by
 ``torch.autograd.grad``, so nothing accumulates into the leaves' ``.grad``). The table
-gives the median and range over rounds and before / after. Scene: a 16 x 16 grid of quads (512 triangles,
-w from 1 to 1.8) over 80% of an N x N float32 image on OpenGL, 3 attributes, a 256² RGB
-texture (linear), antialias with a prebuilt topology hash; every float input wants its
-gradient. Timings on a shared machine are noisy: read the ratio, not the milliseconds.
+gives the median and range over rounds and before / after. Scene: a 16 x 16 grid of
+quads (512 triangles, w from 1 to 1.8) over 80% of an N x N float32 image on OpenGL, 3
+attributes, a 256² RGB texture (linear), antialias with a prebuilt topology hash; every
+float input wants its gradient. Timings on a shared machine are noisy: read the ratio
+and the ranges, not single milliseconds.
 """
 
 from __future__ import annotations
