@@ -1,17 +1,7 @@
-"""PyTorch autograd wrappers of :mod:`glraster.diff` with nvdiffrast's signatures (the only
-module that imports torch; optional extra ``[torch]``).
-
-Code written for nvdiffrast runs after changing its import::
-
-    import glraster.torch as dr          # instead of: import nvdiffrast.torch as dr
-
-    glctx = dr.RasterizeGLContext()       # (or dr.RasterizeCudaContext(): the same here)
-    rast, rast_db = dr.rasterize(glctx, pos, tri, resolution=(H, W))
-    color, _ = dr.interpolate(col, rast, tri)
-
-Tensors live on the CPU. float32 runs on OpenGL (glraster's GPU ops), float64 through the
-float64 reference, so ``torch.autograd.gradcheck`` checks the closed-form gradients.
-Layouts and gradients: :mod:`glraster.torch.ops`; docs/differentiable.md, "PyTorch".
+"""nvdiffrast's PyTorch API over :mod:`glraster.diff.ops` (the only torch importer; extra
+``[torch]``): code written for nvdiffrast runs after ``import glraster.torch as dr``. CPU
+tensors; float32 runs on OpenGL, float64 through the float64 reference (for gradcheck).
+Layouts: :mod:`glraster.torch.ops`, :mod:`glraster.torch.texture`; docs/differentiable.md.
 """
 
 from glraster.torch.antialias import antialias, antialias_construct_topology_hash

@@ -133,7 +133,7 @@ INTERPOLATE_CASES = [
     ("diff_attrs index 3 is out of range", dict(diff_attrs=[0, 3])),
     ("diff_attrs must be None, 'all'", dict(diff_attrs="some")),
     ("diff_attrs must hold integer", dict(diff_attrs=[0.5])),
-    ("rast_db is needed", dict(rast_db=None, diff_attrs=[0])),
+    ("needs rast_db", dict(rast_db=None, diff_attrs=[0])),  # the INTERPOLATE op's check
     ("rast_db must have the dtype of attr", dict(rast_db="float32", diff_attrs=[0])),
     (r"rast_db must have shape \(1, 10, 12, 4\)",
      dict(rast_db=torch.zeros(1, 10, 11, 4, dtype=torch.float64), diff_attrs=[0])),
