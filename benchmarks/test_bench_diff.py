@@ -25,13 +25,6 @@ ATTRIBUTES = 4
 
 
 @pytest.fixture(scope="module")
-def ctx():
-    c = gr.Context("egl")
-    yield c
-    c.release()
-
-
-@pytest.fixture(scope="module")
 def inputs(ctx):
     scene = make_bench_scene("terrain", 20000)
     (pos,), params = RASTERIZE.check(scene.pos, tri=scene.faces, resolution=RESOLUTION,

@@ -16,13 +16,6 @@ from glraster.gpu.rasterize import METHODS
 
 
 @pytest.fixture(scope="module")
-def ctx():
-    c = gr.Context("egl")
-    yield c
-    c.release()
-
-
-@pytest.fixture(scope="module")
 def terrain():
     return make_bench_scene("terrain", 20000)
 

@@ -7,21 +7,10 @@ import sys
 import textwrap
 from pathlib import Path
 
+from tests.no_gl import BLOCK_GL
+
 ROOT = Path(__file__).resolve().parents[1]
 
-# Run with moderngl and glcontext unimportable: a finder first on sys.meta_path refuses
-# them, as on a machine where they are not installed.
-BLOCK_GL = textwrap.dedent("""
-    import sys
-
-    class NoGL:
-        def find_spec(self, name, path=None, target=None):
-            if name.split(".")[0] in ("moderngl", "glcontext"):
-                raise ImportError(f"No module named {name!r} (blocked by the test)")
-            return None
-
-    sys.meta_path.insert(0, NoGL())
-""")
 
 REFERENCE_WITHOUT_GL = BLOCK_GL + textwrap.dedent("""
     import numpy as np

@@ -79,6 +79,8 @@ STUDIES: dict[str, Study] = {s.name: s for s in (
           "wrappers over the op cores, against an older tree", extra="torch"),
     Study("metrics-ab", _S + "metrics_ab", "the service's /metrics cost against an earlier "
           "revision's (git)", extra="service"),
+    Study("service-cpu-overhead", _S + "service_cpu_overhead", "CPU the service spends per "
+          "request beyond the in-process call", extra="service"),
     Study("service-parse-ab", _S + "service_parse_ab", "the worker's request parsing against "
           "an earlier revision's (git)", extra="service"),
 )}

@@ -8,6 +8,7 @@ import pytest
 import torch
 
 import glraster.torch as dr
+from tests.no_gl import BLOCK_GL
 from tests.torch import scenes
 
 RES = scenes.RESOLUTION
@@ -162,16 +163,7 @@ def test_interpolate_without_diff_attrs_ignores_rast_db(raster):
     assert out_da.shape == rast.shape[:3] + (0,)
 
 
-NO_GL = """
-import sys
-
-class NoGL:
-    def find_spec(self, name, path=None, target=None):
-        if name.split(".")[0] in ("moderngl", "glcontext"):
-            raise ImportError(f"No module named {name!r} (blocked by the test)")
-        return None
-
-sys.meta_path.insert(0, NoGL())
+NO_GL = BLOCK_GL + """
 
 import torch
 import glraster.torch as dr

@@ -1,6 +1,6 @@
 """CPU the service spends per request beyond the in-process call, 256x256 torus, JSON result.
 
-    python benchmarks/service_cpu_overhead.py [--backend egl] [--rounds 8] [--per 200]
+    glraster study service-cpu-overhead [--backend egl] [--rounds 8] [--per 200]
 
 The service's latency goal (<= 1 ms over an in-process ``glraster.rasterize`` plus the JSON
 statistics, docs/service.md) is a wall-clock figure, which on a machine whose cores are
@@ -25,18 +25,14 @@ request and ``/metrics`` scraped once per round (as a Prometheus would, every 15
 
 from __future__ import annotations
 
-import argparse
 import os
 import statistics
 import sys
 import time
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from glraster.client import Client, encode_scene  # noqa: E402
-from glraster.service.loadtest import (  # noqa: E402
+from glraster.client import Client, encode_scene
+from glraster.studies.registry import argument_parser
+from glraster.studies.loadtest import (
     InProcess,
     StartedServer,
     _run,
@@ -59,7 +55,7 @@ def cpu_seconds(pid: int) -> float:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argument_parser("service-cpu-overhead", __doc__)
     parser.add_argument("--backend", default=None)
     parser.add_argument("--rounds", type=int, default=8)
     parser.add_argument("--per", type=int, default=200, help="requests (calls) per round")
