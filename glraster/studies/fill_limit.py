@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from glraster import validate
+from glraster.errors import ArgumentError
 
 _VERT = """
 #version 450 core
@@ -60,7 +61,17 @@ void main() { out_persp = v_persp; out_screen = v_screen; out_tri_id = v_id; }
 
 
 class _BareDraw:
-    """Shared setup: checked input, de-indexed corners, targets, framebuffer."""
+    """Shared setup: checked input, de-indexed corners, targets, framebuffer.
+
+    Parameters
+    ----------
+    ctx : glraster.Context
+    pos : (V, 4) array_like of float     clip-space positions
+    tri : (T, 3) array_like of int       vertex indices (at least one triangle)
+    resolution : (height, width)
+
+    Bad input is an ArgumentError naming the argument.
+    """
 
     vertex_shader = _VERT
     fragment_shader = _FRAG
@@ -69,7 +80,7 @@ class _BareDraw:
         pos = validate.positions(pos)
         tri = validate.triangles(tri, len(pos))
         if len(tri) == 0:
-            raise ValueError("tri must hold at least one triangle, got shape (0, 3)")
+            raise ArgumentError("tri", "tri must hold at least one triangle, got shape (0, 3)")
         height, width = validate.resolution(resolution, ctx.max_texture_size)
         self.ctx = ctx
         self.shape = (height, width)
@@ -126,17 +137,8 @@ class _BareDraw:
 
 
 class FillLimit(_BareDraw):
-    """A prepared bare draw of (pos, tri) at ``resolution``; call :meth:`run` to time it.
-
-    Parameters
-    ----------
-    ctx : glraster.Context
-    pos : (V, 4) array_like of float     clip-space positions
-    tri : (T, 3) array_like of int       vertex indices
-    resolution : (height, width)
-
-    Bad input is a ValueError naming the argument.
-    """
+    """A prepared bare draw of (pos, tri) at ``resolution`` (the arguments of
+    :class:`_BareDraw`); call :meth:`run` to time it."""
 
     def run(self):
         """Clear, draw, read back all four targets into new arrays:
@@ -150,16 +152,8 @@ class FillLimit(_BareDraw):
 class LeanDraw(_BareDraw):
     """The leanest draw of the same targets: plain vertex attributes (non-indexed, 3
     vertices per triangle, each corner with its unit barycentric vector and its triangle's
-    id as a ``flat`` integer) read into output arrays allocated once and reused.
-
-    Parameters
-    ----------
-    ctx : glraster.Context
-    pos : (V, 4) array_like of float     clip-space positions
-    tri : (T, 3) array_like of int       vertex indices
-    resolution : (height, width)
-
-    Bad input is a ValueError naming the argument. The outputs follow
+    id as a ``flat`` integer) read into output arrays allocated once and reused; the
+    arguments of :class:`_BareDraw`. The outputs follow
     :func:`glraster.rasterize` (tri_id -1 where empty), so they equal its ``hw`` results.
     """
 

@@ -8,17 +8,9 @@ import ctypes.util
 from typing import NamedTuple
 
 from glraster.errors import BackendUnavailable, LibraryMissing
-from glraster.gpu.backends.current import (
-    GL_VERSIONS,
-    MIN_GL,
-    CurrentContextLoader,
-    driver_too_old,
-    gl_strings,
-    glx_has_current_context,
-    loaded_library,
-    mesa_current_context,
-    wrap_loader,
-)
+from glraster.gpu.backends.current import GL_VERSIONS, MIN_GL, CurrentContextLoader
+from glraster.gpu.backends.current import driver_too_old, gl_strings, loaded_library
+from glraster.gpu.backends.current import glx_has_current_context, mesa_current_context, wrap_loader
 
 # The context made to read what a too old driver offers: version 1.0 has no profile, so
 # the driver returns its best, whatever it is (MESA_GL_VERSION_OVERRIDE=2.1 gives 2.1).
@@ -137,7 +129,8 @@ class EGLLoader(CurrentContextLoader):
         before = api.snapshot()
         other = None
         effective = mesa_current_context()
-        if effective is not None and effective != mesa_own and before.context in (None, own_context):
+        if (effective is not None and effective != mesa_own
+                and before.context in (None, own_context)):
             # Mesa's effective context is not an EGL one: OSMesa's (GLX's is left alone)
             if not glx_has_current_context():
                 from glraster.gpu.backends.osmesa import OSMesaApi

@@ -15,16 +15,9 @@ import ctypes.util
 from typing import NamedTuple
 
 from glraster.errors import BackendUnavailable, LibraryMissing
-from glraster.gpu.backends.current import (
-    GL_VERSIONS,
-    MIN_GL,
-    CurrentContextLoader,
-    driver_too_old,
-    gl_strings,
-    glx_has_current_context,
-    loaded_library,
-    wrap_loader,
-)
+from glraster.gpu.backends.current import GL_VERSIONS, MIN_GL, CurrentContextLoader
+from glraster.gpu.backends.current import driver_too_old, gl_strings, loaded_library
+from glraster.gpu.backends.current import glx_has_current_context, wrap_loader
 
 # Attribute names and values from GL/osmesa.h.
 OSMESA_FORMAT = 0x22
