@@ -481,7 +481,7 @@ def measure_fits(glctx, names, rounds: int, iterations: int, profile_iterations:
                 samples[name]["step"].append(step)
                 samples[name]["core"].append(totals)
     for name, s in samples.items():
-        segments = s["floors"][0].keys()
+        segments = list(s["floors"][0])
         out[name] = {
             "iteration": statistics.median(s["iteration"]),
             "step": statistics.median(s["step"]),
@@ -492,7 +492,7 @@ def measure_fits(glctx, names, rounds: int, iterations: int, profile_iterations:
             "calls": calls[name],
         }
         out[name]["phases"], out[name]["host"] = phases(fits[name], profile_iterations)
-    return out
+    return {name: out[name] for name in names}
 
 
 def floor_sum(fit: dict) -> float:
