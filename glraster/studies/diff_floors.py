@@ -24,18 +24,23 @@ at 4x4 and 16x16 (4 views), the pose fit at 256² (8 restarts) and the texture f
 
 - the iteration's median (``--iterations`` per round, ``--rounds`` interleaved rounds);
 - per op call: calls per iteration, the core's time (inclusive) and its floor;
-- per phase (cProfile over ``--profile-iterations`` iterations, shares scaled to the
-  unprofiled median): validation (glraster/validate.py and the ops' checks), upload
-  (buffer and texture writes), dispatch (compute runs, draws, clears, bindings, barriers),
-  readback (buffer and framebuffer reads: on llvmpipe a read waits for the dispatches
-  before it, so GL time shows here), torch (torch's Python and C functions, autograd,
-  the optimizer) and Python (the rest: glraster's and NumPy's host code);
+- per phase, exclusive time in iterations run under :func:`phase_clock` (interleaved
+  with the plain ones; "clocked ms" is their median, the timers' own cost included):
+  python (the torch bridge's and the GPU cores' host code, NumPy included), validation
+  (the ops' ``check``), context (making the GL context current and restoring the
+  caller's), upload (buffer and texture writes), dispatch (compute runs, draws, clears,
+  bindings, barriers), readback (buffer and framebuffer reads: on llvmpipe a read waits
+  for the work before it, so much of the GL time shows here) and torch (everything
+  else: torch, autograd, the optimizer and the fit's own code);
+- the largest host-code functions under cProfile (``--profile-iterations``), as hints;
 - the ratio iteration / (sum of its op calls' floors + the optimizer step): issue 18's
   "at most 1.5" goal.
 
 The environment-map fit (``envmap``) is measured when ``glraster.torch.fitting.envmap``
-exists in the tree and offers ``floors_iteration(glctx) -> (iteration, step_seconds)``
-(the hook :func:`_envmap`); otherwise its row says it is not in this tree.
+exists in the tree and offers ``floors_iteration(glctx) -> iteration``, a callable that
+runs one iteration of the fit and returns its optimizer step's seconds (the hook
+:func:`_envmap`; the other fits' builders below are examples); otherwise its row says it
+is not in this tree.
 
 Timings on a shared machine are noisy: read medians and ratios.
 """
@@ -55,7 +60,7 @@ import numpy as np
 
 CORE_MODULES = ("rasterize", "interpolate", "texture", "antialias")
 FITS = ("cube4", "cube16", "pose256", "texture", "envmap")
-PHASES = ("python", "validation", "upload", "dispatch", "readback", "torch")
+PHASES = ("python", "validation", "context", "upload", "dispatch", "readback", "torch")
 
 
 # --------------------------------------------------------------------------- core hooks
@@ -379,7 +384,7 @@ def _texture(glctx, resolution: int = 128, texture_size: int = 256, views: int =
 
 def _envmap(glctx):
     """The hook for the environment-map fit: its module's ``floors_iteration(glctx)``
-    returns ``(iteration, ...)`` with ``iteration() -> optimizer step seconds``."""
+    returns ``iteration``, with ``iteration() -> optimizer step seconds``."""
     try:
         from glraster.torch.fitting import envmap
     except ImportError as exc:
@@ -398,62 +403,119 @@ BUILDERS = {
 }
 
 
-def classify(filename: str, funcname: str, callers) -> str:
-    """The phase (one of :data:`PHASES`) of a cProfile entry."""
-    name = funcname.replace("\\", "/")
-    if filename == "~":
-        method = name.split("'")[1] if "'" in name else name
-        if "mgl." in name or "moderngl" in name:
-            return _gl_phase(method)
-        if "torch" in name or any("/torch/" in c[0] for c in callers):
-            return "torch"
-        return "python"
-    path = filename.replace("\\", "/")
-    if "/moderngl/" in path:
-        return _gl_phase(funcname)
-    if "/torch/" in path and "/glraster/" not in path:
-        return "torch"
-    if path.endswith(("glraster/validate.py", "glraster/diff/ops.py",
-                      "glraster/diff/texture_args.py", "glraster/diff/antialias_args.py",
-                      "glraster/diff/layout.py")):
-        return "validation"
-    return "python"
+class PhaseClock:
+    """Exclusive time per phase: regions (wrapped functions) push their phase, and the
+    time between two events goes to the innermost open region's phase; time outside
+    every region is "torch" (torch, autograd, the optimizer and the fit's own code)."""
+
+    def __init__(self):
+        self.totals = dict.fromkeys(PHASES, 0.0)
+        self._stack = ["torch"]
+        self._last = time.perf_counter()
+
+    def _charge(self) -> None:
+        now = time.perf_counter()
+        self.totals[self._stack[-1]] += now - self._last
+        self._last = now
+
+    def reset(self) -> None:
+        self.totals = dict.fromkeys(PHASES, 0.0)
+        self._last = time.perf_counter()
+
+    def read(self) -> dict[str, float]:
+        self._charge()
+        return dict(self.totals)
+
+    def wrap(self, function, phase: str):
+        @functools.wraps(function)
+        def timed(*args, **kwargs):
+            self._charge()
+            self._stack.append(phase)
+            try:
+                return function(*args, **kwargs)
+            finally:
+                self._charge()
+                self._stack.pop()
+        return timed
 
 
-def _gl_phase(method: str) -> str:
-    if method == "write":
-        return "upload"
-    if method in ("read", "read_into"):
-        return "readback"
-    return "dispatch"
+# glraster's GL calls by phase: gl_trace's "upload" and "readback" kinds, the rest dispatch
+_GL_PHASE = {"upload": "upload", "readback": "readback", "gl": "dispatch"}
 
 
-def phases(iteration, iterations: int, top: int = 4) -> tuple[dict[str, float], list]:
-    """(phase -> share (0..1) of the profiled iterations' time, the ``top`` functions of
-    the "python" phase as (share, "file:line(function)"))."""
+@contextmanager
+def phase_clock():
+    """A :class:`PhaseClock` over glraster's layers while active: the moderngl calls that
+    :mod:`glraster.gpu.gl_trace` records (upload, dispatch, readback), glraster's
+    ``Context.__enter__/__exit__`` (context: making the context current and restoring
+    the caller's), the ops' ``check`` (validation), and the torch bridge and GPU cores
+    (python: their host code, NumPy included)."""
+    from glraster.diff import ops
+    from glraster.gpu import gl_trace
+    from glraster.gpu.context import Context
+    from glraster.torch import bridge
+
+    clock = PhaseClock()
+    undo = []
+
+    def patch(owner, name, phase, raw=None):
+        original = owner.__dict__[name] if raw is None else raw
+        function = getattr(owner, name)
+        undo.append((owner, name, original))
+        wrapped = clock.wrap(function, phase)
+        if isinstance(original, staticmethod):
+            wrapped = staticmethod(wrapped)
+        object.__setattr__(owner, name, wrapped) if raw is not None \
+            else setattr(owner, name, wrapped)
+
+    try:
+        for cls, name, kind in gl_trace._PATCHED:
+            patch(cls, name, _GL_PHASE[kind])
+        patch(Context, "__enter__", "context")
+        patch(Context, "__exit__", "context")
+        patch(bridge.Call, "__init__", "python")
+        patch(bridge.Call, "__call__", "python")
+        patch(bridge._Function, "backward", "python")
+        for op in ops.OPS.values():
+            patch(op, "check", "validation", raw=op.check)
+        with core_hooks(lambda name, function, args, kwargs:
+                        clock.wrap(function, "python")(*args, **kwargs)):
+            yield clock
+    finally:
+        for owner, name, original in reversed(undo):
+            if isinstance(owner, type):
+                setattr(owner, name, original)
+            else:
+                object.__setattr__(owner, name, original)
+
+
+def host_hotspots(iteration, iterations: int, top: int = 4) -> list:
+    """The ``top`` functions by own time under cProfile, outside torch and moderngl, as
+    (share of the profiled time, "file:line(function)"): where the host code spends."""
     profile = cProfile.Profile()
     profile.enable()
     for _ in range(iterations):
         iteration()
     profile.disable()
     stats = pstats.Stats(profile).stats
-    out = dict.fromkeys(PHASES, 0.0)
+    total = sum(entry[2] for entry in stats.values()) or 1.0
     host = []
     for (filename, line, funcname), (_, _, tottime, _, callers) in stats.items():
-        phase = classify(filename, funcname, callers)
-        out[phase] += tottime
-        if phase == "python":
-            short = filename.replace("\\", "/").split("/glraster/")[-1].split("/")[-1]
-            host.append((tottime, f"{short}:{line}({funcname})"))
-    total = sum(out.values()) or 1.0
-    host = [(t / total, name) for t, name in sorted(host, reverse=True)[:top]]
-    return {k: v / total for k, v in out.items()}, host
+        path = filename.replace("\\", "/")
+        if ("/torch/" in path and "/glraster/" not in path) or "/moderngl/" in path \
+                or "mgl." in funcname or "torch" in funcname \
+                or (filename == "~" and any("/torch/" in c[0] for c in callers)):
+            continue
+        host.append((tottime / total, f"{path.split('/')[-1]}:{line}({funcname})"))
+    return sorted(host, reverse=True)[:top]
 
 
 def measure_fits(glctx, names, rounds: int, iterations: int, profile_iterations: int) -> dict:
     """{fit: {"iteration", "step", "floors": {segment: s}, "core": {segment: s},
-    "calls": {segment: n}, "phases": {phase: share}} (seconds per iteration, medians)} or
-    {fit: {"unavailable": reason}}."""
+    "calls": {segment: n}, "clocked": s, "phases": {phase: s}, "host": [...]}} (seconds
+    per iteration, medians; "clocked" and "phases" from iterations under
+    :func:`phase_clock`, interleaved with the plain ones) or {fit: {"unavailable":
+    reason}}."""
     ctx = glctx.context
     fits, out = {}, {}
     for name in names:
@@ -461,7 +523,8 @@ def measure_fits(glctx, names, rounds: int, iterations: int, profile_iterations:
             fits[name] = BUILDERS[name](glctx)
         except Unavailable as exc:
             out[name] = {"unavailable": str(exc)}
-    samples = {name: {"iteration": [], "step": [], "floors": [], "core": []}
+    samples = {name: {"iteration": [], "step": [], "floors": [], "core": [], "phases": [],
+                      "clocked": []}
                for name in fits}
     calls = {}
     for _ in range(rounds):
@@ -480,6 +543,13 @@ def measure_fits(glctx, names, rounds: int, iterations: int, profile_iterations:
                 samples[name]["iteration"].append(elapsed)
                 samples[name]["step"].append(step)
                 samples[name]["core"].append(totals)
+            with phase_clock() as clock:
+                for _ in range(iterations):
+                    clock.reset()
+                    start = time.perf_counter()
+                    iteration()
+                    samples[name]["clocked"].append(time.perf_counter() - start)
+                    samples[name]["phases"].append(clock.read())
     for name, s in samples.items():
         segments = list(s["floors"][0])
         out[name] = {
@@ -490,8 +560,10 @@ def measure_fits(glctx, names, rounds: int, iterations: int, profile_iterations:
             "core": {k: statistics.median(c.get(k, 0.0) for c in s["core"])
                      for k in segments if "/" not in k},
             "calls": calls[name],
+            "clocked": statistics.median(s["clocked"]),
+            "phases": {p: statistics.median(t[p] for t in s["phases"]) for p in PHASES},
+            "host": host_hotspots(fits[name], profile_iterations),
         }
-        out[name]["phases"], out[name]["host"] = phases(fits[name], profile_iterations)
     return {name: out[name] for name in names}
 
 
@@ -501,16 +573,16 @@ def floor_sum(fit: dict) -> float:
 
 
 def fits_tables(result: dict) -> str:
-    lines = ["| fit | iteration ms | floors + step ms | ratio | "
-             + " | ".join(PHASES) + " |", "|---|---|---|---|" + "---|" * len(PHASES)]
+    lines = ["| fit | iteration ms | floors + step ms | ratio | clocked ms | "
+             + " | ".join(PHASES) + " |", "|---|---|---|---|---|" + "---|" * len(PHASES)]
     for name, fit in result.items():
         if "unavailable" in fit:
             lines.append(f"| {name} | {fit['unavailable']} |")
             continue
         it = fit["iteration"]
-        shares = " | ".join(f"{1e3 * it * fit['phases'][p]:.2f}" for p in PHASES)
+        shares = " | ".join(f"{1e3 * fit['phases'][p]:.2f}" for p in PHASES)
         lines.append(f"| {name} | {1e3 * it:.2f} | {1e3 * floor_sum(fit):.2f} | "
-                     f"{it / floor_sum(fit):.1f} | {shares} |")
+                     f"{it / floor_sum(fit):.1f} | {1e3 * fit['clocked']:.2f} | {shares} |")
     lines += ["", "| fit | op call | calls | core ms | floor ms | core / floor |",
               "|---|---|---|---|---|---|"]
     for name, fit in result.items():
@@ -523,8 +595,8 @@ def fits_tables(result: dict) -> str:
                          f"{1e3 * core:.3f} | {1e3 * floor:.3f} | "
                          f"{_ratio(core, floor)} |")
         lines.append(f"| {name} | optimizer step | 1 | {1e3 * fit['step']:.3f} | | |")
-    lines += ["", "| fit | largest host-code (python phase) entries, ms per iteration |",
-              "|---|---|"]
+    lines += ["", "| fit | largest host-code entries under cProfile, ms per iteration "
+              "(share x iteration) |", "|---|---|"]
     for name, fit in result.items():
         if "unavailable" not in fit:
             top = "; ".join(f"`{where}` {1e3 * fit['iteration'] * share:.2f}"
@@ -548,7 +620,7 @@ def main(argv=None) -> int:
     parser.add_argument("--iterations", type=int, default=10,
                         help="timed fit iterations per round")
     parser.add_argument("--profile-iterations", type=int, default=10,
-                        help="fit iterations under cProfile for the phase shares")
+                        help="fit iterations under cProfile for the host-code hints")
     parser.add_argument("--backend", default=None, help="OpenGL backend (egl, osmesa)")
     parser.add_argument("--json", default=None, help="also write the figures here")
     args = parser.parse_args(argv)
@@ -571,8 +643,8 @@ def main(argv=None) -> int:
         if args.part in ("fits", "both"):
             figures["fits"] = measure_fits(glctx, args.fits, args.rounds, args.iterations,
                                            args.profile_iterations)
-            print("\n## One fit iteration: phases (ms, cProfile shares x median), "
-                  "ratio = iteration / (op floors + optimizer step)\n")
+            print("\n## One fit iteration: ratio = iteration / (op floors + optimizer "
+                  "step); phases (ms, exclusive) of the clocked iterations\n")
             print(fits_tables(figures["fits"]))
     if args.json:
         from glraster.io.atomic import write_text
