@@ -36,11 +36,9 @@ at 4x4 and 16x16 (4 views), the pose fit at 256² (8 restarts) and the texture f
 - the ratio iteration / (sum of its op calls' floors + the optimizer step): issue 18's
   "at most 1.5" goal.
 
-The environment-map fit (``envmap``) is measured when ``glraster.torch.fitting.envmap``
-exists in the tree and offers ``floors_iteration(glctx) -> iteration``, a callable that
-runs one iteration of the fit and returns its optimizer step's seconds (the hook
-:func:`_envmap`; the other fits' builders below are examples); otherwise its row says it
-is not in this tree.
+The environment-map fit (``envmap``: ``fit envmap``'s defaults, 2 views at 256²) is
+measured where the tree has :mod:`glraster.torch.fitting.envmap`; otherwise its row says
+it is not in this tree.
 
 Timings on a shared machine are noisy: read medians and ratios.
 """
@@ -382,16 +380,47 @@ def _texture(glctx, resolution: int = 128, texture_size: int = 256, views: int =
     return iteration
 
 
-def _envmap(glctx):
-    """The hook for the environment-map fit: its module's ``floors_iteration(glctx)``
-    returns ``iteration``, with ``iteration() -> optimizer step seconds``."""
+def _envmap(glctx, resolution: int = 256, views: int = 2, mesh=(128, 120),
+            env_size: int = 512):
+    """The environment-map fit (material under the cube-map sky, ``fit envmap``'s
+    defaults: 2 views at 256², the 30,720-triangle blob, a 6 x 512² cube map), built from
+    :mod:`glraster.torch.fitting.envmap`'s ``make_scene``, ``view_setup`` and
+    ``render_envmap`` where the tree has them."""
+    import torch
+
+    from glraster.torch.fitting.common import random_quaternions
+
     try:
         from glraster.torch.fitting import envmap
-    except ImportError as exc:
-        raise Unavailable("glraster.torch.fitting.envmap is not in this tree") from exc
-    if not hasattr(envmap, "floors_iteration"):
-        raise Unavailable("glraster.torch.fitting.envmap has no floors_iteration(glctx)")
-    return envmap.floors_iteration(glctx)
+        make_scene, view_setup = envmap.make_scene, envmap.view_setup
+        render, material = envmap.render_envmap, envmap.TRUE_MATERIAL
+    except (ImportError, AttributeError) as exc:
+        raise Unavailable("glraster.torch.fitting.envmap (make_scene, view_setup, "
+                          "render_envmap) is not in this tree") from exc
+    scene = make_scene(glctx, mesh=mesh, env_size=env_size)
+    true = {k: torch.tensor(v, dtype=torch.float32) for k, v in material.items()}
+    rng = np.random.default_rng(0)
+    kd = torch.tensor(rng.uniform(0.05, 0.95, 3), dtype=torch.float32, requires_grad=True)
+    ks = torch.tensor(rng.uniform(0.05, 0.6, 3), dtype=torch.float32, requires_grad=True)
+    log_p = torch.tensor(np.log(30.0), dtype=torch.float32, requires_grad=True)
+    opt = torch.optim.Adam([{"params": [kd, ks]}, {"params": [log_p], "lr": 0.15}], lr=0.06)
+    schedule = torch.optim.lr_scheduler.LambdaLR(opt, lambda it: 1.0)
+
+    def project():
+        kd.clamp_(0.0, 1.0)
+        ks.clamp_(0.0, 1.0)
+
+    def iteration() -> float:
+        mvp, eye = view_setup(random_quaternions(rng, views))
+        with torch.no_grad():
+            target, covered = render(glctx, scene, mvp, eye, true["diffuse"],
+                                     true["specular"], true["exponent"], resolution)
+        image, _ = render(glctx, scene, mvp, eye, kd, ks, torch.exp(log_p), resolution)
+        m = covered[..., None].to(image.dtype)
+        loss = torch.sum(m * (image - target) ** 2) / (torch.sum(m).clamp_min(1.0) * 3)
+        return _descend(loss, opt, schedule, project=project)
+
+    return iteration
 
 
 BUILDERS = {

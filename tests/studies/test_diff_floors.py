@@ -10,6 +10,7 @@ iteration are exact (the cube fit renders twice per iteration: target and fit).
 from __future__ import annotations
 
 import json
+import sys
 
 import moderngl
 import numpy as np
@@ -107,7 +108,7 @@ def test_phase_clock_charges_each_phase_its_exclusive_time(monkeypatch):
 def test_study_runs_small(gl_backend, tmp_path, capsys):
     pytest.importorskip("torch")
     out = tmp_path / "floors.json"
-    assert diff_floors.main(["--op-size", "8", "--fits", "cube4", "envmap", "--rounds", "1",
+    assert diff_floors.main(["--op-size", "8", "--fits", "cube4", "--rounds", "1",
                              "--calls", "1", "--iterations", "1",
                              "--profile-iterations", "1", "--backend", gl_backend,
                              "--json", str(out)]) == 0
@@ -125,7 +126,27 @@ def test_study_runs_small(gl_backend, tmp_path, capsys):
     assert set(cube["phases"]) == set(diff_floors.PHASES)
     for phase in ("python", "validation", "context", "dispatch", "readback", "torch"):
         assert cube["phases"][phase] > 0, phase
-    assert "envmap" in figures["fits"]
+
+
+def test_a_fit_missing_from_the_tree_gets_a_row_saying_so(gl_backend, monkeypatch, capsys):
+    pytest.importorskip("torch")
+    monkeypatch.setitem(sys.modules, "glraster.torch.fitting.envmap", None)
+    assert diff_floors.main(["--part", "fits", "--fits", "envmap",
+                             "--backend", gl_backend]) == 0
+    assert "| envmap | glraster.torch.fitting.envmap" in capsys.readouterr().out
+
+
+def test_envmap_iteration_runs_small(ctx):
+    """Where the tree has the environment-map fit (its own branch until merged)."""
+    pytest.importorskip("glraster.torch.fitting.envmap")
+    from glraster.torch.context import RasterizeGLContext
+
+    iteration = diff_floors._envmap(RasterizeGLContext(context=ctx), resolution=8, views=1,
+                                    mesh=(6, 5), env_size=8)
+    with diff_floors.recording() as rec:
+        step = iteration()
+    assert step > 0
+    assert rec.trace.counts()["rasterize.forward"] == 2     # target and fit renders
 
 
 def test_bad_options_are_refused(capsys):
