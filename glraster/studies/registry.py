@@ -75,6 +75,8 @@ STUDIES: dict[str, Study] = {s.name: s for s in (
           "adapter over the differentiable interpolate) against a plain weighted sum"),
     Study("jax-overhead", _S + "jax_overhead", "per-call cost of glraster.jax (eager and "
           "jit) against glraster.torch and the bare cores", extra="jax"),
+    Study("diff-floors", _S + "diff_floors", "each differentiable op against its bare GL "
+          "work (floor), and where each fit iteration's time goes", extra="torch"),
     Study("torch-overhead", _S + "torch_overhead", "per-call overhead of the glraster.torch "
           "wrappers over the op cores, against an older tree", extra="torch"),
     Study("metrics-ab", _S + "metrics_ab", "the service's /metrics cost against an earlier "
