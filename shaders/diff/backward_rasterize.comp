@@ -4,8 +4,9 @@
 //
 // Defines: SPACE_SCREEN (u, v are window-space barycentrics, else perspective-correct);
 // ACCUM_ATOMIC_FLOAT (atomicAdd on float, GL_NV_shader_atomic_float) | ACCUM_CAS
-// (atomicCompSwap loop on the float's bits) | ACCUM_PER_PIXEL (each pixel writes its three
-// vertex contributions; the caller reduces them in a fixed order); GRAD_DB.
+// (atomicCompSwap loop on the float's bits) | ACCUM_FIXED_POINT (64-bit fixed-point integer
+// sums, include/fixed_point.glsl: bit-reproducible) | ACCUM_PER_PIXEL (each pixel writes
+// its three vertex contributions, for backward_pixels); GRAD_DB.
 //
 // Mathematics (docs/differentiable.md, "Backward on the GPU"). In the pixel-relative window
 // frame V'_j = (X_j - p_x w_j, Y_j - p_y w_j, w_j), with X = (x + w) W/2, Y = (y + w) H/2,
@@ -28,7 +29,7 @@ layout(std430, binding = 4) readonly buffer GradDb { vec4 grad_db[]; };
 #endif
 #if defined(ACCUM_ATOMIC_FLOAT)
 layout(std430, binding = 5) buffer GradPos { float grad_pos[]; };
-#elif defined(ACCUM_CAS)
+#elif defined(ACCUM_CAS) || defined(ACCUM_FIXED_POINT)
 layout(std430, binding = 5) buffer GradPos { uint grad_pos[]; };
 #else
 // (dL/dx, dL/dy, 0, dL/dw) of the pixel's vertex 0, 1, 2: three vec4 per pixel
@@ -40,16 +41,22 @@ uniform uint first_pixel;    // flat index (b, y, x) of the first one
 uniform uvec2 size;          // (W, H)
 uniform uint vertex_stride;  // V when pos is batched, else 0
 uniform int n_tri;
+uniform uint fixed_groups;   // ACCUM_FIXED_POINT: B with batched pos (one scale per image), else 1
 
 #include "include/triangle_id.glsl"
 #include "include/atomic_add_float.glsl"
+#include "include/fixed_point.glsl"
 
-void add(uint vertex, vec3 g) {
+void add(uint vertex, uint group, vec3 g) {
     uint o = 4u * vertex;
 #if defined(ACCUM_ATOMIC_FLOAT) || defined(ACCUM_CAS)
     ATOMIC_ADD_FLOAT(grad_pos[o + 0u], g.x);
     ATOMIC_ADD_FLOAT(grad_pos[o + 1u], g.y);
     ATOMIC_ADD_FLOAT(grad_pos[o + 3u], g.z);
+#elif defined(ACCUM_FIXED_POINT)
+    FIXED_ADD(grad_pos, fixed_groups, group, o + 0u, g.x);
+    FIXED_ADD(grad_pos, fixed_groups, group, o + 1u, g.y);
+    FIXED_ADD(grad_pos, fixed_groups, group, o + 3u, g.z);
 #endif
 }
 
@@ -157,7 +164,7 @@ void main() {
 #ifdef ACCUM_PER_PIXEL
         contrib[3u * i + uint(j)] = vec4(clip.xy, 0.0, clip.z);
 #else
-        add(idx[j], clip);
+        add(idx[j], vertex_stride == 0u ? 0u : b, clip);
 #endif
     }
 }

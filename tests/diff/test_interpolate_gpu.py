@@ -130,7 +130,7 @@ def test_forward_within_running_error_bound(ctx, scene, diff):
     np.testing.assert_allclose(want, o64[px], rtol=0, atol=1e-12)
 
 
-@pytest.mark.parametrize("accumulate", compute.ACCUMULATIONS)
+@pytest.mark.parametrize("accumulate", compute.FIXED_POINT_ACCUMULATIONS)
 @pytest.mark.parametrize("diff", [None, [4, 1], "all"])
 def test_backward_within_bound_and_matches_reference(ctx, scene, diff, accumulate):
     """grad_rast, grad_rast_db per pixel within K u m; grad_attr per vertex within the

@@ -371,7 +371,7 @@ def test_gpu_pixel_terms_within_running_error_bound(ctx, name, space):
     assert not empty.any(), "empty pixels must contribute nothing"
 
 
-@pytest.mark.parametrize("accumulate", compute.ACCUMULATIONS)
+@pytest.mark.parametrize("accumulate", compute.FIXED_POINT_ACCUMULATIONS)
 @pytest.mark.parametrize("name", ["grid_perspective_jitter", "icosphere", "slivers"])
 def test_gpu_vertex_gradients_within_bound(ctx, name, accumulate):
     """Per vertex: |gpu - float64| <= sum of its pixels' K u m + the summation bound
