@@ -33,9 +33,9 @@ from glraster.diff.ids import decode_ids
 from glraster.gpu.context import Context
 
 __all__ = [
-    "ACCUMULATIONS", "DEFINES", "FIXED_POINT_ACCUMULATIONS", "FixedPointSum", "LOCAL_SIZE", "MAX_CHUNK_BYTES", "accumulation", "chunks",
-    "corner_vertices", "fixed_point_exponent", "has_atomic_float", "read", "reduce_rows", "run", "set_uniform",
-    "zeroed",
+    "ACCUMULATIONS", "DEFINES", "FIXED_POINT_ACCUMULATIONS", "FixedPointSum", "LOCAL_SIZE",
+    "MAX_CHUNK_BYTES", "accumulation", "chunks", "corner_vertices", "fixed_point_exponent",
+    "has_atomic_float", "read", "reduce_rows", "run", "set_uniform", "zeroed",
 ]
 
 # the accumulations texture offers, and those rasterize, interpolate and antialias offer
@@ -196,7 +196,7 @@ class FixedPointSum:
         the uniform ``fixed_groups`` set; the caller dispatches all its pixels each time."""
         head = 2 * self.groups
         words = head + 2 * self.groups * self.size
-        buffer = self.ctx.scratch_buffer(self.name, 4 * words)
+        buffer = self.buffer = self.ctx.scratch_buffer(self.name, 4 * words)
         set_uniform(program, "fixed_groups", self.groups)
         for _ in range(2):
             header = np.zeros(head, np.uint32)
@@ -220,6 +220,10 @@ class FixedPointSum:
                 return
             self.exponents = needed
         raise AssertionError("fixed-point exponents changed between passes")
+
+    def bind(self, binding: int) -> None:
+        """Bind the accumulator again (after another pass used ``binding``)."""
+        self.buffer.bind_to_storage_buffer(binding)
 
     def _decode(self, words: np.ndarray) -> np.ndarray:
         low = words[0::2].astype(np.int64)
