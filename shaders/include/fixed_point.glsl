@@ -28,17 +28,41 @@ uvec2 fixed_point_words(float value, float scale) {
     return uvec2(lo, hi);
 }
 
+// (low, high) words a + b, mod 2^64
+uvec2 fixed_point_add(uvec2 a, uvec2 b) {
+    uint lo = a.x + b.x;
+    return uvec2(lo, a.y + b.y + (lo < a.x ? 1u : 0u));
+}
+
+// buf[..value n..] += q, q given as (low, high) words (e.g. a local sum of rounded terms).
+// `buf`, `groups`, `n` are evaluated more than once: pass expressions without side effects.
+#define FIXED_ADD_WORDS(buf, groups, n, q) {                                        \
+    uvec2 w_ = (q);                                                                 \
+    if (w_ != uvec2(0u)) {                                                          \
+        uint at_ = 2u * ((groups) + (n));                                           \
+        uint old_ = atomicAdd(buf[at_], w_.x);                                      \
+        uint high_ = w_.y + (old_ + w_.x < old_ ? 1u : 0u);                         \
+        if (high_ != 0u) atomicAdd(buf[at_ + 1u], high_);                           \
+    }                                                                               \
+}
+
+// the bits of |value| (uint order = float order, NaN above inf: max() on them keeps a NaN,
+// where max() on floats may drop it)
+uint fixed_point_magnitude(float value) {
+    return floatBitsToUint(abs(value));
+}
+
+// group g's maximum |term| raised to the float whose bits are `magnitude`
+#define FIXED_TRACK(buf, g, magnitude) {                                            \
+    uint bits_ = (magnitude);                                                       \
+    if (bits_ > buf[g]) atomicMax(buf[g], bits_);                                   \
+}
+
 // buf[..value n of group g..] += round(value 2^k_g); records |value| in group g's maximum.
 // `buf`, `groups`, `g`, `n` are evaluated more than once: pass expressions without side effects.
 #define FIXED_ADD(buf, groups, g, n, value) {                                       \
     float v_ = (value);                                                             \
-    uint bits_ = floatBitsToUint(abs(v_));                                          \
-    if (bits_ > buf[g]) atomicMax(buf[g], bits_);                                   \
-    uvec2 q_ = fixed_point_words(v_, uintBitsToFloat(buf[(groups) + (g)]));         \
-    if (q_ != uvec2(0u)) {                                                          \
-        uint at_ = 2u * ((groups) + (n));                                           \
-        uint old_ = atomicAdd(buf[at_], q_.x);                                      \
-        uint high_ = q_.y + (old_ + q_.x < old_ ? 1u : 0u);                         \
-        if (high_ != 0u) atomicAdd(buf[at_ + 1u], high_);                           \
-    }                                                                               \
+    FIXED_TRACK(buf, g, fixed_point_magnitude(v_));                                                   \
+    FIXED_ADD_WORDS(buf, groups, n,                                                 \
+                    fixed_point_words(v_, uintBitsToFloat(buf[(groups) + (g)])));   \
 }
