@@ -189,11 +189,6 @@ def _zeros_if(wanted: bool, shape):
     return np.zeros(shape, np.float32) if wanted else None
 
 
-# attributes up to which the fixed-point backward sums runs of pixels locally (3 x this
-# many 64-bit sums per invocation)
-LOCAL_SUM_ATTRIBUTES = 16
-
-
 class _Backward:
     """One backward dispatch (the shader's bindings: 0 attr, 1 tri, 2 rast, 3 grad_out,
     4 grad_rast, 5 the accumulated grad_attr, 6 rast_db,
@@ -220,12 +215,6 @@ class _Backward:
             defines["NO_GRAD_ATTR"] = None
         if grad_rast is None and grad_db is None:
             defines["NO_GRAD_RAST"] = None
-        # local sums over runs of pixels (fixed point, up to LOCAL_SUM_ATTRIBUTES)
-        run = 1
-        if mode == "fixed_point" and want_attr and num_attr <= LOCAL_SUM_ATTRIBUTES:
-            run = compute.FIXED_POINT_RUN
-            defines.update(RUN=run, N_ATTR=num_attr)
-        self.run_length = run
 
         def dispatch():
             for first, count in compute.chunks(job.pixels, per_pixel):
@@ -289,5 +278,5 @@ class _Backward:
             out_db.bind_to_storage_buffer(9)
         compute.set_uniform(program, "n_pixels", count)
         compute.set_uniform(program, "first_pixel", first)
-        compute.run(ctx, program, -(-count // self.run_length))
+        compute.run(ctx, program, count)
         return out_rast, out_db

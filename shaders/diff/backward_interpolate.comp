@@ -6,8 +6,8 @@
 //   dL/du = sum_k g_k (a0 - a2)_k,  dL/dv = sum_k g_k (a1 - a2)_k          -> grad_rast
 //   dL/d(du/dx, du/dy, dv/dx, dv/dy) = sum_k (g_x (a0-a2), g_y (a0-a2), g_x (a1-a2), g_y (a1-a2))
 // Accumulation into dL/da as in backward_rasterize.comp: ACCUM_ATOMIC_FLOAT | ACCUM_CAS |
-// ACCUM_FIXED_POINT (with RUN and N_ATTR: RUN pixels per invocation, local sums);
-// NO_GRAD_ATTR: dL/da not wanted (no accumulation at all), NO_GRAD_RAST:
+// ACCUM_FIXED_POINT (one fixed-point add per term; the local sums over runs of pixels of
+// backward_rasterize.comp measured no faster here); NO_GRAD_ATTR: dL/da not wanted (no accumulation at all), NO_GRAD_RAST:
 // grad_rast and grad_rast_db not wanted (not written).
 #ifdef ACCUM_ATOMIC_FLOAT
 #extension GL_NV_shader_atomic_float : require
@@ -44,23 +44,9 @@ uniform uint fixed_groups;   // ACCUM_FIXED_POINT: B with batched attr (one scal
 #include "include/atomic_add_float.glsl"
 #include "include/fixed_point.glsl"
 
-#if defined(ACCUM_FIXED_POINT) && defined(RUN) && !defined(NO_GRAD_ATTR)
-// RUN consecutive pixels per invocation (N_ATTR = n_attr, compile-time): the rounded terms
-// of a stretch of pixels on one triangle are summed here (64-bit integers: associative, so
-// the same bits) and added with one pair of atomics per corner and attribute.
-#define LOCAL_SUMS
-uvec2 run_sum[3 * N_ATTR];   // [3 k + j]: corner j, attribute k
-uint run_largest;        // fixed_point_magnitude of the largest term
-float run_scale;
-#endif
-
-// corner j's term of dL/d attr[slot] (attribute k; group: the image when attr is batched)
-void add(uint j, uint k, uint slot, uint group, float value) {
+// a corner's term of dL/d attr[slot] (group: the image when attr is batched, else 0)
+void add(uint slot, uint group, float value) {
 #if defined(NO_GRAD_ATTR)
-#elif defined(LOCAL_SUMS)
-    run_largest = max(run_largest, fixed_point_magnitude(value));
-    run_sum[3u * k + j] = fixed_point_add(run_sum[3u * k + j],
-                                          fixed_point_words(value, run_scale));
 #elif defined(ACCUM_FIXED_POINT)
     if (value != 0.0) FIXED_ADD(grad_attr, fixed_groups, group, slot, value);
 #else
@@ -110,9 +96,9 @@ void pixel(uint i) {
             c1 = gx * db.z + gy * db.w;
         }
 #endif
-        add(0u, k, o0 + k, group, u * g + c0);
-        add(1u, k, o1 + k, group, v * g + c1);
-        add(2u, k, o2 + k, group, w * g - (c0 + c1));
+        add(o0 + k, group, u * g + c0);
+        add(o1 + k, group, v * g + c1);
+        add(o2 + k, group, w * g - (c0 + c1));
     }
 #ifndef NO_GRAD_RAST
     grad_rast[i] = vec4(gu, gv, 0.0, 0.0);
@@ -122,42 +108,7 @@ void pixel(uint i) {
 #endif
 }
 
-#ifdef LOCAL_SUMS
-void flush(uint group, uint o[3]) {
-    FIXED_TRACK(grad_attr, group, run_largest);
-    for (uint k = 0u; k < uint(N_ATTR); ++k)
-        for (uint j = 0u; j < 3u; ++j)
-            FIXED_ADD_WORDS(grad_attr, fixed_groups, o[j] + k, run_sum[3u * k + j]);
-}
-
-void main() {
-    uint start = gl_GlobalInvocationID.x * uint(RUN);
-    int open_t = -1;
-    uint open_image = 0u, open_group = 0u;
-    uint open_o[3] = uint[3](0u, 0u, 0u);
-    for (uint r = 0u; r < uint(RUN); ++r) {
-        uint i = start + r;
-        if (i >= n_pixels) break;
-        int t = decode_id(rast[i].w) - 1;
-        uint image = (first_pixel + i) / pixels_per_image;
-        if (t >= 0 && t < n_tri && (t != open_t || image != open_image)) {
-            if (open_t >= 0) flush(open_group, open_o);
-            open_t = t;
-            open_image = image;
-            open_group = vertex_stride == 0u ? 0u : image;
-            uint base = image * vertex_stride;
-            for (int j = 0; j < 3; ++j) open_o[j] = (uint(tri[3 * t + j]) + base) * uint(N_ATTR);
-            run_scale = uintBitsToFloat(grad_attr[fixed_groups + open_group]);
-            run_largest = 0u;
-            for (int m = 0; m < 3 * N_ATTR; ++m) run_sum[m] = uvec2(0u);
-        }
-        pixel(i);
-    }
-    if (open_t >= 0) flush(open_group, open_o);
-}
-#else
 void main() {
     uint i = gl_GlobalInvocationID.x;
     if (i < n_pixels) pixel(i);
 }
-#endif
