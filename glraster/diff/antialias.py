@@ -20,8 +20,8 @@ antialias_backward.comp) over lists the host makes (the candidate pairs, their p
 the pair records (one invocation per candidate pair), the blend (one per listed pixel, a
 gather over its four incident pairs: deterministic), and the
 backward (colour gradients by gather, position gradients summed per vertex by float
-atomics, a compare-and-swap loop, or with ``deterministic=True`` per pair in float64 on the
-host, as :mod:`glraster.diff.compute`).
+atomics, a compare-and-swap loop, or with ``deterministic=True`` in 64-bit fixed point, as
+:mod:`glraster.diff.compute`).
 
 Layouts (rows [y, x] with row 0 at the bottom): color (B, H, W, C); rast (B, H, W, 4) from
 the rasterizer (u, v, z/w, id); pos (V, 4) shared by the B images or (B, V, 4) one per
@@ -203,41 +203,40 @@ def pair_records(color, rast, pos, tri, topology_hash=None, *, ctx: Context | No
 
 
 class _PositionGradients:
-    """Where the backward sums the position gradients (inside ``with ctx``): a zeroed
-    storage buffer the shader adds into (float atomics or a compare-and-swap loop), or
-    (per_pixel) each pair's contributions, summed per vertex on the host in float64 and
-    pair order; ``needed`` False skips that host sum and the read-back."""
+    """Where the backward sums the position gradients (inside ``with ctx``), bound at 6:
+    a zeroed float buffer the shader adds into (float atomics or a compare-and-swap loop),
+    or (fixed_point) a :class:`~glraster.diff.compute.FixedPointSum`, one exponent per
+    image when pos is batched; a vertex gets at most 4 terms per pixel of its group
+    (2 pairs per pixel, 2 edge vertices per pair)."""
 
-    def __init__(self, ctx: Context, mode: str, rows: int, needed: bool):
-        self.ctx, self.mode, self.rows, self.needed = ctx, mode, rows, needed
-        if mode == "per_pixel":
-            self.total = np.zeros((rows, 4)) if needed else None
+    def __init__(self, ctx: Context, mode: str, passes: "_Passes"):
+        self.ctx, self.mode = ctx, mode
+        self.rows = passes.pos3.shape[0] * passes.pos3.shape[1]
+        if mode == "fixed_point":
+            groups = passes.pos3.shape[0]
+            self.acc = _gpu.FixedPointSum(ctx, "antialias.grad_pos", groups,
+                                          self.rows * 4 // groups,
+                                          4 * passes.batch * passes.hw // groups, "grad_out")
+
+    def passes(self, program):
+        """Yield once per pass over all the chunks (the target cleared)."""
+        if self.mode == "fixed_point":
+            yield from self.acc.passes(program, 6)
         else:
-            self.buffer = _gpu.zeroed(ctx, "antialias.grad_pos", rows * 16)
+            self.buffer = _gpu.zeroed(self.ctx, "antialias.grad_pos", self.rows * 16)
+            yield
 
-    def bind(self, n_pairs: int) -> None:
-        """Bind the chunk's target at 6 (the per-pair slots, or the buffer)."""
-        if self.mode == "per_pixel":
-            self.contrib = _gpu.zeroed(self.ctx, "antialias.contrib", n_pairs * 32)
-            self.contrib.bind_to_storage_buffer(6)
+    def bind(self) -> None:
+        """Bind the target at 6 (pass 1 of each chunk binds its records there)."""
+        if self.mode == "fixed_point":
+            self.acc.bind(6)
         else:
             self.buffer.bind_to_storage_buffer(6)
 
-    def add(self, n_pairs: int) -> None:
-        """After a chunk ran (per_pixel): its pairs' (x, y, row, w) terms into the totals."""
-        if self.mode != "per_pixel" or not self.needed:
-            return
-        terms = _gpu.read(self.contrib, n_pairs * 8, np.uint32).reshape(-1, 4)
-        rows = terms[:, 2].astype(np.int64) - 1
-        live = rows >= 0
-        values = terms.view(np.float32)[live].astype(np.float64)
-        values[:, 2] = 0.0
-        _gpu.reduce_rows(self.total, rows[live][:, None], values[:, None, :], (0, 1, 3))
-
     def result(self) -> np.ndarray:
         """(rows, 4) the summed gradients."""
-        if self.mode == "per_pixel":
-            return self.total
+        if self.mode == "fixed_point":
+            return self.acc.result().reshape(-1, 4)
         return _gpu.read(self.buffer, self.rows * 4).reshape(-1, 4)
 
 
@@ -248,12 +247,13 @@ def backward(saved: AntialiasSaved, grad_out, *, needs=None, deterministic: bool
     Args:
         saved: the second value :func:`forward` returned.
         grad_out: (B, H, W, C) dL/d out, or None (zero).
-        needs: None (all) or three flags (color, rast, pos): without pos the position
-            gradients are neither summed on the host nor read back; without color the
+        needs: None (all) or three flags (color, rast, pos): without pos the shader
+            computes and sums no position gradient (NO_GRAD_POS); without color the
             colour gradients are not read back; nothing runs when neither is wanted.
-        deterministic: bit-identical grad_pos from run to run (per-pair contributions
-            summed per vertex in pixel order, in float64 on the host).
-        accumulate: force one of :data:`glraster.diff.compute.ACCUMULATIONS`.
+        deterministic: bit-identical grad_pos from run to run, whatever the order of the
+            additions (64-bit fixed-point sums, :class:`glraster.diff.compute.FixedPointSum`
+            states the range and the rounding).
+        accumulate: force one of :data:`glraster.diff.compute.FIXED_POINT_ACCUMULATIONS`.
 
     Returns:
         ``(grad_color, None, grad_pos)``: grad_color (B, H, W, C) float32; grad_pos float32
@@ -265,7 +265,7 @@ def backward(saved: AntialiasSaved, grad_out, *, needs=None, deterministic: bool
     ctx, color = saved.ctx, saved.color
     grad_out = (np.zeros(color.shape, np.float32) if grad_out is None
                 else validate.image("grad_out", grad_out, color.shape, np.float32))
-    mode = _gpu.accumulation(ctx, deterministic, accumulate)
+    mode = _gpu.accumulation(ctx, deterministic, accumulate, _gpu.FIXED_POINT_ACCUMULATIONS)
     if not (want_color or want_pos):
         return None, None, None
     passes = _Passes(ctx, color, saved.rast, saved.pos, saved.tri, saved.topology_hash,
@@ -276,19 +276,23 @@ def backward(saved: AntialiasSaved, grad_out, *, needs=None, deterministic: bool
     defines = {_gpu.DEFINES[mode]: None}
     if saved.convex:
         defines["CONVEX"] = None
+    if not want_pos:
+        defines["NO_GRAD_POS"] = None
     with ctx:
-        sums = _PositionGradients(ctx, mode, passes.pos3.shape[0] * passes.pos3.shape[1],
-                                  want_pos)
-        for first, count in passes.chunks(48 + 12 * channels):
-            codes, pixels = passes.lists(first, count)
-            if len(pixels) == 0:
-                continue
-            out_gc = _backward_pass(passes, saved, defines, first, count, codes, pixels,
-                                    flat_g[first * hw:(first + count) * hw], sums)
-            if want_color:
-                grad_color.reshape(-1, channels)[first * hw + pixels.astype(np.int64)] = \
-                    _gpu.read(out_gc, len(pixels) * channels).reshape(len(pixels), channels)
-            sums.add(len(codes))
+        program = ctx.compute_program(shader_path(BACKWARD), defines)
+        sums = _PositionGradients(ctx, mode, passes) if want_pos else None
+        for _ in (sums.passes(program) if want_pos else [None]):
+            for first, count in passes.chunks(48 + 12 * channels):
+                codes, pixels = passes.lists(first, count)
+                if len(pixels) == 0:
+                    continue
+                out_gc = _backward_pass(passes, saved, program, first, count, codes,
+                                        pixels, flat_g[first * hw:(first + count) * hw],
+                                        sums)
+                if want_color:
+                    grad_color.reshape(-1, channels)[first * hw + pixels.astype(np.int64)] = \
+                        _gpu.read(out_gc, len(pixels) * channels).reshape(len(pixels),
+                                                                          channels)
         total = sums.result() if want_pos else None
     grad_pos = None
     if want_pos:
@@ -297,26 +301,27 @@ def backward(saved: AntialiasSaved, grad_out, *, needs=None, deterministic: bool
     return grad_color, None, grad_pos
 
 
-def _backward_pass(passes: _Passes, saved: AntialiasSaved, defines, first, count, codes,
-                   pixels, grad_out, sums: _PositionGradients):
+def _backward_pass(passes: _Passes, saved: AntialiasSaved, program, first, count, codes,
+                   pixels, grad_out, sums: _PositionGradients | None):
     """Passes 1 to 3 over one chunk of images: the pair records, the blend's scales, then
-    the backward over the listed pixels (colour gradients by gather into the returned
-    buffer, position gradients into ``sums``)."""
+    the backward ``program`` over the listed pixels (colour gradients by gather into the
+    returned buffer, position gradients into the sums bound at 6)."""
     ctx, channels = passes.ctx, passes.channels
     records = passes.run_pairs(first, count, codes)
     _, scale = passes.run_blend(first, count, records, pixels, saved.convex, False)
-    program = ctx.compute_program(shader_path(BACKWARD), defines)
     # run_blend bound the chunk's colour at 0, the records at 1
     scale.bind_to_storage_buffer(2)
     ctx.storage_buffer("antialias.grad_out", grad_out).bind_to_storage_buffer(3)
     out_gc = ctx.scratch_buffer("antialias.grad_color", len(pixels) * channels * 4)
     out_gc.bind_to_storage_buffer(4)
     ctx.storage_buffer("antialias.pos", passes.pos3.reshape(-1, 4)).bind_to_storage_buffer(5)
-    sums.bind(len(codes))
+    if sums is not None:
+        sums.bind()
     ctx.storage_buffer("antialias.pixel_list", pixels).bind_to_storage_buffer(7)
     _gpu.set_uniform(program, "n_list", len(pixels))
     _gpu.set_uniform(program, "size", (passes.width, passes.height))
     _gpu.set_uniform(program, "n_channels", channels)
     _gpu.set_uniform(program, "boost", saved.pos_gradient_boost)
+    _gpu.set_uniform(program, "vertex_stride", passes.stride)
     _gpu.run(ctx, program, len(pixels))
     return out_gc

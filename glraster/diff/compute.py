@@ -13,11 +13,15 @@ sums over the pixels of each vertex's triangles, formed by one of three accumula
 ``"cas"``
     The fallback where the extension is missing: an ``atomicCompSwap`` loop on the float's
     bit pattern (core GL 4.3). Same result model as ``"atomic_float"``, slower.
-``"per_pixel"`` (``deterministic=True``)
-    Each pixel writes its three vertex contributions to a per-pixel buffer; the host sums
-    them per vertex in pixel order, in float64 (``np.bincount``, :func:`reduce_rows`), and
-    rounds once. The same inputs give bit-identical results on every run, and the sum
-    carries no float32 accumulation error.
+``"fixed_point"`` (``deterministic=True`` for rasterize, interpolate, antialias)
+    Each term is rounded to a multiple of 2^-k and added as a 64-bit integer with 32-bit
+    integer atomics on the GPU (:class:`FixedPointSum`: range and rounding). Integer
+    addition is associative, so the same inputs give bit-identical results on every run,
+    whatever the order in which the invocations add (or the chunking of the pixels).
+``"per_pixel"`` (``deterministic=True`` for texture)
+    Each pixel writes its contributions to a per-pixel buffer; the host sums them per
+    texel in pixel order, in float64 (``np.bincount``, :func:`reduce_rows`), and rounds
+    once. Bit-identical run to run, no float32 accumulation error, slower.
 """
 
 from __future__ import annotations
@@ -29,19 +33,25 @@ from glraster.diff.ids import decode_ids
 from glraster.gpu.context import Context
 
 __all__ = [
-    "ACCUMULATIONS", "DEFINES", "LOCAL_SIZE", "MAX_CHUNK_BYTES", "accumulation", "chunks",
-    "corner_vertices", "has_atomic_float", "read", "reduce_rows", "run", "set_uniform",
-    "zeroed",
+    "ACCUMULATIONS", "DEFINES", "FIXED_POINT_ACCUMULATIONS", "FixedPointSum", "LOCAL_SIZE",
+    "FIXED_POINT_RUN", "MAX_CHUNK_BYTES", "accumulation", "chunks", "corner_vertices", "fixed_point_exponent",
+    "has_atomic_float", "read", "reduce_rows", "run", "set_uniform", "zeroed",
 ]
 
+# the accumulations texture offers, and those rasterize, interpolate and antialias offer
 ACCUMULATIONS = ("atomic_float", "cas", "per_pixel")
+FIXED_POINT_ACCUMULATIONS = ("atomic_float", "cas", "fixed_point")
 # the shader define that selects each accumulation
 DEFINES = {"atomic_float": "ACCUM_ATOMIC_FLOAT", "cas": "ACCUM_CAS",
-           "per_pixel": "ACCUM_PER_PIXEL"}
+           "per_pixel": "ACCUM_PER_PIXEL", "fixed_point": "ACCUM_FIXED_POINT"}
 LOCAL_SIZE = 64
 # Largest storage buffer glraster fills in one dispatch (llvmpipe allows 128 MiB); bigger
 # inputs are processed in chunks of pixels.
 MAX_CHUNK_BYTES = 1 << 26
+# Consecutive pixels one invocation of a fixed-point pass handles: the rounded terms of
+# the pixels it finds on one triangle are summed locally, then added with one pair of
+# atomics (measured in docs/differentiable.md, "Deterministic sums").
+FIXED_POINT_RUN = 16
 
 
 def has_atomic_float(ctx: Context) -> bool:
@@ -50,20 +60,23 @@ def has_atomic_float(ctx: Context) -> bool:
         return "GL_NV_shader_atomic_float" in ctx.mgl.extensions
 
 
-def accumulation(ctx: Context, deterministic: bool = False, accumulate: str | None = None) -> str:
-    """The accumulation a pass uses: ``accumulate`` when given, else ``"per_pixel"`` when
-    ``deterministic``, else ``"atomic_float"`` where the driver has it, else ``"cas"``."""
+def accumulation(ctx: Context, deterministic: bool = False, accumulate: str | None = None,
+                 offered: tuple[str, ...] = ACCUMULATIONS) -> str:
+    """The accumulation a pass uses: ``accumulate`` when given (one of ``offered``, the
+    op's), else the op's deterministic one (``"fixed_point"`` where offered, else
+    ``"per_pixel"``) when ``deterministic``, else ``"atomic_float"`` where the driver has
+    it, else ``"cas"``."""
     if accumulate is not None:
-        if accumulate not in ACCUMULATIONS:
+        if accumulate not in offered:
             raise ArgumentError("accumulate", f"accumulate must be one of "
-                                f"{', '.join(ACCUMULATIONS)}, got {accumulate!r}")
+                                f"{', '.join(offered)}, got {accumulate!r}")
         if accumulate == "atomic_float" and not has_atomic_float(ctx):
             raise ArgumentError("accumulate", "accumulate='atomic_float' needs "
                                 "GL_NV_shader_atomic_float, which "
                                 f"{ctx.renderer} does not offer")
         return accumulate
     if deterministic:
-        return "per_pixel"
+        return "fixed_point" if "fixed_point" in offered else "per_pixel"
     return "atomic_float" if has_atomic_float(ctx) else "cas"
 
 
@@ -120,3 +133,109 @@ def reduce_rows(total: np.ndarray, rows: np.ndarray, contrib: np.ndarray, channe
     for c in channels:
         total[:, c] += np.bincount(keys, weights=contrib[:, :, c].ravel(),
                                    minlength=total.shape[0])
+
+
+# --------------------------------------------------------------------------- fixed point
+
+
+def fixed_point_exponent(largest: float, terms: int) -> int:
+    """The exponent k of fixed-point sums of at most ``terms`` terms per value whose
+    largest magnitude is ``largest`` (> 0, finite): the largest k with
+    ``largest * 2^k < 2^L``, L = 63 - ceil(log2 terms), so that no sum of rounded terms
+    reaches 2^63; clipped to [-126, 127] (2^k a normal float32; the upper clip only
+    coarsens the rounding, the lower one is never reached by float32 terms)."""
+    headroom = 63 - (max(int(terms), 1) - 1).bit_length()      # L = 63 - ceil(log2 terms)
+    _, e = np.frexp(np.float64(largest))                         # largest < 2^e
+    return int(np.clip(headroom - int(e), -126, 127))
+
+
+class FixedPointSum:
+    """Bit-reproducible sums of float32 terms on the GPU, in 64-bit fixed point
+    (``ACCUM_FIXED_POINT``, shaders/include/fixed_point.glsl).
+
+    The summed values form ``groups`` groups of ``size`` values (the images of a batched
+    input, or one group); group g has its own exponent k_g. A term t of group g is added
+    as the integer ``q = roundEven(t * 2^k_g)``, as two 32-bit words with a carry
+    (``atomicAdd`` on uint, core GL 4.3: no 64-bit atomics needed).
+
+    Range: ``k_g = fixed_point_exponent(M_g, terms)``, M_g the largest |t| added to group
+    g in this call and ``terms`` a bound on the number of terms of one value (3 per pixel
+    for a triangle's corners), so every |q| < 2^(63 - ceil(log2 terms)) and no sum wraps.
+    The dispatch records M_g itself (``atomicMax`` on the float bits). The first pass uses
+    the exponents of the previous call under the same ``name`` as a guess; where one
+    differs from the one M_g gives, the sums are discarded and the pass is repeated with
+    the right exponents. So k_g depends on this call's terms only, never on the history;
+    in a fitting loop, where M_g rarely changes its power of two, one pass is the rule.
+
+    Rounding: each term is off by at most 2^-(k_g + 1), so a value of n terms differs from
+    the exact sum of its float32 terms by at most ``n * 2^-(k_g + 1)``, which is below
+    ``n * M_g * 2^(ceil(log2 terms) - 63)``, before the conversion to float32 (through
+    float64), which adds at most one float32 ulp of the result. Huge terms only lower
+    k_g (down to 2^-88 for float32's largest); non-finite terms raise
+    :class:`~glraster.errors.ArgumentError` naming ``argument``.
+
+    Use::
+
+        acc = FixedPointSum(ctx, "op.grad", groups, size, terms, "grad_out")
+        for _ in acc.passes(program, binding):
+            ...dispatch every chunk...
+        total = acc.result()          # (groups * size,) float32
+    """
+
+    _guesses: dict = {}       # name -> the exponents of the last call (a guess only)
+
+    def __init__(self, ctx: Context, name: str, groups: int, size: int, terms: int,
+                 argument: str):
+        self.ctx, self.name, self.groups, self.size = ctx, name, int(groups), int(size)
+        self.terms, self.argument = int(terms), argument
+        guess = self._guesses.get(name)
+        if guess is None or len(guess) != self.groups:
+            guess = [fixed_point_exponent(1.0, self.terms)] * self.groups
+        self.exponents = list(guess)
+        self.passes_run = 0
+        self._result = None
+
+    def passes(self, program, binding: int):
+        """Yield once per pass, with the accumulator cleared and bound to ``binding`` and
+        the uniform ``fixed_groups`` set; the caller dispatches all its pixels each time."""
+        head = 2 * self.groups
+        words = head + 2 * self.groups * self.size
+        buffer = self.buffer = self.ctx.scratch_buffer(self.name, 4 * words)
+        set_uniform(program, "fixed_groups", self.groups)
+        for _ in range(2):
+            header = np.zeros(head, np.uint32)
+            header[self.groups:] = np.ldexp(np.float32(1), self.exponents
+                                            ).astype(np.float32).view(np.uint32)
+            buffer.clear(size=max(16, 4 * words))
+            buffer.write(header.tobytes())
+            buffer.bind_to_storage_buffer(binding)
+            self.passes_run += 1
+            yield
+            data = read(buffer, words, np.uint32)
+            largest = data[:self.groups].view(np.float32)
+            if not np.isfinite(largest).all():
+                raise ArgumentError(self.argument, "deterministic sums need finite terms; "
+                                    f"{self.argument} gives a non-finite gradient term")
+            needed = [k if m == 0 else fixed_point_exponent(m, self.terms)
+                      for k, m in zip(self.exponents, largest)]
+            if needed == self.exponents:
+                self._result = self._decode(data[head:])
+                self._guesses[self.name] = needed
+                return
+            self.exponents = needed
+        raise AssertionError("fixed-point exponents changed between passes")
+
+    def bind(self, binding: int) -> None:
+        """Bind the accumulator again (after another pass used ``binding``)."""
+        self.buffer.bind_to_storage_buffer(binding)
+
+    def _decode(self, words: np.ndarray) -> np.ndarray:
+        low = words[0::2].astype(np.int64)
+        high = words[1::2].view(np.int32).astype(np.int64)
+        exact = (high << 32) + low                        # |exact| < 2^63
+        k = np.repeat(np.asarray(self.exponents, np.int64), self.size)
+        return np.ldexp(exact.astype(np.float64), -k).astype(np.float32)
+
+    def result(self) -> np.ndarray:
+        """(groups * size,) float32: the sums of the last :meth:`passes`."""
+        return self._result

@@ -140,11 +140,12 @@ def backward(saved: InterpolateSaved, grad_out=None, grad_out_da=None, *, needs=
         grad_out: (B, H, W, A) dL/d out, or None (zero).
         grad_out_da: (B, H, W, 2 D) dL/d out_da, or None / (B, H, W, 0) (zero).
         needs: None or (want_attr, want_rast, want_rast_db). Nothing is dispatched when
-            none is wanted; an unwanted per-pixel gradient is not read back, an unwanted
-            grad_attr not reduced (the deterministic mode's host sum).
-        deterministic: bit-identical grad_attr from run to run (per-pixel contributions
-            summed per vertex in pixel order, in float64); otherwise float atomics.
-        accumulate: force one of :data:`glraster.diff.compute.ACCUMULATIONS`.
+            none is wanted; an unwanted grad_attr is not accumulated (the shader's
+            NO_GRAD_ATTR), unwanted per-pixel gradients neither written nor read back.
+        deterministic: bit-identical grad_attr from run to run, whatever the order of the
+            additions (64-bit fixed-point sums, :class:`glraster.diff.compute.FixedPointSum`
+            states the range and the rounding); otherwise float atomics.
+        accumulate: force one of :data:`glraster.diff.compute.FIXED_POINT_ACCUMULATIONS`.
 
     Returns:
         ``(grad_attr, grad_rast, grad_rast_db)``: grad_attr float32 of attr's shape (a
@@ -170,7 +171,8 @@ def backward(saved: InterpolateSaved, grad_out=None, grad_out_da=None, *, needs=
         for j, col in enumerate(place):
             folded[..., col, :] += pairs[..., j, :]
         grad_out_da = folded.reshape(pairs.shape[:3] + (-1,))
-    mode = compute.accumulation(saved.ctx, deterministic, accumulate)
+    mode = compute.accumulation(saved.ctx, deterministic, accumulate,
+                                compute.FIXED_POINT_ACCUMULATIONS)
     grad_attr, grad_rast, grad_db = _Backward(job, saved, unique, mode, want).run(
         np.ascontiguousarray(grad_out, np.float32),
         None if grad_out_da is None else np.ascontiguousarray(grad_out_da, np.float32))
@@ -189,7 +191,7 @@ def _zeros_if(wanted: bool, shape):
 
 class _Backward:
     """One backward dispatch (the shader's bindings: 0 attr, 1 tri, 2 rast, 3 grad_out,
-    4 grad_rast, 5 the accumulated grad_attr or the per-pixel contributions, 6 rast_db,
+    4 grad_rast, 5 the accumulated grad_attr, 6 rast_db,
     7 the chosen attributes' slots, 8 grad_out_da, 9 grad_rast_db)."""
 
     def __init__(self, job: _Pass, saved: InterpolateSaved, diff_index: tuple, mode: str,
@@ -207,36 +209,47 @@ class _Backward:
                 grad_out_da.reshape(job.pixels, 2 * n_diff) if n_diff else None)
         grad_rast = np.empty((job.pixels, 4), np.float32) if want_rast else None
         grad_db = np.empty((job.pixels, 4), np.float32) if want_db and n_diff else None
-        per_pixel = 4 * (num_attr + 2 * n_diff) + 48 + (12 * num_attr if mode == "per_pixel"
-                                                          else 0)
-        with ctx:
-            program = ctx.compute_program(shader_path(BACKWARD),
-                                          {compute.DEFINES[mode]: None, "N_DIFF": n_diff})
-            job.bind(program)
-            if n_diff:
-                ctx.storage_buffer("interpolate.diff_slot", self._slots()
-                                   ).bind_to_storage_buffer(7)
-            if mode == "per_pixel":
-                total = np.zeros((job.attr3.shape[0] * job.attr3.shape[1], num_attr))
-            else:
-                grad = compute.zeroed(ctx, "interpolate.grad_attr", job.attr3.size * 4)
-                grad.bind_to_storage_buffer(5)
+        per_pixel = 4 * (num_attr + 2 * n_diff) + 48
+        defines = {compute.DEFINES[mode]: None, "N_DIFF": n_diff}
+        if not want_attr:
+            defines["NO_GRAD_ATTR"] = None
+        if grad_rast is None and grad_db is None:
+            defines["NO_GRAD_RAST"] = None
+
+        def dispatch():
             for first, count in compute.chunks(job.pixels, per_pixel):
                 part = slice(first, first + count)
-                out_rast, out_db, contrib = self._chunk(program, flat, first, count, n_diff)
+                out_rast, out_db = self._chunk(program, flat, first, count, n_diff)
                 if grad_rast is not None:
                     grad_rast[part] = compute.read(out_rast, count * 4).reshape(count, 4)
                 if grad_db is not None:
                     grad_db[part] = compute.read(out_db, count * 4).reshape(count, 4)
-                if contrib is not None and want_attr:
-                    live, rows = compute.corner_vertices(flat[0][part, 3], first, job.tri,
-                                                         job.height * job.width, job.stride)
-                    values = compute.read(contrib, count * 3 * num_attr
-                                          ).reshape(count, 3, num_attr)[live]
-                    compute.reduce_rows(total, rows, values, range(num_attr))
-            if mode != "per_pixel" and want_attr:
-                total = compute.read(grad, job.attr3.size)
-        grad_attr = total.astype(np.float32) if want_attr else None
+
+        total = None
+        with ctx:
+            program = ctx.compute_program(shader_path(BACKWARD), defines)
+            job.bind(program)
+            if n_diff:
+                ctx.storage_buffer("interpolate.diff_slot", self._slots()
+                                   ).bind_to_storage_buffer(7)
+            if mode == "fixed_point" and want_attr:
+                # one exponent per image when attr is batched (an item then sums the same
+                # bits as a call on it alone); a value gets at most 3 terms per pixel
+                groups = job.attr3.shape[0]
+                acc = compute.FixedPointSum(ctx, "interpolate.grad_attr", groups,
+                                            job.attr3.size // groups, 3 * job.pixels // groups,
+                                            "grad_out")
+                for _ in acc.passes(program, 5):
+                    dispatch()
+                total = acc.result()
+            else:
+                if want_attr:
+                    grad = compute.zeroed(ctx, "interpolate.grad_attr", job.attr3.size * 4)
+                    grad.bind_to_storage_buffer(5)
+                dispatch()
+                if want_attr:
+                    total = compute.read(grad, job.attr3.size)
+        grad_attr = total
         return (grad_attr,
                 None if grad_rast is None else job.image(grad_rast),
                 None if grad_db is None else job.image(grad_db))
@@ -249,18 +262,15 @@ class _Backward:
         return slots
 
     def _chunk(self, program, flat, first: int, count: int, n_diff: int):
-        """Run pixels first .. first + count - 1: the buffers holding their grad_rast,
-        grad_rast_db (or None) and per-pixel contributions (or None)."""
+        """Run pixels first .. first + count - 1: the buffers holding their grad_rast and
+        grad_rast_db (or None)."""
         ctx = self.job.ctx
         part = slice(first, first + count)
         ctx.storage_buffer("interpolate.rast", flat[0][part]).bind_to_storage_buffer(2)
         ctx.storage_buffer("interpolate.grad_out", flat[1][part]).bind_to_storage_buffer(3)
         out_rast = ctx.scratch_buffer("interpolate.grad_rast", count * 16)
         out_rast.bind_to_storage_buffer(4)
-        contrib = out_db = None
-        if self.mode == "per_pixel":
-            contrib = ctx.scratch_buffer("interpolate.contrib", count * 12 * self.job.num_attr)
-            contrib.bind_to_storage_buffer(5)
+        out_db = None
         if n_diff:
             ctx.storage_buffer("interpolate.rast_db", flat[2][part]).bind_to_storage_buffer(6)
             ctx.storage_buffer("interpolate.grad_out_da", flat[3][part]).bind_to_storage_buffer(8)
@@ -269,4 +279,4 @@ class _Backward:
         compute.set_uniform(program, "n_pixels", count)
         compute.set_uniform(program, "first_pixel", first)
         compute.run(ctx, program, count)
-        return out_rast, out_db, contrib
+        return out_rast, out_db

@@ -233,9 +233,11 @@ def backward(saved: RasterizeSaved, grad_rast=None, grad_db=None, *, needs=None,
         grad_db: (B, H, W, 4) dL/d rast_db (the second-order terms), or None / a
             (B, H, W, 0) array (zero).
         needs: None or (want_pos,): ``(None,)`` when pos' gradient is not wanted.
-        deterministic: bit-identical results from run to run (``"per_pixel"``).
-        accumulate: force one of :data:`glraster.diff.compute.ACCUMULATIONS` (tests,
-            measurements).
+        deterministic: bit-identical results from run to run, whatever the order of the
+            additions (``"fixed_point"``: :class:`glraster.diff.compute.FixedPointSum`
+            states the range and the rounding).
+        accumulate: force one of :data:`glraster.diff.compute.FIXED_POINT_ACCUMULATIONS`
+            (tests, measurements).
 
     Returns:
         ``(grad_pos,)``, float32 of pos' shape: (dL/dx, dL/dy, 0, dL/dw) per vertex; with
@@ -247,7 +249,8 @@ def backward(saved: RasterizeSaved, grad_rast=None, grad_db=None, *, needs=None,
         grad_db = None
     if grad_rast is None and grad_db is None:
         return (np.zeros(saved.pos.shape, np.float32),)
-    mode = compute.accumulation(saved.ctx, deterministic, accumulate)
+    mode = compute.accumulation(saved.ctx, deterministic, accumulate,
+                                compute.FIXED_POINT_ACCUMULATIONS)
     return (_Backward(saved, grad_rast, grad_db, mode).run(),)
 
 
@@ -259,9 +262,8 @@ def backward_pixels(saved: RasterizeSaved, grad_rast, grad_db=None) -> np.ndarra
     pixels). For error analysis and tests.
     """
     rast = saved.rast
-    out = np.empty((rast.shape[0] * rast.shape[1] * rast.shape[2], 3, 4), np.float32)
-    _Backward(saved, grad_rast, grad_db, "per_pixel").run(pixels_out=out)
-    return out.reshape(rast.shape[:3] + (3, 4))
+    return _Backward(saved, grad_rast, grad_db, "per_pixel").run().reshape(
+        rast.shape[:3] + (3, 4))
 
 
 class _Backward:
@@ -284,12 +286,15 @@ class _Backward:
         self.pos3 = pos if pos.ndim == 3 else pos[None]
         self.stride = pos.shape[-2] if pos.ndim == 3 else 0
         self.defines = {compute.DEFINES[mode]: None}
+        if mode == "fixed_point":
+            self.defines["RUN"] = compute.FIXED_POINT_RUN
         if saved.space == "screen":
             self.defines["SPACE_SCREEN"] = None
         if grad_db is not None:
             self.defines["GRAD_DB"] = None
 
-    def run(self, pixels_out=None) -> np.ndarray:
+    def run(self) -> np.ndarray:
+        """grad_pos of pos' shape, or (per_pixel) the (B H W, 3, 4) per-pixel terms."""
         ctx, tri, mode = self.ctx, self.saved.tri, self.mode
         total_vertices = self.pos3.shape[0] * self.pos3.shape[1]
         pixels = self.batch * self.height * self.width
@@ -297,26 +302,32 @@ class _Backward:
             program = ctx.compute_program(shader_path(BACKWARD), self.defines)
             ctx.storage_buffer("backward.pos", self.pos3.reshape(-1, 4)).bind_to_storage_buffer(0)
             ctx.storage_buffer("backward.tri", tri).bind_to_storage_buffer(1)
-            if mode == "per_pixel":
-                total = np.zeros((total_vertices, 4))
-            else:
-                grad = compute.zeroed(ctx, "backward.grad_pos", total_vertices * 16)
-                grad.bind_to_storage_buffer(5)
             compute.set_uniform(program, "size", (self.width, self.height))
             compute.set_uniform(program, "vertex_stride", self.stride)
             compute.set_uniform(program, "n_tri", len(tri))
-            for first, count in compute.chunks(pixels, 48 if mode == "per_pixel" else 16):
-                contrib = self._chunk(program, first, count)
-                if contrib is not None:
-                    if pixels_out is not None:
-                        pixels_out[first:first + count] = contrib
-                    live, rows = compute.corner_vertices(
-                        self.flat[0][first:first + count, 3], first, tri,
-                        self.height * self.width, self.stride)
-                    compute.reduce_rows(total, rows, contrib[live], (0, 1, 3))
-            if mode != "per_pixel":
-                total = compute.read(grad, total_vertices * 4).reshape(-1, 4)
-        return total.astype(np.float32).reshape(self.saved.pos.shape)
+            if mode == "per_pixel":
+                terms = np.empty((pixels, 3, 4), np.float32)
+                for first, count in compute.chunks(pixels, 48):
+                    terms[first:first + count] = self._chunk(program, first, count)
+                return terms
+            if mode == "fixed_point":
+                # one exponent per image when pos is batched (an item then sums the same
+                # bits as a call on it alone); a value gets at most 3 terms per pixel
+                groups = self.batch if self.stride else 1
+                acc = compute.FixedPointSum(ctx, "backward.grad_pos", groups,
+                                            total_vertices * 4 // groups,
+                                            3 * pixels // groups, "grad_rast")
+                for _ in acc.passes(program, 5):
+                    for first, count in compute.chunks(pixels, 16):
+                        self._chunk(program, first, count)
+                total = acc.result()
+            else:
+                grad = compute.zeroed(ctx, "backward.grad_pos", total_vertices * 16)
+                grad.bind_to_storage_buffer(5)
+                for first, count in compute.chunks(pixels, 16):
+                    self._chunk(program, first, count)
+                total = compute.read(grad, total_vertices * 4)
+        return total.reshape(self.saved.pos.shape)
 
     def _chunk(self, program, first: int, count: int):
         """Run pixels first .. first + count - 1; their (count, 3, 4) contributions in
@@ -333,7 +344,8 @@ class _Backward:
             out.bind_to_storage_buffer(5)
         compute.set_uniform(program, "n_pixels", count)
         compute.set_uniform(program, "first_pixel", first)
-        compute.run(ctx, program, count)
+        run = compute.FIXED_POINT_RUN if self.mode == "fixed_point" else 1
+        compute.run(ctx, program, -(-count // run))
         if self.mode == "per_pixel":
             return compute.read(out, count * 12).reshape(count, 3, 4)
         return None

@@ -229,8 +229,10 @@ PHASES = {
                                                   ("moderngl/__init__.py", "read")],
     "host setup records": [("glraster/diff/rasterize.py", "setup_records")],
     "host culling": [("glraster/gpu/cull.py", "cull")],
-    "host reduction (ids, bincount)": [("glraster/diff/compute.py", "corner_vertices"),
-                                       ("glraster/diff/compute.py", "reduce_rows")],
+    "host reduction (ids, bincount; fixed-point decode)": [
+        ("glraster/diff/compute.py", "corner_vertices"),
+        ("glraster/diff/compute.py", "reduce_rows"),
+        ("glraster/diff/compute.py", "_decode")],
 }
 
 

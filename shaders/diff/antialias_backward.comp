@@ -10,9 +10,8 @@
 //   tau = -r_w / r_d, r = v'_a x v'_b in the frame of the pair's A: dtau/dr = -C / r_d,
 //             C = (tau d, 1); G = dL/dr, dL/dv'_a = v'_b x G, dL/dv'_b = G x v'_a; clip:
 //             dL/dx = (W/2) G_X, dL/dy = (H/2) G_Y, dL/dw = G_w - n_x dL/dx - n_y dL/dy.
-// Defines: CONVEX; ACCUM_ATOMIC_FLOAT | ACCUM_CAS | ACCUM_PER_PIXEL (per listed pair i:
-// contrib[2 i + j] = bits of (dL/dx, dL/dy), row + 1, bits of dL/dw of the edge's vertex j; the
-// host clears the buffer, so unblended pairs read row + 1 = 0).
+// Defines: CONVEX; ACCUM_ATOMIC_FLOAT | ACCUM_CAS | ACCUM_FIXED_POINT (as
+// backward_rasterize.comp); NO_GRAD_POS: the position gradients are not wanted (no atomics).
 #ifdef ACCUM_ATOMIC_FLOAT
 #extension GL_NV_shader_atomic_float : require
 #endif
@@ -27,10 +26,8 @@ layout(std430, binding = 4) writeonly buffer GradColor { float grad_color[]; };
 layout(std430, binding = 5) readonly buffer Pos { vec4 pos[]; };
 #if defined(ACCUM_ATOMIC_FLOAT)
 layout(std430, binding = 6) buffer GradPos { float grad_pos[]; };
-#elif defined(ACCUM_CAS)
+#elif defined(ACCUM_CAS) || defined(ACCUM_FIXED_POINT)
 layout(std430, binding = 6) buffer GradPos { uint grad_pos[]; };
-#else
-layout(std430, binding = 6) writeonly buffer Contrib { uvec4 contrib[]; };
 #endif
 layout(std430, binding = 7) readonly buffer PixelList { uint pixel_list[]; };
 
@@ -38,11 +35,19 @@ uniform uint n_list;
 uniform ivec2 size;          // (W, H)
 uniform int n_channels;
 uniform float boost;         // pos_gradient_boost
+uniform uint vertex_stride;  // V when pos is batched, else 0
+uniform uint fixed_groups;   // ACCUM_FIXED_POINT: B with batched pos (one scale per image), else 1
 
 #include "include/atomic_add_float.glsl"
+#include "include/fixed_point.glsl"
 
 void add(uint row, vec3 g) {
-#if defined(ACCUM_ATOMIC_FLOAT) || defined(ACCUM_CAS)
+#if defined(ACCUM_FIXED_POINT)
+    uint group = vertex_stride == 0u ? 0u : row / vertex_stride;
+    FIXED_ADD(grad_pos, fixed_groups, group, 4u * row + 0u, g.x);
+    FIXED_ADD(grad_pos, fixed_groups, group, 4u * row + 1u, g.y);
+    FIXED_ADD(grad_pos, fixed_groups, group, 4u * row + 3u, g.z);
+#else
     ATOMIC_ADD_FLOAT(grad_pos[4u * row + 0u], g.x);
     ATOMIC_ADD_FLOAT(grad_pos[4u * row + 1u], g.y);
     ATOMIC_ADD_FLOAT(grad_pos[4u * row + 3u], g.z);
@@ -70,12 +75,7 @@ void edge_gradient(uint owner, int axis, uvec4 rec, float dl_dtau) {
         float gx = 0.5 * float(size.x) * g[j].x;
         float gy = 0.5 * float(size.y) * g[j].y;
         vec3 clip = vec3(gx, gy, g[j].z - n.x * gx - n.y * gy);
-#ifdef ACCUM_PER_PIXEL
-        contrib[2u * (rec.x >> 2) + uint(j)] = uvec4(floatBitsToUint(clip.x),
-            floatBitsToUint(clip.y), rows[j] + 1u, floatBitsToUint(clip.z));
-#else
         add(rows[j], clip);
-#endif
     }
 }
 
@@ -128,6 +128,7 @@ void main() {
         }
         grad_color[li * C + c] = gc;
     }
+#ifndef NO_GRAD_POS
     float weighted = 0.0;
     for (int k = 0; k < 4; ++k) weighted += alpha[k] * D[k];
     for (int k = 0; k < 4; ++k) {
@@ -139,4 +140,5 @@ void main() {
         float dl_dtau = boost * ((rec[k].x & 3u) == 1u ? -dl_dalpha : dl_dalpha);
         edge_gradient(owner[k], axes[k], rec[k], dl_dtau);
     }
+#endif
 }

@@ -6,7 +6,9 @@
 //   dL/du = sum_k g_k (a0 - a2)_k,  dL/dv = sum_k g_k (a1 - a2)_k          -> grad_rast
 //   dL/d(du/dx, du/dy, dv/dx, dv/dy) = sum_k (g_x (a0-a2), g_y (a0-a2), g_x (a1-a2), g_y (a1-a2))
 // Accumulation into dL/da as in backward_rasterize.comp: ACCUM_ATOMIC_FLOAT | ACCUM_CAS |
-// ACCUM_PER_PIXEL (three rows of n_attr floats per pixel, reduced by the caller).
+// ACCUM_FIXED_POINT (one fixed-point add per term; the local sums over runs of pixels of
+// backward_rasterize.comp measured no faster here); NO_GRAD_ATTR: dL/da not wanted (no accumulation at all), NO_GRAD_RAST:
+// grad_rast and grad_rast_db not wanted (not written).
 #ifdef ACCUM_ATOMIC_FLOAT
 #extension GL_NV_shader_atomic_float : require
 #endif
@@ -20,10 +22,8 @@ layout(std430, binding = 3) readonly buffer GradOut { float grad_out[]; };
 layout(std430, binding = 4) writeonly buffer GradRast { vec4 grad_rast[]; };
 #if defined(ACCUM_ATOMIC_FLOAT)
 layout(std430, binding = 5) buffer GradAttr { float grad_attr[]; };
-#elif defined(ACCUM_CAS)
+#elif defined(ACCUM_CAS) || defined(ACCUM_FIXED_POINT)
 layout(std430, binding = 5) buffer GradAttr { uint grad_attr[]; };
-#else
-layout(std430, binding = 5) writeonly buffer Contrib { float contrib[]; };
 #endif
 #if N_DIFF > 0
 layout(std430, binding = 6) readonly buffer RastDb { vec4 rast_db[]; };
@@ -38,36 +38,38 @@ uniform uint pixels_per_image;
 uniform uint vertex_stride;
 uniform int n_tri;
 uniform int n_attr;
+uniform uint fixed_groups;   // ACCUM_FIXED_POINT: B with batched attr (one scale per image), else 1
 
 #include "include/triangle_id.glsl"
 #include "include/atomic_add_float.glsl"
+#include "include/fixed_point.glsl"
 
-// contribution of corner j (0, 1, 2) to attribute k
-void add(uint i, uint j, uint slot, uint k, float value) {
-#if defined(ACCUM_ATOMIC_FLOAT) || defined(ACCUM_CAS)
-    if (value != 0.0) ATOMIC_ADD_FLOAT(grad_attr[slot], value);
+// a corner's term of dL/d attr[slot] (group: the image when attr is batched, else 0)
+void add(uint slot, uint group, float value) {
+#if defined(NO_GRAD_ATTR)
+#elif defined(ACCUM_FIXED_POINT)
+    if (value != 0.0) FIXED_ADD(grad_attr, fixed_groups, group, slot, value);
 #else
-    contrib[(3u * i + j) * uint(n_attr) + k] = value;
+    if (value != 0.0) ATOMIC_ADD_FLOAT(grad_attr[slot], value);
 #endif
 }
 
-void main() {
-    uint i = gl_GlobalInvocationID.x;
-    if (i >= n_pixels) return;
+void pixel(uint i) {
     uint A = uint(n_attr);
     vec4 r = rast[i];
     int t = decode_id(r.w) - 1;
     if (t < 0 || t >= n_tri) {
+#ifndef NO_GRAD_RAST
         grad_rast[i] = vec4(0.0);
 #if N_DIFF > 0
         grad_rast_db[i] = vec4(0.0);
 #endif
-#ifdef ACCUM_PER_PIXEL
-        for (uint k = 0u; k < 3u * A; ++k) contrib[3u * i * A + k] = 0.0;
 #endif
         return;
     }
-    uint base = ((first_pixel + i) / pixels_per_image) * vertex_stride;
+    uint image = (first_pixel + i) / pixels_per_image;
+    uint base = image * vertex_stride;
+    uint group = vertex_stride == 0u ? 0u : image;
     uint o0 = (uint(tri[3 * t]) + base) * A;
     uint o1 = (uint(tri[3 * t + 1]) + base) * A;
     uint o2 = (uint(tri[3 * t + 2]) + base) * A;
@@ -94,12 +96,19 @@ void main() {
             c1 = gx * db.z + gy * db.w;
         }
 #endif
-        add(i, 0u, o0 + k, k, u * g + c0);
-        add(i, 1u, o1 + k, k, v * g + c1);
-        add(i, 2u, o2 + k, k, w * g - (c0 + c1));
+        add(o0 + k, group, u * g + c0);
+        add(o1 + k, group, v * g + c1);
+        add(o2 + k, group, w * g - (c0 + c1));
     }
+#ifndef NO_GRAD_RAST
     grad_rast[i] = vec4(gu, gv, 0.0, 0.0);
 #if N_DIFF > 0
     grad_rast_db[i] = gdb;
 #endif
+#endif
+}
+
+void main() {
+    uint i = gl_GlobalInvocationID.x;
+    if (i < n_pixels) pixel(i);
 }

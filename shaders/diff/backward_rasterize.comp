@@ -4,8 +4,10 @@
 //
 // Defines: SPACE_SCREEN (u, v are window-space barycentrics, else perspective-correct);
 // ACCUM_ATOMIC_FLOAT (atomicAdd on float, GL_NV_shader_atomic_float) | ACCUM_CAS
-// (atomicCompSwap loop on the float's bits) | ACCUM_PER_PIXEL (each pixel writes its three
-// vertex contributions; the caller reduces them in a fixed order); GRAD_DB.
+// (atomicCompSwap loop on the float's bits) | ACCUM_FIXED_POINT (64-bit fixed-point integer
+// sums, include/fixed_point.glsl: bit-reproducible; RUN pixels per invocation) |
+// ACCUM_PER_PIXEL (each pixel writes
+// its three vertex contributions, for backward_pixels); GRAD_DB.
 //
 // Mathematics (docs/differentiable.md, "Backward on the GPU"). In the pixel-relative window
 // frame V'_j = (X_j - p_x w_j, Y_j - p_y w_j, w_j), with X = (x + w) W/2, Y = (y + w) H/2,
@@ -28,7 +30,7 @@ layout(std430, binding = 4) readonly buffer GradDb { vec4 grad_db[]; };
 #endif
 #if defined(ACCUM_ATOMIC_FLOAT)
 layout(std430, binding = 5) buffer GradPos { float grad_pos[]; };
-#elif defined(ACCUM_CAS)
+#elif defined(ACCUM_CAS) || defined(ACCUM_FIXED_POINT)
 layout(std430, binding = 5) buffer GradPos { uint grad_pos[]; };
 #else
 // (dL/dx, dL/dy, 0, dL/dw) of the pixel's vertex 0, 1, 2: three vec4 per pixel
@@ -40,9 +42,11 @@ uniform uint first_pixel;    // flat index (b, y, x) of the first one
 uniform uvec2 size;          // (W, H)
 uniform uint vertex_stride;  // V when pos is batched, else 0
 uniform int n_tri;
+uniform uint fixed_groups;   // ACCUM_FIXED_POINT: B with batched pos (one scale per image), else 1
 
 #include "include/triangle_id.glsl"
 #include "include/atomic_add_float.glsl"
+#include "include/fixed_point.glsl"
 
 void add(uint vertex, vec3 g) {
     uint o = 4u * vertex;
@@ -53,33 +57,27 @@ void add(uint vertex, vec3 g) {
 #endif
 }
 
-void main() {
-    uint i = gl_GlobalInvocationID.x;
-    if (i >= n_pixels) return;
-    int t = decode_id(rast[i].w) - 1;
+// The terms of pixel i (of this dispatch) to the clip-space (x, y, w) of its triangle's
+// vertices idx (batch offset included), b its image; false (terms not set) when it adds
+// nothing (empty, or a zero upstream gradient outside ACCUM_PER_PIXEL).
+bool pixel_terms(uint i, out int t, out uint b, out uint idx[3], out vec3 terms[3]) {
+    t = decode_id(rast[i].w) - 1;
     vec2 gbary = grad_rast[i].xy;
 #ifdef GRAD_DB
     vec4 gdb = grad_db[i];
 #endif
     bool live = t >= 0 && t < n_tri;
-#ifdef ACCUM_PER_PIXEL
-    if (!live) {
-        contrib[3u * i] = vec4(0.0);
-        contrib[3u * i + 1u] = vec4(0.0);
-        contrib[3u * i + 2u] = vec4(0.0);
-        return;
-    }
-#else
-    if (!live) return;
+    if (!live) return false;
+#ifndef ACCUM_PER_PIXEL
 #ifdef GRAD_DB
-    if (gbary == vec2(0.0) && gdb == vec4(0.0)) return;
+    if (gbary == vec2(0.0) && gdb == vec4(0.0)) return false;
 #else
-    if (gbary == vec2(0.0)) return;
+    if (gbary == vec2(0.0)) return false;
 #endif
 #endif
     uint g = first_pixel + i;
     uint hw = size.x * size.y;
-    uint b = g / hw;
+    b = g / hw;
     uint r = g - b * hw;
     uint y = r / size.x;
     uint x = r - y * size.x;
@@ -88,8 +86,8 @@ void main() {
     vec2 ndc = (2.0 * vec2(float(x), float(y)) + 1.0) / vec2(size) - 1.0;
 
     uint base = b * vertex_stride;
-    uint idx[3] = uint[3](uint(tri[3 * t]) + base, uint(tri[3 * t + 1]) + base,
-                          uint(tri[3 * t + 2]) + base);
+    idx = uint[3](uint(tri[3 * t]) + base, uint(tri[3 * t + 1]) + base,
+                  uint(tri[3 * t + 2]) + base);
     vec3 V[3];
     for (int j = 0; j < 3; ++j) {
         vec4 p = pos[idx[j]];
@@ -153,11 +151,74 @@ void main() {
     for (int j = 0; j < 3; ++j) {
         // back to clip space: X' = (W/2)(x - w ndc_x), Y' = (H/2)(y - w ndc_y)
         vec2 gxy = half_size * G[j].xy;
-        vec3 clip = vec3(gxy, G[j].z - dot(ndc, gxy));
-#ifdef ACCUM_PER_PIXEL
-        contrib[3u * i + uint(j)] = vec4(clip.xy, 0.0, clip.z);
+        terms[j] = vec3(gxy, G[j].z - dot(ndc, gxy));
+    }
+    return true;
+}
+
+#ifdef ACCUM_FIXED_POINT
+// RUN consecutive pixels per invocation: the rounded terms of a stretch of pixels on one
+// triangle are summed locally (64-bit integers: associative, so the same bits) and added
+// with one pair of atomics per vertex coordinate, instead of one pair per pixel.
+void flush(uint group, uint idx[3], uvec2 sum[9], uint largest) {
+    FIXED_TRACK(grad_pos, group, largest);
+    for (int j = 0; j < 3; ++j) {
+        uint o = 4u * idx[j];
+        FIXED_ADD_WORDS(grad_pos, fixed_groups, o + 0u, sum[3 * j]);
+        FIXED_ADD_WORDS(grad_pos, fixed_groups, o + 1u, sum[3 * j + 1]);
+        FIXED_ADD_WORDS(grad_pos, fixed_groups, o + 3u, sum[3 * j + 2]);
+    }
+}
+
+void main() {
+    uint start = gl_GlobalInvocationID.x * uint(RUN);
+    int open_t = -1;
+    uint open_b = 0u, open_group = 0u;
+    uint open_idx[3] = uint[3](0u, 0u, 0u);
+    uvec2 sum[9];
+    uint largest = 0u;       // fixed_point_magnitude of the largest term
+    float scale = 0.0;
+    for (uint r = 0u; r < uint(RUN); ++r) {
+        uint i = start + r;
+        if (i >= n_pixels) break;
+        int t;
+        uint b, idx[3];
+        vec3 terms[3];
+        if (!pixel_terms(i, t, b, idx, terms)) continue;
+        if (t != open_t || b != open_b) {
+            if (open_t >= 0) flush(open_group, open_idx, sum, largest);
+            open_t = t;
+            open_b = b;
+            open_idx = idx;
+            open_group = vertex_stride == 0u ? 0u : b;
+            scale = uintBitsToFloat(grad_pos[fixed_groups + open_group]);
+            for (int m = 0; m < 9; ++m) sum[m] = uvec2(0u);
+            largest = 0u;
+        }
+        for (int j = 0; j < 3; ++j) {
+            for (int c = 0; c < 3; ++c) {
+                largest = max(largest, fixed_point_magnitude(terms[j][c]));
+                sum[3 * j + c] = fixed_point_add(sum[3 * j + c],
+                                                 fixed_point_words(terms[j][c], scale));
+            }
+        }
+    }
+    if (open_t >= 0) flush(open_group, open_idx, sum, largest);
+}
 #else
-        add(idx[j], clip);
+void main() {
+    uint i = gl_GlobalInvocationID.x;
+    if (i >= n_pixels) return;
+    int t;
+    uint b, idx[3];
+    vec3 terms[3];
+    bool live = pixel_terms(i, t, b, idx, terms);
+    for (int j = 0; j < 3; ++j) {
+#ifdef ACCUM_PER_PIXEL
+        contrib[3u * i + uint(j)] = live ? vec4(terms[j].xy, 0.0, terms[j].z) : vec4(0.0);
+#else
+        if (live) add(idx[j], terms[j]);
 #endif
     }
 }
+#endif

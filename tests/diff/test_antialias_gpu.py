@@ -135,7 +135,7 @@ def upstream(p: aar.Pairs, shape, seed=0):
     return g
 
 
-@pytest.mark.parametrize("accumulate", ["atomic_float", "cas", "per_pixel"])
+@pytest.mark.parametrize("accumulate", gaa._gpu.FIXED_POINT_ACCUMULATIONS)
 def test_gradients_within_the_float32_bound(ctx, accumulate):
     if accumulate == "atomic_float" and not gaa._gpu.has_atomic_float(ctx):
         pytest.skip("no GL_NV_shader_atomic_float")

@@ -130,11 +130,12 @@ def test_forward_within_running_error_bound(ctx, scene, diff):
     np.testing.assert_allclose(want, o64[px], rtol=0, atol=1e-12)
 
 
-@pytest.mark.parametrize("accumulate", compute.ACCUMULATIONS)
+@pytest.mark.parametrize("accumulate", compute.FIXED_POINT_ACCUMULATIONS)
 @pytest.mark.parametrize("diff", [None, [4, 1], "all"])
 def test_backward_within_bound_and_matches_reference(ctx, scene, diff, accumulate):
     """grad_rast, grad_rast_db per pixel within K u m; grad_attr per vertex within the
-    sum of its pixels' bounds + (n - 1) u sum |c| (atomics) or u |sum| (float64 sum)."""
+    sum of its pixels' bounds + (n - 1) u sum |c| (atomics) or n 2^-(k+1) (fixed point,
+    k from an upper bound on the largest term), + u |sum|."""
     if accumulate == "atomic_float" and not compute.has_atomic_float(ctx):
         pytest.skip("the driver has no GL_NV_shader_atomic_float")
     attr, rast, rast_db, tri, rng = scene
@@ -161,8 +162,13 @@ def test_backward_within_bound_and_matches_reference(ctx, scene, diff, accumulat
         bound[:, k] = np.bincount(index.ravel(), K * U32 * ms.ravel(), num)
         mag[:, k] = np.bincount(index.ravel(), np.abs(vals).ravel(), num)
     n = np.bincount(index.ravel(), minlength=num)[:, None]
-    summation = U32 * np.abs(want) if accumulate == "per_pixel" else \
-        np.maximum(n - 1, 0) * U32 * (mag + bound)
+    if accumulate == "fixed_point":
+        largest = max((np.abs(corner[j][k].v) + K * U32 * corner[j][k].m).max()
+                      for j in range(3) for k in range(attr.shape[1]))
+        k = compute.fixed_point_exponent(largest, 3 * rast[..., 0].size)
+        summation = n * 2.0 ** -(k + 1)
+    else:
+        summation = np.maximum(n - 1, 0) * U32 * (mag + bound)
     assert grad_attr.shape == attr.shape and np.abs(grad_attr).max() > 0
     assert (np.abs(grad_attr - want) <= bound + summation + U32 * np.abs(want)).all()
     _, r = reference(attr, rast, tri, rast_db, diff, go, gda)

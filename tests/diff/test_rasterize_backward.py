@@ -371,11 +371,12 @@ def test_gpu_pixel_terms_within_running_error_bound(ctx, name, space):
     assert not empty.any(), "empty pixels must contribute nothing"
 
 
-@pytest.mark.parametrize("accumulate", compute.ACCUMULATIONS)
+@pytest.mark.parametrize("accumulate", compute.FIXED_POINT_ACCUMULATIONS)
 @pytest.mark.parametrize("name", ["grid_perspective_jitter", "icosphere", "slivers"])
 def test_gpu_vertex_gradients_within_bound(ctx, name, accumulate):
     """Per vertex: |gpu - float64| <= sum of its pixels' K u m + the summation bound
-    ((n - 1) u sum |c| for float32 atomics, u |sum| for the float64 sum) + u |sum|."""
+    ((n - 1) u sum |c| for float32 atomics; n 2^-(k+1) for the fixed-point sums, k from
+    an upper bound on the largest term, 3 terms per pixel) + u |sum|."""
     if accumulate == "atomic_float" and not compute.has_atomic_float(ctx):
         pytest.skip("the driver has no GL_NV_shader_atomic_float")
     pos, tri, res = _scene(name)
@@ -388,8 +389,10 @@ def test_gpu_vertex_gradients_within_bound(ctx, name, accumulate):
     pixel_bound = per_vertex(index, K * U32 * bound, len(pos))
     magnitude = per_vertex(index, np.abs(want), len(pos))
     count = np.bincount(index.ravel(), minlength=len(pos))[:, None]
-    if accumulate == "per_pixel":
-        summation = U32 * np.abs(total)
+    if accumulate == "fixed_point":
+        largest = (np.abs(want) + K * U32 * bound).max()
+        k = compute.fixed_point_exponent(largest, 3 * rast[..., 0].size)
+        summation = count * 2.0 ** -(k + 1)
     else:
         summation = np.maximum(count - 1, 0) * U32 * (magnitude + pixel_bound)
     tol = pixel_bound + summation + U32 * np.abs(total)
