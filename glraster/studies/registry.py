@@ -79,6 +79,8 @@ STUDIES: dict[str, Study] = {s.name: s for s in (
           "work (floor), and where each fit iteration's time goes", extra="torch"),
     Study("torch-overhead", _S + "torch_overhead", "per-call overhead of the glraster.torch "
           "wrappers over the op cores, against an older tree", extra="torch"),
+    Study("deterministic-ab", _S + "deterministic_ab", "the deterministic backward of "
+          "rasterize and interpolate against another checkout"),
     Study("metrics-ab", _S + "metrics_ab", "the service's /metrics cost against an earlier "
           "revision's (git)", extra="service"),
     Study("service-cpu-overhead", _S + "service_cpu_overhead", "CPU the service spends per "

@@ -11,7 +11,7 @@ atomics and deterministic, and reports the medians over rounds of the per-round 
 ``backward_deterministic_over_forward`` and ``interpolate_deterministic_over_atomic``
 (the bench-diff cells of the same names).
 
-    python benchmarks/deterministic_ab.py --base /path/to/other/checkout \\
+    glraster study deterministic-ab --base /path/to/other/checkout \\
         --sizes 256 1024 --counts 1000 20000 --rounds 7
 """
 
@@ -90,11 +90,15 @@ def _ask(proc: subprocess.Popen, line: str) -> dict:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    # a plain parser, not studies.registry's: the workers run this file against older
+    # trees, which may not have the registry
+    parser = argparse.ArgumentParser(prog="glraster study deterministic-ab",
+                                     description=__doc__.splitlines()[0])
     parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--base", help="the other checkout (A)")
-    parser.add_argument("--new", default=os.path.dirname(os.path.dirname(
-        os.path.abspath(__file__))), help="this checkout (B), default: the one holding this file")
+    parser.add_argument("--new", default=os.path.dirname(os.path.dirname(os.path.dirname(
+        os.path.abspath(__file__)))), help="this checkout (B), default: the one holding this "
+                                          "file")
     parser.add_argument("--sizes", type=int, nargs="+", default=[256, 1024])
     parser.add_argument("--counts", type=int, nargs="+", default=[1000, 20000])
     parser.add_argument("--rounds", type=int, default=7)
