@@ -1,6 +1,6 @@
 """The records of one fit run (NumPy arrays, float64), the same from every front end:
-:class:`CubeFit`, :class:`PoseFit`, :class:`TextureFit` and :class:`EnvmapFit`, each with the JSON ``summary()`` that
-``glraster fit --json`` writes."""
+:class:`CubeFit`, :class:`PoseFit`, :class:`TextureFit` and :class:`EnvmapFit`, each with
+the JSON ``summary()`` that ``glraster fit --json`` writes."""
 
 from __future__ import annotations
 
@@ -115,7 +115,7 @@ class EnvmapFit:
     iterations: int
     views: int
     env_size: int
-    triangles: int
+    mesh: tuple                 # (nu, nv) of the blob: 2 nu nv triangles
     image_rmse: np.ndarray      # (iterations,) RMSE over covered pixels of each step's views
     color_error: np.ndarray     # (iterations + 1,) mean |colour - true| over kd and ks
     exponent_error: np.ndarray  # (iterations + 1,) |exponent - true| / true
@@ -128,7 +128,8 @@ class EnvmapFit:
         plain = lambda m: {k: (np.asarray(v).tolist()) for k, v in m.items()}  # noqa: E731
         return {"seed": self.seed, "resolution": self.resolution,
                 "iterations": self.iterations, "views": self.views,
-                "env_size": self.env_size, "triangles": self.triangles,
+                "env_size": self.env_size, "mesh": list(self.mesh),
+                "triangles": 2 * self.mesh[0] * self.mesh[1],
                 "start_image_rmse": float(self.image_rmse[0]),
                 "final_image_rmse": float(self.image_rmse[-1]),
                 "start_color_error": float(self.color_error[0]),
