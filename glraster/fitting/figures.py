@@ -15,7 +15,8 @@ Pictures are grids of panels, upright, separated by grey lines, each panel scale
 - ``fit-texture-views.png``: a row per held-out view (nearest and farthest of the first
   seed), columns: target, linear fit, mipmapped fit;
 - ``fit-envmap-before-after.png``: a row per display view (``DISPLAY_QUATERNIONS``), columns:
-  the true material, the start and the result of the first seed, at the fit's resolution.
+  the true material, the start and the result of the first seed, at the fit's resolution
+  (with a fitted cube map: under the grey start's and the fitted map).
 """
 
 from __future__ import annotations
@@ -55,10 +56,10 @@ class Renderer(Protocol):
         ``mvp`` (linear-mipmap-linear when ``mip``, else linear)."""
 
     def envmap(self, quaternions: np.ndarray, material: dict, size: int, *, mesh: tuple,
-               env_size: int) -> np.ndarray:
+               env_size: int, env: np.ndarray | None = None) -> np.ndarray:
         """The envmap fit's blob (``mesh`` (nu, nv)) turned by each of the (N, 4)
         ``quaternions`` with ``material`` ({"diffuse": (3,), "specular": (3,), "exponent"})
-        under the studio cube map of ``env_size``² faces."""
+        under the studio cube map of ``env_size``² faces (or ``env`` (6, N, N, 3))."""
 
 
 def upright(img) -> np.ndarray:
@@ -257,16 +258,19 @@ def envmap_figures(fits, renderer: Renderer, out_dir) -> list[Path]:
                         title="glraster fit envmap: errors",
                         description="image RMSE of each step's views, colour error and "
                                     "relative exponent error per iteration") as fig:
-        axes = fig.subplots(1, 3)
+        with_env = fits[0].fit_env
+        axes = fig.subplots(1, 4 if with_env else 3)
         col = figures.colors([f.seed for f in fits])
         for f in fits:
-            for ax, curve in zip(axes, (f.image_rmse, f.color_error, f.exponent_error)):
+            curves = (f.image_rmse, f.color_error, f.exponent_error) + (
+                (f.env_rmse,) if with_env else ())
+            for ax, curve in zip(axes, curves):
                 ax.semilogy(_log_floor(curve, 1e-7), color=col[f.seed], lw=1.0,
                             label=f"seed {f.seed}: {curve[-1]:.2g}")
         first = fits[0]
         titles = (f"image RMSE ({first.resolution}² px, {first.views} views/it)",
                   "colour error (mean |c - c_true|, kd and ks)",
-                  "exponent error |p - p_true| / p_true")
+                  "exponent error |p - p_true| / p_true", "cube map texel RMSE")
         for ax, title in zip(axes, titles):
             ax.set_title(title, fontsize=9)
             ax.set_xlabel("iteration")
@@ -276,11 +280,12 @@ def envmap_figures(fits, renderer: Renderer, out_dir) -> list[Path]:
 
     f = fits[0]
     rows = []
+    grey = None if f.final_env is None else np.full_like(f.final_env, 0.3)
     for q in scenes.DISPLAY_QUATERNIONS:
         row = []
-        for material in (f.true, f.start, f.final):
+        for material, env in ((f.true, None), (f.start, grey), (f.final, f.final_env)):
             img = renderer.envmap(q[None], material, f.resolution, mesh=f.mesh,
-                                  env_size=f.env_size)
+                                  env_size=f.env_size, env=env)
             row.append(scaled(upright(img[0]), max(PANEL, f.resolution)))
         rows.append(row)
     paths.append(write_grid(out_dir / "fit-envmap-before-after.png", rows,

@@ -122,7 +122,14 @@ class EnvmapFit:
     true: dict                  # {"diffuse": (3,), "specular": (3,), "exponent": float}
     start: dict
     final: dict
+    env_rmse: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (iterations + 1,)
+    # with fit_env: RMSE of the fitted cube map's texels against the truth; else empty
+    final_env: np.ndarray | None = None  # with fit_env: (6, N, N, 3) float32
     timing: dict = field(default_factory=dict)
+
+    @property
+    def fit_env(self) -> bool:
+        return self.final_env is not None
 
     def summary(self) -> dict:
         plain = lambda m: {k: (np.asarray(v).tolist()) for k, v in m.items()}  # noqa: E731
@@ -136,5 +143,8 @@ class EnvmapFit:
                 "final_color_error": float(self.color_error[-1]),
                 "start_exponent_error": float(self.exponent_error[0]),
                 "final_exponent_error": float(self.exponent_error[-1]),
+                "fit_env": self.fit_env,
+                "start_env_rmse": float(self.env_rmse[0]) if self.fit_env else None,
+                "final_env_rmse": float(self.env_rmse[-1]) if self.fit_env else None,
                 "true": plain(self.true), "start": plain(self.start),
                 "final": plain(self.final), "timing": self.timing}

@@ -54,7 +54,7 @@ class TorchRenderer:
         return image.numpy()
 
     @torch.no_grad()
-    def envmap(self, quaternions, material, size, *, mesh, env_size):
+    def envmap(self, quaternions, material, size, *, mesh, env_size, env=None):
         key = (tuple(mesh), env_size)
         if key not in self._envmap_scenes:
             self._envmap_scenes[key] = envmap_mod.make_scene(self.glctx, mesh=mesh,
@@ -63,7 +63,8 @@ class TorchRenderer:
         f32 = lambda a: torch.tensor(np.asarray(a), dtype=torch.float32)  # noqa: E731
         image, _ = envmap_mod.render_envmap(
             self.glctx, self._envmap_scenes[key], mvp, eye, f32(material["diffuse"]),
-            f32(material["specular"]), f32(material["exponent"]), size)
+            f32(material["specular"]), f32(material["exponent"]), size,
+            env=None if env is None else f32(env)[None])
         return image.numpy()
 
 
