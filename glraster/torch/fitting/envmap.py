@@ -37,9 +37,8 @@ With ``fit_env`` the cube map is the parameter instead (from a uniform grey star
 material known): the lighting from the images, each step's backward then running through
 both cube lookups and their pyramids. Map and material together are not identifiable: the
 map can take up the Phong lobe (ks E(r) + ks max(r.l, 0)^p is matched by other ks, p and a
-brighter or dimmer map around l) and kd E(n) trades a factor with the map; measured at 64²
-(seed 1, 100 steps) the joint fit lowered the image RMSE from 0.186 to 0.038 while the
-colour error rose from 0.20 to 0.31 and the exponent went from 253 to 132 (true 60).
+brighter or dimmer map around l) and kd E(n) trades a factor with the map: fitted
+together, the image error falls while the colour and exponent errors grow.
 """
 
 from __future__ import annotations
