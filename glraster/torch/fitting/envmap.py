@@ -176,6 +176,8 @@ def fit_envmap(glctx, seed: int, *, resolution: int = 256, iterations: int = 300
             kd.copy_(true["diffuse"])
             ks.copy_(true["specular"])
             log_p.fill_(math.log(TRUE_MATERIAL["exponent"]))
+        for fixed in (kd, ks, log_p):
+            fixed.requires_grad_(False)
         start = {k: np.asarray(v, np.float64) for k, v in TRUE_MATERIAL.items()}
         env = torch.full_like(scene.env, 0.3).requires_grad_(True)
         groups = [{"params": [env], "lr": env_lr}]
