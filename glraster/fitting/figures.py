@@ -13,7 +13,10 @@ Pictures are grids of panels, upright, separated by grey lines, each panel scale
 - ``fit-texture-before-after.png``: the true texture, the linear fit, the mipmapped fit
   (each started uniformly grey), one above the other, north pole up;
 - ``fit-texture-views.png``: a row per held-out view (nearest and farthest of the first
-  seed), columns: target, linear fit, mipmapped fit.
+  seed), columns: target, linear fit, mipmapped fit;
+- ``fit-envmap-before-after.png``: a row per display view (``DISPLAY_QUATERNIONS``), columns:
+  the true material, the start and the result of the first seed, at the fit's resolution
+  (with a fitted cube map: under the grey start's and the fitted map).
 """
 
 from __future__ import annotations
@@ -28,8 +31,8 @@ from glraster.fitting import scenes
 from glraster.io import figures
 from glraster.io.png import write_png
 
-__all__ = ["PANEL", "Renderer", "cube_figures", "grid", "pose_figures", "scaled",
-           "texture_figures", "upright", "write_grid"]
+__all__ = ["PANEL", "Renderer", "cube_figures", "envmap_figures", "grid", "pose_figures",
+           "scaled", "texture_figures", "upright", "write_grid"]
 
 PANEL = 128
 POSE_ROWS = 5
@@ -51,6 +54,12 @@ class Renderer(Protocol):
     def texture(self, mvp: np.ndarray, tex: np.ndarray, size: int, *, mip: bool) -> np.ndarray:
         """The sphere of the texture fit carrying ``tex`` (Ht, Wt, 3) under (N, 4, 4)
         ``mvp`` (linear-mipmap-linear when ``mip``, else linear)."""
+
+    def envmap(self, quaternions: np.ndarray, material: dict, size: int, *, mesh: tuple,
+               env_size: int, env: np.ndarray | None = None) -> np.ndarray:
+        """The envmap fit's blob (``mesh`` (nu, nv)) turned by each of the (N, 4)
+        ``quaternions`` with ``material`` ({"diffuse": (3,), "specular": (3,), "exponent"})
+        under the studio cube map of ``env_size``² faces (or ``env`` (6, N, N, 3))."""
 
 
 def upright(img) -> np.ndarray:
@@ -233,4 +242,52 @@ def texture_figures(pairs, renderer: Renderer, out_dir, *, data) -> list[Path]:
         rows.append(row)
     paths.append(write_grid(out_dir / "fit-texture-views.png", rows,
                         "glraster fit texture: target, linear fit, mipmapped fit"))
+    return paths
+
+
+# --------------------------------------------------------------------------- envmap
+
+
+def envmap_figures(fits, renderer: Renderer, out_dir) -> list[Path]:
+    """Write fit-envmap-error.png (image RMSE, colour and exponent error per iteration,
+    every seed) and fit-envmap-before-after.png (first seed) for a list of
+    :class:`~glraster.fitting.results.EnvmapFit`; returns the paths."""
+    out_dir = Path(out_dir)
+    paths = []
+    with figures.figure(out_dir / "fit-envmap-error.png", figsize=(11.0, 3.5),
+                        title="glraster fit envmap: errors",
+                        description="image RMSE of each step's views, colour error and "
+                                    "relative exponent error per iteration") as fig:
+        with_env = fits[0].fit_env
+        axes = fig.subplots(1, 4 if with_env else 3)
+        col = figures.colors([f.seed for f in fits])
+        for f in fits:
+            curves = (f.image_rmse, f.color_error, f.exponent_error) + (
+                (f.env_rmse,) if with_env else ())
+            for ax, curve in zip(axes, curves):
+                ax.semilogy(_log_floor(curve, 1e-7), color=col[f.seed], lw=1.0,
+                            label=f"seed {f.seed}: {curve[-1]:.2g}")
+        first = fits[0]
+        titles = (f"image RMSE ({first.resolution}² px, {first.views} views/it)",
+                  "colour error (mean |c - c_true|, kd and ks)",
+                  "exponent error |p - p_true| / p_true", "cube map texel RMSE")
+        for ax, title in zip(axes, titles):
+            ax.set_title(title, fontsize=9)
+            ax.set_xlabel("iteration")
+            ax.grid(True, which="both")
+            ax.legend(loc="upper right", fontsize=7, title="final")
+    paths.append(out_dir / "fit-envmap-error.png")
+
+    f = fits[0]
+    rows = []
+    grey = None if f.final_env is None else np.full_like(f.final_env, 0.3)
+    for q in scenes.DISPLAY_QUATERNIONS:
+        row = []
+        for material, env in ((f.true, None), (f.start, grey), (f.final, f.final_env)):
+            img = renderer.envmap(q[None], material, f.resolution, mesh=f.mesh,
+                                  env_size=f.env_size, env=env)
+            row.append(scaled(upright(img[0]), max(PANEL, f.resolution)))
+        rows.append(row)
+    paths.append(write_grid(out_dir / "fit-envmap-before-after.png", rows,
+                            "glraster fit envmap: target, start, result"))
     return paths

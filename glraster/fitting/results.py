@@ -1,6 +1,6 @@
 """The records of one fit run (NumPy arrays, float64), the same from every front end:
-:class:`CubeFit`, :class:`PoseFit` and :class:`TextureFit`, each with the JSON ``summary()`` that
-``glraster fit --json`` writes."""
+:class:`CubeFit`, :class:`PoseFit`, :class:`TextureFit` and :class:`EnvmapFit`, each with
+the JSON ``summary()`` that ``glraster fit --json`` writes."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import numpy as np
 
 from glraster.fitting.scenes import first_below
 
-__all__ = ["CubeFit", "PoseFit", "TextureFit"]
+__all__ = ["CubeFit", "EnvmapFit", "PoseFit", "TextureFit"]
 
 
 @dataclass
@@ -103,3 +103,48 @@ class TextureFit:
                 "views": self.views, "texture_size": self.texture_size,
                 "final_image_psnr_db": float(self.eval_psnr[-1]),
                 "final_texture_psnr_db": float(self.texture_psnr[-1]), "timing": self.timing}
+
+
+@dataclass
+class EnvmapFit:
+    """One run of :func:`fit_envmap`: a Phong material (diffuse and specular colours, an
+    exponent) under a cube-map environment. Arrays are float64 NumPy."""
+
+    seed: int
+    resolution: int
+    iterations: int
+    views: int
+    env_size: int
+    mesh: tuple                 # (nu, nv) of the blob: 2 nu nv triangles
+    image_rmse: np.ndarray      # (iterations,) RMSE over covered pixels of each step's views
+    color_error: np.ndarray     # (iterations + 1,) mean |colour - true| over kd and ks
+    exponent_error: np.ndarray  # (iterations + 1,) |exponent - true| / true
+    true: dict                  # {"diffuse": (3,), "specular": (3,), "exponent": float}
+    start: dict
+    final: dict
+    env_rmse: np.ndarray = field(default_factory=lambda: np.zeros(0))  # (iterations + 1,)
+    # with fit_env: RMSE of the fitted cube map's texels against the truth; else empty
+    final_env: np.ndarray | None = None  # with fit_env: (6, N, N, 3) float32
+    timing: dict = field(default_factory=dict)
+
+    @property
+    def fit_env(self) -> bool:
+        return self.final_env is not None
+
+    def summary(self) -> dict:
+        plain = lambda m: {k: (np.asarray(v).tolist()) for k, v in m.items()}  # noqa: E731
+        return {"seed": self.seed, "resolution": self.resolution,
+                "iterations": self.iterations, "views": self.views,
+                "env_size": self.env_size, "mesh": list(self.mesh),
+                "triangles": 2 * self.mesh[0] * self.mesh[1],
+                "start_image_rmse": float(self.image_rmse[0]),
+                "final_image_rmse": float(self.image_rmse[-1]),
+                "start_color_error": float(self.color_error[0]),
+                "final_color_error": float(self.color_error[-1]),
+                "start_exponent_error": float(self.exponent_error[0]),
+                "final_exponent_error": float(self.exponent_error[-1]),
+                "fit_env": self.fit_env,
+                "start_env_rmse": float(self.env_rmse[0]) if self.fit_env else None,
+                "final_env_rmse": float(self.env_rmse[-1]) if self.fit_env else None,
+                "true": plain(self.true), "start": plain(self.start),
+                "final": plain(self.final), "timing": self.timing}

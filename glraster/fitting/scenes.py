@@ -20,9 +20,11 @@ import numpy as np
 
 from glraster.geometry import camera, shapes
 
-__all__ = ["DISPLAY_QUATERNIONS", "DISTANCE", "FOVY", "Timer", "angle_degrees", "cube",
+__all__ = ["DISPLAY_QUATERNIONS", "DISTANCE", "FOVY", "SUN_DIRECTION", "Timer", "angle_degrees",
+           "blob", "cube", "cube_map_directions",
            "cube_symmetries", "first_below", "pose_camera", "procedural_texture",
-           "psnr", "quaternion_matrices", "random_quaternions", "uv_sphere", "view_matrices"]
+           "psnr", "quaternion_matrices", "random_quaternions", "studio_cube_map", "uv_sphere",
+           "view_matrices"]
 
 DISTANCE = 3.0
 FOVY = 40.0
@@ -195,3 +197,83 @@ class Timer:
                          for k in ("mean_ms", "median_ms")}
             out[name]["n"] = n
         return out
+
+
+# --------------------------------------------------------------------------- envmap
+
+# The environment fit's key light: the direction of the sun in the cube map (unit length).
+SUN_DIRECTION = np.array([0.45, 0.75, 0.48]) / np.linalg.norm([0.45, 0.75, 0.48])
+
+# GL 4.6 table 8.19 (faces +x, -x, +y, -y, +z, -z): per face the axis and sign of s_c, of
+# t_c and of the major axis m; s = (s_c / |m| + 1) / 2, t alike.
+_CUBE_FACES = ((2, -1, 1, -1, 0, +1), (2, +1, 1, -1, 0, -1), (0, +1, 2, +1, 1, +1),
+               (0, +1, 2, -1, 1, -1), (0, +1, 1, -1, 2, +1), (0, -1, 1, -1, 2, -1))
+
+
+def cube_map_directions(size: int) -> np.ndarray:
+    """(6, size, size, 3) float64 unit directions of the texel centres of a cube map:
+    texel (i, j) of face f (``[f, j, i]``) is at s = (i + 0.5) / size, t = (j + 0.5) / size
+    (GL table 8.19 inverted: s_c = 2 s - 1, t_c = 2 t - 1, m = 1)."""
+    c = (np.arange(size) + 0.5) / size * 2.0 - 1.0
+    tc, sc = np.meshgrid(c, c, indexing="ij")  # (size, size): [j, i]
+    out = np.empty((6, size, size, 3))
+    for f, (axis_s, sign_s, axis_t, sign_t, axis_m, sign_m) in enumerate(_CUBE_FACES):
+        out[f, ..., axis_s] = sign_s * sc
+        out[f, ..., axis_t] = sign_t * tc
+        out[f, ..., axis_m] = sign_m
+    return out / np.linalg.norm(out, axis=-1, keepdims=True)
+
+
+def _step(x):
+    """The logistic function 1 / (1 + exp(-x)), written with tanh (no overflow)."""
+    return 0.5 + 0.5 * np.tanh(0.5 * x)
+
+
+def studio_cube_map(size: int = 512) -> np.ndarray:
+    """(6, size, size, 3) float64 radiance (>= 0, up to ~3 in the sun) of a procedural
+    studio sky, y up: a blue gradient from the horizon to the zenith, a warm sun disc with a
+    soft halo at :data:`SUN_DIRECTION`, two soft rectangular light panels, and a grey floor
+    with a 12 x 12 tile pattern below the horizon (detail at every scale, for the mip
+    levels the reflection's footprint picks)."""
+    d = cube_map_directions(size)
+    x, y, z = d[..., 0], d[..., 1], d[..., 2]
+    up = np.clip(y, 0.0, 1.0)[..., None]
+    sky = (1.0 - np.sqrt(up)) * np.array([0.80, 0.84, 0.90]) + np.sqrt(up) * np.array(
+        [0.20, 0.38, 0.80])
+    # floor: the ground plane y = -1 seen from the origin, tiles of side 1/6
+    below = y < 0.0
+    safe = np.where(below, -y, 1.0)
+    gx, gz = x / safe, z / safe
+    tiles = (np.floor(6.0 * gx) + np.floor(6.0 * gz)) % 2
+    fade = np.exp(-0.05 * (gx * gx + gz * gz))[..., None]
+    floor = (0.18 + 0.14 * tiles[..., None] * fade) * np.array([1.0, 0.92, 0.82])
+    env = np.where(below[..., None], floor, sky)
+    cos_sun = d @ SUN_DIRECTION
+    env += np.array([3.0, 2.7, 2.2]) * np.exp(-(1.0 - cos_sun) / 4e-4)[..., None]
+    env += np.array([0.5, 0.45, 0.35]) * np.exp(-(1.0 - cos_sun) / 2e-2)[..., None]
+    # panels: |x| > 0.9 side walls, rectangles in (z, y)
+    for sign, rgb in ((1.0, (1.6, 1.6, 1.5)), (-1.0, (0.9, 1.0, 1.2))):
+        side = sign * x
+        zz, yy = z / np.maximum(side, 1e-6), y / np.maximum(side, 1e-6)
+        soft = _step((0.35 - np.abs(zz)) / 0.03) * _step((0.25 - np.abs(yy - 0.3)) / 0.03)
+        env += np.where(side > 0.0, soft, 0.0)[..., None] * np.array(rgb)
+    return env
+
+
+def blob(nu: int = 128, nv: int = 120, amplitude: float = 0.06, frequency: int = 5):
+    """(vertices (V, 3), triangles (T, 3) int64, normals (V, 3)) float64 of a smooth blob:
+    :func:`glraster.geometry.shapes.bumpy_sphere` (2 nu nv triangles, 30,720 by default).
+    Normals are the area-weighted means of the faces' normals around each vertex; each pole
+    (a ring of coincident vertices) gets the mean of its ring."""
+    verts, faces = shapes.bumpy_sphere(nu, nv, amplitude=amplitude, frequency=frequency)
+    a, b, c = (verts[faces[:, k]] for k in range(3))
+    face_n = np.cross(b - a, c - a)  # length = 2 x area
+    normals = np.zeros_like(verts)
+    for k in range(3):
+        np.add.at(normals, faces[:, k], face_n)
+    rings = normals.reshape(nu, nv + 1, 3)
+    for j in (0, nv):
+        rings[:, j] = rings[:, j].sum(axis=0)
+    normals = rings.reshape(-1, 3)
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    return verts, faces, normals

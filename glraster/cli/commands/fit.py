@@ -1,15 +1,19 @@
-"""`glraster fit`: inverse rendering: fit a cube, a pose or a texture to images.
+"""`glraster fit`: inverse rendering: fit a cube, a pose, a texture or a material to images.
 
-`glraster fit cube|pose|texture` recovers a scene made in code from images of it through
-glraster.torch (rasterize, interpolate, antialias, texture), or glraster.jax with
-`--framework jax` (docs/jax.md): 'cube' fits the 8 vertex
+`glraster fit cube|pose|texture|envmap` recovers a scene made in code from images of it
+through glraster.torch (rasterize, interpolate, antialias, texture), or glraster.jax with
+`--framework jax` (docs/jax.md; not envmap): 'cube' fits the 8 vertex
 positions and colours of a cube at a few pixels, 'pose' a cube's rotation, 'texture' a
-texture on a sphere with and without mipmaps (docs/fitting.md). Each shows a progress bar
+texture on a sphere with and without mipmaps, 'envmap' a Phong material (diffuse and
+specular colour, exponent) on a blob under a cube-map sky (docs/fitting.md). Each shows a
+progress bar
 on stderr, prints one line per run and the time per iteration (forward, backward,
 optimizer step), and writes its curve and before/after PNGs into --out (and with --json
 the numbers). Exit code 0 when the problem's goal is met (cube: most seeds of every
 resolution under 0.05; pose: most seeds under 5 degrees; texture: mipmapping gives the
-higher held-out PSNR for every seed), 1 when it is not, 2 on bad arguments, 3 without
+higher held-out PSNR for every seed; envmap: every seed's colour error under 0.01 and
+relative exponent error under 0.05; with --fit-env, the cube map's texel RMSE halved), 1
+when it is not, 2 on bad arguments, 3 without
 OpenGL.
 """
 
@@ -26,6 +30,8 @@ from glraster.cli.commands import add_backend_argument, add_command
 from glraster.errors import ArgumentError
 
 CUBE_GOAL = 0.05    # mean vertex error
+ENVMAP_COLOR_GOAL = 0.01     # mean |colour - true| over kd and ks
+ENVMAP_EXPONENT_GOAL = 0.05  # |p - p_true| / p_true
 FRAMEWORKS = ("torch", "jax")
 POSE_GOAL = 5.0     # degrees
 
@@ -148,6 +154,34 @@ def register(subparsers) -> None:
     q.add_argument("--eval-every", type=int, default=50,
                    help="iterations between held-out evaluations (50)")
     q.set_defaults(func=_run_texture)
+
+    q = sub.add_parser("envmap", help="recover a Phong material under a cube-map sky",
+                       description="Recover a Phong material (diffuse and specular colour, "
+                                   "exponent) on a 30,720-triangle blob lit by a procedural "
+                                   "cube map from a random start: rasterize with rast_db, "
+                                   "interpolate with diff_attrs='all', two "
+                                   "linear-mipmap-linear cube lookups with uv_da per pixel, "
+                                   "two random views per iteration (torch only).")
+    common(q, seeds=1, iterations=300, out_name="envmap")
+    q.add_argument("--resolution", type=int, default=256, help="image size in pixels (256)")
+    q.add_argument("--env-size", type=int, default=512,
+                   help="cube map face size in texels (512)")
+    q.add_argument("--mesh", default="128,120",
+                   help="the blob's longitudes,latitudes: 2 x their product triangles "
+                        "(128,120: 30,720)")
+    q.add_argument("--views", type=int, default=2, help="random views per iteration (2)")
+    q.add_argument("--lr", type=float, default=0.06,
+                   help="Adam's learning rate of the colours (0.06), falling to a tenth by "
+                        "the end")
+    q.add_argument("--exponent-lr", type=float, default=0.15,
+                   help="Adam's learning rate of the exponent's logarithm (0.15), falling to "
+                        "a tenth by the end")
+    q.add_argument("--fit-env", action="store_true",
+                   help="fit the cube map instead, from a uniform grey start, under the "
+                        "true material (goal: its texel RMSE halved)")
+    q.add_argument("--env-lr", type=float, default=0.06,
+                   help="Adam's learning rate of the cube map's texels (0.06; --fit-env)")
+    q.set_defaults(func=_run_envmap)
 
 
 @contextmanager
@@ -302,4 +336,55 @@ def _run_texture(args) -> int:
     print(f"goal (mipmapped PSNR above linear for every seed): {'met' if met else 'MISSED'}")
     _finish(args, {"problem": "texture", "framework": args.framework, "goal_met": bool(met),
                    "runs": [f.summary() for p in pairs for f in p]}, paths)
+    return exit_codes.OK if met else exit_codes.FAIL
+
+
+def _run_envmap(args) -> int:
+    if args.framework != "torch":
+        raise ArgumentError("--framework", "glraster fit envmap runs on glraster.torch only "
+                                           f"(--framework torch), got {args.framework!r}")
+    envmap, figures = _fitting(args, "envmap")
+    for name in ("resolution", "views"):
+        _positive(name, getattr(args, name))
+    if args.env_size < 2:
+        raise ArgumentError("--env-size", f"--env-size must be >= 2, got {args.env_size}")
+    mesh = _ints(args.mesh, "mesh")
+    if len(mesh) != 2 or min(mesh) < 3:
+        raise ArgumentError("--mesh", f"--mesh must be two integers >= 3 (longitudes,"
+                                      f"latitudes), got {args.mesh!r}")
+    for name in ("lr", "exponent_lr", "env_lr"):
+        if not getattr(args, name) > 0:
+            flag = "--" + name.replace("_", "-")
+            raise ArgumentError(flag, f"{flag} must be > 0, got {getattr(args, name)}")
+    with _session(args) as glctx:
+        scene = envmap.make_scene(glctx, mesh=tuple(mesh), env_size=args.env_size)
+        fits = []
+        for seed in _seeds(args):
+            f = envmap.fit_envmap(glctx, seed, resolution=args.resolution,
+                                  iterations=args.iterations, views=args.views, lr=args.lr,
+                                  exponent_lr=args.exponent_lr, fit_env=args.fit_env,
+                                  env_lr=args.env_lr, scene=scene,
+                                  progress=_progress(args, "envmap"))
+            fits.append(f)
+            print(f"envmap seed {seed}: image RMSE {f.image_rmse[0]:.4g} -> "
+                  f"{f.image_rmse[-1]:.3g}, colour error {f.color_error[0]:.3g} -> "
+                  f"{f.color_error[-1]:.3g}, exponent error {f.exponent_error[0]:.3g} -> "
+                  f"{f.exponent_error[-1]:.3g} (exponent {f.start['exponent']:.1f} -> "
+                  f"{f.final['exponent']:.2f}, true {f.true['exponent']:g})"
+                  + (f", cube map RMSE {f.env_rmse[0]:.3g} -> {f.env_rmse[-1]:.3g}"
+                     if f.fit_env else ""), flush=True)
+        paths = figures.envmap_figures(fits, glctx, args.out)
+    if args.fit_env:
+        met = all(f.env_rmse[-1] < f.env_rmse[0] / 2 for f in fits)
+        goal = "every seed: cube map RMSE under half its start"
+    else:
+        met = all(f.color_error[-1] < ENVMAP_COLOR_GOAL
+                  and f.exponent_error[-1] < ENVMAP_EXPONENT_GOAL for f in fits)
+        goal = (f"every seed: colour error under {ENVMAP_COLOR_GOAL}, exponent error under "
+                f"{ENVMAP_EXPONENT_GOAL}")
+    print(_timing_line(f"envmap {args.resolution}x{args.resolution}",
+                       [f.timing for f in fits]))
+    print(f"goal ({goal}): {'met' if met else 'MISSED'}")
+    _finish(args, {"problem": "envmap", "framework": args.framework, "goal_met": bool(met),
+                   "runs": [f.summary() for f in fits]}, paths)
     return exit_codes.OK if met else exit_codes.FAIL

@@ -1,0 +1,234 @@
+"""Recover a Phong material under a cube-map environment from images of it.
+
+Scene (:mod:`glraster.fitting.scenes`): a smooth blob (:func:`blob`, a bumpy UV sphere of
+30,720 triangles by default, with vertex normals) at the origin, lit by a procedural studio
+sky (:func:`studio_cube_map`, 6 faces of ``env_size``² texels, y up, a sun at
+:data:`SUN_DIRECTION`). World and object frame are the same; a view turns the blob by a
+uniformly random rotation R in front of a 40 degree camera ``DISTANCE`` away, so the eye
+is at e = R^T (0, 0, DISTANCE) in the object frame.
+
+Shading, per pixel, with the material (kd, ks, p) (diffuse and specular RGB, Phong
+exponent):
+
+    colour = kd * E(n; coarse) + ks * (E(r) + max(r.l, 0)^p)
+
+n is the interpolated vertex normal, r the interpolated reflection of the view vector
+(per vertex v = (e - x)/|e - x|, r = 2 (n.v) n - v), E(d) the cube map looked up in
+direction d with ``boundary_mode="cube"``, ``linear-mipmap-linear`` and the directions'
+screen derivatives (``uv_da`` from :func:`glraster.torch.interpolate` with
+``diff_attrs="all"`` and ``rast_db``). The diffuse lookup adds a mip bias of
+log2(env_size) - 2 (a 4² level or coarser: a blurred environment standing in for the
+irradiance); the Phong lobe is around the sun direction l, with r normalized per pixel.
+Pixels the blob does not cover are 0.
+
+Fit: the true material is fixed (kd = (0.60, 0.28, 0.16), ks = (0.30, 0.32, 0.36),
+p = 60); the start draws kd uniformly in [0.05, 0.95]³, ks in [0.05, 0.6]³ and p
+log-uniformly in [4, 600] (seeded). Every iteration draws ``views`` random rotations (two by
+default: one instanced draw), renders the true and the current material in them and takes
+one Adam step on the mean squared difference over the covered pixels; the parameters are
+kd, ks (clamped to [0, 1] after each step; learning rate ``lr``) and log p (learning rate
+``exponent_lr``: the start may be a factor of 15 off, log 15 = 2.7), the learning rates
+falling exponentially to ``lr_decay`` times their start over the run. Reported per
+iteration: the image RMSE of the step's views (covered pixels), the colour error (mean
+|c - c_true| over the 6 colour channels) and the relative exponent error
+|p - p_true| / p_true.
+
+With ``fit_env`` the cube map is the parameter instead (from a uniform grey start, the
+material known): the lighting from the images, each step's backward then running through
+both cube lookups and their pyramids. Map and material together are not identifiable: the
+map can take up the Phong lobe (ks E(r) + ks max(r.l, 0)^p is matched by other ks, p and a
+brighter or dimmer map around l) and kd E(n) trades a factor with the map: fitted
+together, the image error falls while the colour and exponent errors grow.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from glraster.fitting.results import EnvmapFit
+from glraster.fitting.scenes import SUN_DIRECTION, blob, studio_cube_map
+from glraster.torch.fitting.common import (
+    Timer,
+    clip_positions,
+    descend,
+    quaternion_matrices,
+    random_quaternions,
+    view_matrices,
+)
+from glraster.torch.ops import interpolate, rasterize
+from glraster.torch.texture import texture, texture_construct_mip
+
+__all__ = ["DISTANCE", "EnvmapFit", "FOVY", "TRUE_MATERIAL", "Scene", "fit_envmap",
+           "make_scene", "render_envmap", "view_setup"]
+
+DISTANCE = 3.6
+FOVY = 40.0
+TRUE_MATERIAL = {"diffuse": (0.60, 0.28, 0.16), "specular": (0.30, 0.32, 0.36),
+                 "exponent": 60.0}
+
+
+class Scene:
+    """The blob and the environment as float32 torch tensors: ``verts`` (V, 3), ``tri``
+    (T, 3) int32, ``normals`` (V, 3), ``env`` (1, 6, N, N, 3); ``mip``: the environment's
+    pyramid, built once (it never changes during a fit)."""
+
+    def __init__(self, glctx, *, mesh=(128, 120), env_size: int = 512):
+        verts, faces, normals = blob(*mesh)
+        self.verts = torch.tensor(verts, dtype=torch.float32)
+        self.tri = torch.tensor(faces, dtype=torch.int32)
+        self.normals = torch.tensor(normals, dtype=torch.float32)
+        self.env = torch.tensor(studio_cube_map(env_size)[None], dtype=torch.float32)
+        self.env_size, self.mesh = env_size, tuple(mesh)
+        self.mip = texture_construct_mip(self.env, cube_mode=True, glctx=glctx)
+
+
+def make_scene(glctx, *, mesh=(128, 120), env_size: int = 512) -> Scene:
+    """:class:`Scene` of a ``mesh[0]`` x ``mesh[1]`` blob (2 mesh[0] mesh[1] triangles) and
+    a cube map of ``env_size``² faces."""
+    for name, value in (("mesh", min(mesh)), ("env_size", env_size)):
+        if value < 2:
+            raise ValueError(f"{name} must be at least 2, got {value}")
+    return Scene(glctx, mesh=mesh, env_size=env_size)
+
+
+def view_setup(quaternions):
+    """(mvp (N, 4, 4), eye (N, 3)) float32 torch tensors of the views that turn the blob by
+    the (N, 4) ``quaternions``."""
+    rot = quaternion_matrices(np.asarray(quaternions, np.float64))
+    mvp = view_matrices(rot, distance=DISTANCE, fovy=FOVY)
+    eye = np.einsum("nji,j->ni", rot, np.array([0.0, 0.0, DISTANCE]))  # R^T (0, 0, d)
+    return (torch.tensor(mvp, dtype=torch.float32), torch.tensor(eye, dtype=torch.float32))
+
+
+def render_envmap(glctx, scene: Scene, mvp, eye, diffuse, specular, exponent,
+                  resolution: int, *, env=None):
+    """(N, R, R, 3) images of the material (``diffuse`` (3,), ``specular`` (3,),
+    ``exponent`` scalar tensor) under the (N, 4, 4) ``mvp`` with eyes (N, 3), and the
+    (N, R, R) coverage. env: a cube map (1, 6, N, N, 3) instead of the scene's (its
+    pyramid built in every call, so that the gradient reaches it). Differentiable in the
+    material and ``env``."""
+    clip = clip_positions(mvp, scene.verts)
+    rast, rast_db = rasterize(glctx, clip, scene.tri, (resolution, resolution), grad_db=True)
+    n = scene.normals
+    view = eye[:, None, :] - scene.verts[None]                      # (N, V, 3)
+    view = view / view.norm(dim=-1, keepdim=True)
+    refl = 2.0 * (view * n).sum(-1, keepdim=True) * n - view        # (N, V, 3)
+    attrs = torch.cat([n.expand_as(refl), refl], dim=-1).contiguous()
+    pix, pix_da = interpolate(attrs, rast, scene.tri, rast_db=rast_db, diff_attrs="all",
+                              glctx=glctx)
+    # pix_da: (dA/dX, dA/dY) per attribute; the normal's 3 pairs, then the reflection's
+    n_pix, r_pix = pix[..., :3].contiguous(), pix[..., 3:].contiguous()
+    n_da, r_da = pix_da[..., :6].contiguous(), pix_da[..., 6:].contiguous()
+    bias = torch.full(n_pix.shape[:-1], math.log2(scene.env_size) - 2.0)
+    env, mip = (scene.env, scene.mip) if env is None else (env, None)
+    env_diffuse = texture(env, n_pix, n_da, bias, mip=mip,
+                          filter_mode="linear-mipmap-linear", boundary_mode="cube",
+                          glctx=glctx)
+    env_mirror = texture(env, r_pix, r_da, mip=mip,
+                         filter_mode="linear-mipmap-linear", boundary_mode="cube",
+                         glctx=glctx)
+    sun = torch.tensor(SUN_DIRECTION, dtype=torch.float32)
+    cos = (r_pix * sun).sum(-1, keepdim=True) / r_pix.norm(dim=-1, keepdim=True).clamp_min(
+        1e-12)
+    # x^p as exp(p log x), x kept >= 1e-6: pow's gradient in p (x^p log x) is NaN at x = 0
+    lobe = torch.exp(exponent * torch.log(cos.clamp_min(1e-6)))
+    image = diffuse * env_diffuse + specular * (env_mirror + lobe)
+    covered = rast[..., 3] > 0
+    return image * covered[..., None], covered
+
+
+def _masked_mse(image, target, mask):
+    m = mask[..., None].to(image.dtype)
+    return torch.sum(m * (image - target) ** 2) / (torch.sum(m).clamp_min(1.0) * image.shape[-1])
+
+
+def fit_envmap(glctx, seed: int, *, resolution: int = 256, iterations: int = 300,
+               views: int = 2, mesh=(128, 120), env_size: int = 512, lr: float = 0.06,
+               exponent_lr: float = 0.15, lr_decay: float = 0.1, fit_env: bool = False,
+               env_lr: float = 0.06, scene: Scene | None = None,
+               progress=None) -> EnvmapFit:
+    """Fit the material from the random start of ``seed`` (see the module doc).
+
+    glctx: a :class:`glraster.torch.RasterizeGLContext`; scene: a :func:`make_scene` of
+    ``mesh`` and ``env_size`` (made here when None). fit_env: fit the cube map instead,
+    from a uniform grey (0.3) start (learning rate ``env_lr``, texels clamped to >= 0),
+    under the true material (the module doc says why not both).
+    progress: optional callable ``(i, total, label)``, called every iteration."""
+    for name, value in (("resolution", resolution), ("iterations", iterations),
+                        ("views", views)):
+        if value < 1:
+            raise ValueError(f"{name} must be >= 1, got {value}")
+    scene = scene or make_scene(glctx, mesh=mesh, env_size=env_size)
+    true = {k: torch.tensor(v, dtype=torch.float32) for k, v in TRUE_MATERIAL.items()}
+    rng = np.random.default_rng(seed)
+    start = {"diffuse": rng.uniform(0.05, 0.95, 3), "specular": rng.uniform(0.05, 0.6, 3),
+             "exponent": float(np.exp(rng.uniform(np.log(4.0), np.log(600.0))))}
+    kd = torch.tensor(start["diffuse"], dtype=torch.float32, requires_grad=True)
+    ks = torch.tensor(start["specular"], dtype=torch.float32, requires_grad=True)
+    log_p = torch.tensor(math.log(start["exponent"]), dtype=torch.float32,
+                         requires_grad=True)
+    env = None
+    if fit_env:  # the lighting, under the known material
+        with torch.no_grad():
+            kd.copy_(true["diffuse"])
+            ks.copy_(true["specular"])
+            log_p.fill_(math.log(TRUE_MATERIAL["exponent"]))
+        for fixed in (kd, ks, log_p):
+            fixed.requires_grad_(False)
+        start = {k: np.asarray(v, np.float64) for k, v in TRUE_MATERIAL.items()}
+        env = torch.full_like(scene.env, 0.3).requires_grad_(True)
+        groups = [{"params": [env], "lr": env_lr}]
+    else:
+        groups = [{"params": [kd, ks]}, {"params": [log_p], "lr": exponent_lr}]
+    opt = torch.optim.Adam(groups, lr=lr)
+    schedule = torch.optim.lr_scheduler.LambdaLR(
+        opt, lambda it: lr_decay ** (it / max(iterations, 1)))
+    timer = Timer()
+    rmse, color_error, exponent_error, env_rmse = [], [], [], []
+    p_true = TRUE_MATERIAL["exponent"]
+
+    def measure():
+        with torch.no_grad():
+            err = torch.cat([kd - true["diffuse"], ks - true["specular"]]).abs().mean()
+            color_error.append(float(err))
+            exponent_error.append(abs(math.exp(float(log_p.detach())) - p_true) / p_true)
+            if env is not None:
+                env_rmse.append(float(torch.sqrt(torch.mean((env - scene.env) ** 2))))
+
+    def project():
+        kd.clamp_(0.0, 1.0)
+        ks.clamp_(0.0, 1.0)
+        if env is not None:
+            env.clamp_(min=0.0)
+
+    for it in range(iterations):
+        measure()
+        mvp, eye = view_setup(random_quaternions(rng, views))
+        with timer("target"), torch.no_grad():
+            target, covered = render_envmap(glctx, scene, mvp, eye, true["diffuse"],
+                                            true["specular"], true["exponent"], resolution)
+        with timer("forward"):
+            image, _ = render_envmap(glctx, scene, mvp, eye, kd, ks, torch.exp(log_p),
+                                     resolution, env=env)
+            loss = _masked_mse(image, target, covered)
+        descend(timer, loss, opt, schedule, project=project)
+        rmse.append(math.sqrt(float(loss.detach())))
+        if progress is not None:
+            progress(it + 1, iterations, f"seed {seed} RMSE {rmse[-1]:.4f} colour "
+                                         f"{color_error[-1]:.3f} exponent "
+                                         f"{exponent_error[-1]:.3f}"
+                                         + (f" env {env_rmse[-1]:.3f}" if fit_env else ""))
+    measure()
+    final = {"diffuse": kd.detach().double().numpy(), "specular": ks.detach().double().numpy(),
+             "exponent": math.exp(float(log_p.detach()))}
+    return EnvmapFit(seed=seed, resolution=resolution, iterations=iterations, views=views,
+                     env_size=scene.env_size, mesh=scene.mesh,
+                     image_rmse=np.array(rmse), color_error=np.array(color_error),
+                     exponent_error=np.array(exponent_error),
+                     env_rmse=np.array(env_rmse),
+                     final_env=None if env is None else env.detach()[0].numpy(),
+                     true={k: np.asarray(v, np.float64) for k, v in TRUE_MATERIAL.items()},
+                     start=start, final=final, timing=timer.summary())
