@@ -24,6 +24,8 @@ derivations in docs/differentiable.md, "Texture"), in compute shaders
 
 from __future__ import annotations
 
+import ctypes
+
 import numpy as np
 
 from glraster import validate
@@ -32,7 +34,6 @@ from glraster.diff.compute import chunks as _chunks
 from glraster.diff.compute import read as _read
 from glraster.diff.compute import run as _run
 from glraster.diff.compute import set_uniform as _set
-from glraster.diff.compute import zeroed as _zeroed
 from glraster.diff.texture_args import (
     BOUNDARY_CODE,
     FILTER_CODE,
@@ -63,6 +64,23 @@ def _geometry(args: TextureArgs):
         firsts.append(first)
         first += images * h * w
     return np.array(rows, np.int32), firsts, first, images
+
+
+# glClearNamedBufferSubData (GL 4.5, section 6.3.1) with a null pattern: zeros written by the
+# driver where the buffer lives, no host upload of zeros
+_GL_R32UI, _GL_RED_INTEGER, _GL_UNSIGNED_INT = 0x8236, 0x8D94, 0x1405
+
+
+def _cleared(ctx: Context, name: str, nbytes: int):
+    """The context's scratch buffer ``name`` of at least ``nbytes``, its first ``nbytes``
+    (a multiple of 4) set to 0 by the driver. Inside ``with ctx``."""
+    buffer = ctx.scratch_buffer(name, nbytes)
+    clear = ctx.gl_function("glClearNamedBufferSubData", None, ctypes.c_uint, ctypes.c_uint,
+                            ctypes.c_ssize_t, ctypes.c_ssize_t, ctypes.c_uint, ctypes.c_uint,
+                            ctypes.c_void_p)
+    clear(buffer.glo, _GL_R32UI, 0, max(int(nbytes), 4), _GL_RED_INTEGER, _GL_UNSIGNED_INT,
+          None)
+    return buffer
 
 
 def _storage_limit(ctx: Context, nbytes: int, what: str) -> None:
@@ -214,7 +232,7 @@ class _TexelGradients:
         self.ctx, self.mode, self.total, self.channels = ctx, mode, total, channels
         words = 2 if mode == "per_pixel" else 1
         _storage_limit(ctx, total * channels * 4 * words, "the texel gradients")
-        self.buffer = _zeroed(ctx, "texture.grad_tex", total * channels * 4 * words)
+        self.buffer = _cleared(ctx, "texture.grad_tex", total * channels * 4 * words)
         self.buffer.bind_to_storage_buffer(9)
         if mode == "per_pixel":
             max_abs = float(np.abs(g_flat).max()) if g_flat.size else 0.0
