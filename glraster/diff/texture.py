@@ -109,18 +109,20 @@ def _upload_levels(ctx: Context, args: TextureArgs, name: str = "texture.levels"
 
 
 def _pyramid_passes(ctx: Context, buffer, args: TextureArgs, firsts, images: int,
-                    backward: bool) -> None:
+                    backward: bool, top: int | None = None) -> None:
     """The box filter between neighbouring levels of ``buffer`` (every level, base first),
     one pass per level: forward, each coarser level from the finer one, finest first (one
     invocation per coarse texel); backward, each level's gradient added into the finer one
-    through the transpose of the filter, coarsest first (a gather: one per fine texel)."""
+    through the transpose of the filter, coarsest first (a gather: one per fine texel),
+    from level ``top`` down (None: the coarsest; the levels above it hold zeros)."""
     program = ctx.compute_program(shader_path(_MIP_SHADER), {"BACKWARD": None} if backward
                                   else {})
     buffer.bind_to_storage_buffer(0)
     channels = args.channels
     _set(program, "images", images)
     _set(program, "channels", channels)
-    steps = range(args.levels - 1, 0, -1) if backward else range(1, args.levels)
+    top = args.levels - 1 if top is None else min(top, args.levels - 1)
+    steps = range(top, 0, -1) if backward else range(1, args.levels)
     for k in steps:
         (h0, w0), (h1, w1) = args.shapes[k - 1], args.shapes[k]
         _set(program, "fine_first", firsts[k - 1] * channels)
@@ -228,12 +230,16 @@ class _TexelGradients:
     does not depend on the order of the additions."""
 
     def __init__(self, ctx: Context, mode: str, total: int, channels: int, program,
-                 g_flat: np.ndarray):
+                 g_flat: np.ndarray, mipmapped: bool):
         self.ctx, self.mode, self.total, self.channels = ctx, mode, total, channels
         words = 2 if mode == "per_pixel" else 1
         _storage_limit(ctx, total * channels * 4 * words, "the texel gradients")
         self.buffer = _cleared(ctx, "texture.grad_tex", total * channels * 4 * words)
         self.buffer.bind_to_storage_buffer(9)
+        self.top = None
+        if mipmapped:
+            self.top = _cleared(ctx, "texture.top_level", 4)
+            self.top.bind_to_storage_buffer(10)
         if mode == "per_pixel":
             max_abs = float(np.abs(g_flat).max()) if g_flat.size else 0.0
             self.shift = fixed_point_shift(max_abs, len(g_flat))
@@ -253,7 +259,8 @@ class _TexelGradients:
             self.buffer = self.ctx.storage_buffer("texture.grad_tex_float", flat)
         if not args.pulls_pyramid:
             return _read(self.buffer, self.total * self.channels).reshape(-1, self.channels)
-        _pyramid_passes(self.ctx, self.buffer, args, firsts, images, backward=True)
+        top = None if self.top is None else int(_read(self.top, 1, np.int32)[0])
+        _pyramid_passes(self.ctx, self.buffer, args, firsts, images, backward=True, top=top)
         return _read(self.buffer, firsts[1] * self.channels).reshape(-1, self.channels)
 
 
@@ -324,8 +331,8 @@ def backward(saved: TextureSaved, grad_out, *, needs=None, deterministic: bool =
         program = ctx.compute_program(shader_path(_SHADER), defines)
         levels, info, firsts, total, images = _upload_levels(ctx, args)
         levels.bind_to_storage_buffer(0)
-        sums = (_TexelGradients(ctx, mode, total, channels, program, g_flat) if texels
-                else None)
+        sums = (_TexelGradients(ctx, mode, total, channels, program, g_flat,
+                                args.mipmapped) if texels else None)
         for first, count in _chunks(n, per_pixel):
             part = slice(first, first + count)
             _bind_common(ctx, program, args, defines, part, uv_f, da, bias, info, count, first)

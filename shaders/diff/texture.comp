@@ -57,6 +57,10 @@ layout(std430, binding = 9) buffer GradTex { uint grad_tex[]; };
 // 64-bit two's complement integers, (low word, high word) per texel float
 layout(std430, binding = 9) buffer GradTex { uint grad_tex[]; };
 #endif
+#if defined(TEX_GRAD) && MIP
+// the highest level any pixel read (the host pulls back only the levels up to it)
+layout(std430, binding = 10) buffer TopLevel { int top_level_read; };
+#endif
 #endif
 
 uniform uint n_pixels;
@@ -183,6 +187,7 @@ struct Pixel {
     Taps t0, t1;
     float frac;           // weight of t1 (linear-mipmap-linear)
     bool live_level;      // 0 < level < top: the level carries a gradient
+    int last_level;       // the highest level read (mipmapped filters)
     int nearest;          // FILTER 0
     float dlevel_da[6];
     vec3 dlevel_duv;
@@ -195,6 +200,7 @@ Pixel setup(uint i, int image) {
     p.ok = true;
     p.frac = 0.0;
     p.live_level = false;
+    p.last_level = 0;
     p.nearest = -1;
     p.dlevel_duv = vec3(0.0);
     p.ds_duv = vec3(0.0);
@@ -290,11 +296,13 @@ Pixel setup(uint i, int image) {
 #if FILTER == 2
     int l0 = min(int(floor(level + 0.5)), top);
     p.t0 = bilinear(l0, s, t, image, face);
+    p.last_level = l0;
 #else
     int l0 = min(int(floor(level)), top);
     p.frac = level - float(l0);
     p.t0 = bilinear(l0, s, t, image, face);
     p.t1 = bilinear(min(l0 + 1, top), s, t, image, face);
+    p.last_level = min(l0 + 1, top);
 #endif
 #endif
     return p;
@@ -373,6 +381,10 @@ void main() {
     }
 #else
     for (int c = 0; c < channels; ++c) g_pixel[c] = grad_out[i * uint(channels) + uint(c)];
+#if defined(TEX_GRAD) && MIP
+    // a plain read first: once the maximum is known, few invocations reach the atomic
+    if (p.ok && p.last_level > top_level_read) atomicMax(top_level_read, p.last_level);
+#endif
     float gs = 0.0, gt = 0.0, glevel = 0.0;
 #if FILTER == 0
     spread(p.nearest, p.ok ? 1.0 : 0.0);

@@ -213,6 +213,20 @@ def test_deterministic_texel_sums_are_exact_at_both_ends_of_the_range(ctx):
     assert abs(grad_tex[0, 0, 0, 0] - left) <= U * abs(left) + n * n * resolution
 
 
+@pytest.mark.parametrize("deterministic", [False, True])
+@pytest.mark.parametrize("mode", ["linear-mipmap-nearest", "linear-mipmap-linear"])
+def test_pull_back_from_the_highest_level_read_matches_the_reference(ctx, mode, deterministic):
+    """Levels 0 .. 2 of a 7-level pyramid read (levels 0.1 .. 1.4 from the bias, so
+    linear-mipmap-linear reads 0 .. 2, linear-mipmap-nearest 0 .. 1): the backward pulls the
+    texel gradients back from the highest level read only, with the bound of every other
+    mipmapped case."""
+    rng = np.random.default_rng(32)
+    tex = rng.normal(size=(1, 64, 64, 3))
+    uv = rng.uniform(-0.2, 1.2, size=(1, 24, 24, 2))
+    bias = rng.uniform(0.1, 1.4, size=(1, 24, 24))
+    compare(ctx, tex, uv, None, bias, mode, "wrap", deterministic=deterministic)
+
+
 def test_gpu_pyramid_matches_the_reference(ctx):
     rng = np.random.default_rng(29)
     for shape in [(1, 64, 48, 3), (2, 37, 50, 2), (1, 6, 9, 9, 4)]:
