@@ -113,7 +113,10 @@ def perspective_inputs(size: int, channels: int = 4, seed: int = 0):
     return tex, uv, uv_da.contiguous()
 
 
-def benchmark(sizes=(512, 1024), repeat: int = 5, boundary_mode: str = "wrap"):
+MODES = ("nearest", "linear", "linear-mipmap-nearest", "linear-mipmap-linear")
+
+
+def benchmark(sizes=(512, 1024), repeat: int = 5, boundary_mode: str = "wrap", modes=MODES):
     """Rows (size, filter_mode, glraster ms, plain PyTorch ms, max |difference|) of forward
     + backward (gradients to tex and uv, and uv_da in linear-mipmap-linear)."""
     import glraster.torch as dr
@@ -122,7 +125,7 @@ def benchmark(sizes=(512, 1024), repeat: int = 5, boundary_mode: str = "wrap"):
     rows = []
     for size in sizes:
         tex, uv, uv_da = perspective_inputs(size)
-        for mode in ("nearest", "linear", "linear-mipmap-nearest", "linear-mipmap-linear"):
+        for mode in modes:
             da = uv_da if mode.startswith("linear-mipmap") else None
             results = {}
 
@@ -143,7 +146,8 @@ def benchmark(sizes=(512, 1024), repeat: int = 5, boundary_mode: str = "wrap"):
     return rows
 
 
-def core_benchmark(sizes=(512, 1024), repeat: int = 5, boundary_mode: str = "wrap"):
+def core_benchmark(sizes=(512, 1024), repeat: int = 5, boundary_mode: str = "wrap",
+                   modes=MODES):
     """Rows (size, filter_mode, forward ms, backward ms atomic, backward ms deterministic)
     of the GPU core alone (:mod:`glraster.diff.texture`, NumPy in and out), on the inputs
     of :func:`benchmark`; each round times the three calls in turn, medians over rounds."""
@@ -156,7 +160,7 @@ def core_benchmark(sizes=(512, 1024), repeat: int = 5, boundary_mode: str = "wra
     for size in sizes:
         tex, uv, uv_da = (t.numpy() for t in perspective_inputs(size))
         g = np.ones(uv.shape[:3] + (tex.shape[-1],), np.float32)
-        for mode in ("nearest", "linear", "linear-mipmap-nearest", "linear-mipmap-linear"):
+        for mode in modes:
             da = uv_da if mode.startswith("linear-mipmap") else None
             (_,), saved = gpu.forward(tex, uv, da, None, filter_mode=mode,
                                       boundary_mode=boundary_mode)
@@ -189,6 +193,8 @@ def build_parser():
                         help="timed calls per cell, the median is shown (default 5)")
     parser.add_argument("--boundary", default="wrap", choices=("wrap", "clamp", "zero"),
                         help="boundary_mode (default wrap)")
+    parser.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES,
+                        metavar="MODE", help="filter modes (default: all four)")
     parser.add_argument("--cores", action="store_true",
                         help="instead: the GPU core's forward and its backward (atomic and "
                         "deterministic) alone, NumPy in and out")
@@ -211,7 +217,7 @@ def main(argv=None) -> int:  # pragma: no cover - a measurement, not a test
               "backward deterministic ms | deterministic / forward |")
         print("|---|---|---|---|---|---|")
         for size, mode, fwd, atomic, det in core_benchmark(tuple(args.sizes), args.repeat,
-                                                           args.boundary):
+                                                           args.boundary, args.modes):
             print(f"| {size}² | {mode} | {fwd:.1f} | {atomic:.1f} | {det:.1f} | "
                   f"{det / fwd:.2f} |")
         return 0
@@ -221,7 +227,7 @@ def main(argv=None) -> int:  # pragma: no cover - a measurement, not a test
           "ratio | max / p99.9 |out difference| |")
     print("|---|---|---|---|---|---|")
     for size, mode, gl, pt, dmax, d999 in benchmark(tuple(args.sizes), args.repeat,
-                                                    args.boundary):
+                                                    args.boundary, args.modes):
         print(f"| {size}² | {mode} | {gl:.0f} | {pt:.0f} | {pt / gl:.2f} | "
               f"{dmax:.1e} / {d999:.1e} |")
     return 0
