@@ -291,9 +291,9 @@ def backward(saved: TextureSaved, grad_out, *, needs=None, deterministic: bool =
         saved: the second value :func:`forward` returned.
         grad_out: (B, H, W, C) dL/d out, or None (zero).
         needs: None (all) or one bool per input (tex, uv, uv_da, mip_level_bias, *mip).
-            Without tex or mip levels wanted the texel sums are neither summed on the host
-            nor read back (nor pulled through the pyramid); the coordinates' gradients are
-            read back only where wanted; nothing runs when nothing is wanted.
+            Without tex or mip levels wanted the shader is compiled without the texel sums
+            (nothing spread, read back or pulled through the pyramid); the coordinates'
+            gradients are read back only where wanted; nothing runs when nothing is wanted.
         deterministic: bit-identical results from run to run (accumulation "per_pixel":
             the texel gradients summed on the GPU as 64-bit fixed-point integers, whose sum
             does not depend on the order of the additions, rounded once to float32; the
