@@ -14,9 +14,9 @@ derivations in docs/differentiable.md, "Texture"), in compute shaders
   eigenvalue of J^T J, J the texel-space Jacobian from ``uv_da``, plus ``mip_level_bias``,
   clamped to the pyramid) and filters with texel fetches at texel centres (no GL sampler:
   see :func:`sampler_probe` for why);
-* the backward sends gradients to every texel read (float atomics, a compare-and-swap loop,
-  or per-pixel (texel, weight) pairs summed on the host in float64, as
-  :mod:`glraster.diff.compute`), then pulls a built pyramid's level gradients back into
+* the backward sends gradients to every texel read (float atomics or a compare-and-swap
+  loop, as :mod:`glraster.diff.compute`; deterministic, integer atomics on 64-bit fixed
+  point, :func:`fixed_point_shift`), then pulls a built pyramid's level gradients back into
   the base through the transpose of its box filter (a gather, one pass per level); to uv
   (through the bilinear weights and, for cube maps, the face projection and the level), to
   uv_da (through the level) and to the bias.
@@ -24,16 +24,16 @@ derivations in docs/differentiable.md, "Texture"), in compute shaders
 
 from __future__ import annotations
 
+import ctypes
+
 import numpy as np
 
 from glraster import validate
-from glraster.diff.compute import DEFINES as _DEFINES
 from glraster.diff.compute import accumulation
 from glraster.diff.compute import chunks as _chunks
 from glraster.diff.compute import read as _read
 from glraster.diff.compute import run as _run
 from glraster.diff.compute import set_uniform as _set
-from glraster.diff.compute import zeroed as _zeroed
 from glraster.diff.texture_args import (
     BOUNDARY_CODE,
     FILTER_CODE,
@@ -49,7 +49,9 @@ __all__ = ["backward", "build_mips", "forward", "sampler_probe"]
 
 _SHADER = "diff/texture.comp"
 _MIP_SHADER = "diff/texture_mip.comp"
-CONTRIB_SLOTS = 8
+# the texture shader's accumulation defines: deterministic (per_pixel) is its fixed point
+_ACCUM_DEFINES = {"atomic_float": "ACCUM_ATOMIC_FLOAT", "cas": "ACCUM_CAS",
+                  "per_pixel": "ACCUM_FIXED_POINT"}
 
 
 def _geometry(args: TextureArgs):
@@ -62,6 +64,23 @@ def _geometry(args: TextureArgs):
         firsts.append(first)
         first += images * h * w
     return np.array(rows, np.int32), firsts, first, images
+
+
+# glClearNamedBufferSubData (GL 4.5, section 6.3.1) with a null pattern: zeros written by the
+# driver where the buffer lives, no host upload of zeros
+_GL_R32UI, _GL_RED_INTEGER, _GL_UNSIGNED_INT = 0x8236, 0x8D94, 0x1405
+
+
+def _cleared(ctx: Context, name: str, nbytes: int):
+    """The context's scratch buffer ``name`` of at least ``nbytes``, its first ``nbytes``
+    (a multiple of 4) set to 0 by the driver. Inside ``with ctx``."""
+    buffer = ctx.scratch_buffer(name, nbytes)
+    clear = ctx.gl_function("glClearNamedBufferSubData", None, ctypes.c_uint, ctypes.c_uint,
+                            ctypes.c_ssize_t, ctypes.c_ssize_t, ctypes.c_uint, ctypes.c_uint,
+                            ctypes.c_void_p)
+    clear(buffer.glo, _GL_R32UI, 0, max(int(nbytes), 4), _GL_RED_INTEGER, _GL_UNSIGNED_INT,
+          None)
+    return buffer
 
 
 def _storage_limit(ctx: Context, nbytes: int, what: str) -> None:
@@ -90,18 +109,20 @@ def _upload_levels(ctx: Context, args: TextureArgs, name: str = "texture.levels"
 
 
 def _pyramid_passes(ctx: Context, buffer, args: TextureArgs, firsts, images: int,
-                    backward: bool) -> None:
+                    backward: bool, top: int | None = None) -> None:
     """The box filter between neighbouring levels of ``buffer`` (every level, base first),
     one pass per level: forward, each coarser level from the finer one, finest first (one
     invocation per coarse texel); backward, each level's gradient added into the finer one
-    through the transpose of the filter, coarsest first (a gather: one per fine texel)."""
+    through the transpose of the filter, coarsest first (a gather: one per fine texel),
+    from level ``top`` down (None: the coarsest; the levels above it hold zeros)."""
     program = ctx.compute_program(shader_path(_MIP_SHADER), {"BACKWARD": None} if backward
                                   else {})
     buffer.bind_to_storage_buffer(0)
     channels = args.channels
     _set(program, "images", images)
     _set(program, "channels", channels)
-    steps = range(args.levels - 1, 0, -1) if backward else range(1, args.levels)
+    top = args.levels - 1 if top is None else min(top, args.levels - 1)
+    steps = range(top, 0, -1) if backward else range(1, args.levels)
     for k in steps:
         (h0, w0), (h1, w1) = args.shapes[k - 1], args.shapes[k]
         _set(program, "fine_first", firsts[k - 1] * channels)
@@ -113,7 +134,7 @@ def _pyramid_passes(ctx: Context, buffer, args: TextureArgs, firsts, images: int
 
 def _defines(args: TextureArgs) -> dict:
     defines = {"FILTER": FILTER_CODE[args.filter_mode],
-               "BOUNDARY": BOUNDARY_CODE[args.boundary_mode]}
+               "BOUNDARY": BOUNDARY_CODE[args.boundary_mode], "CHANNELS": args.channels}
     if args.mipmapped and args.uv_da is not None:
         defines["HAS_DA"] = None
     if args.mipmapped and args.bias is not None:
@@ -141,7 +162,6 @@ def _bind_common(ctx, program, args, defines, part, uv, da, bias, info, count, f
     _set(program, "pixels_per_image", int(args.uv.shape[1] * args.uv.shape[2]))
     _set(program, "tex_batch", int(args.tex.shape[0]))
     _set(program, "n_levels", args.levels)
-    _set(program, "channels", args.channels)
 
 
 def forward(tex, uv, uv_da=None, mip_level_bias=None, *mip, filter_mode="auto",
@@ -188,56 +208,59 @@ def forward(tex, uv, uv_da=None, mip_level_bias=None, *mip, filter_mode="auto",
     return (out.reshape(args.uv.shape[:3] + (channels,)),), TextureSaved(args, None, ctx)
 
 
+# the deterministic mode's accumulators are signed 64-bit integers; sums stay below 2^62
+_FIXED_TOTAL_BITS = 62
+
+
+def fixed_point_shift(max_abs_g: float, pixels: int) -> int:
+    """k such that the deterministic backward adds a contribution v as round(v 2^k): the
+    largest with 8 pixels x max |g| 2^k <= 2^62, i.e. every texel's sum of at most 8 taps
+    per pixel fits a signed 64-bit integer. Resolution 2^-k per contribution, at most 2^-38
+    of max |g| for a million pixels."""
+    head = int(np.ceil(np.log2(8 * max(pixels, 1))))
+    top = int(np.frexp(max_abs_g)[1]) if max_abs_g > 0 else 0   # max |g| < 2^top
+    return _FIXED_TOTAL_BITS - head - top
+
+
 class _TexelGradients:
-    """Where the backward sums the texel gradients (inside ``with ctx``): a zeroed storage
-    buffer the shader adds into (float atomics or a compare-and-swap loop), or (per_pixel)
-    float64 totals summed on the host from each pixel's (texel, weight) slots; ``needed``
-    False skips that host sum and every read-back (tex and the mip levels need none)."""
+    """Where the backward sums the texel gradients (inside ``with ctx``; made only when tex
+    or a mip level wants one): a zeroed storage buffer the shader adds into, float32 with
+    float atomics or a compare-and-swap loop, or (``per_pixel``, deterministic) signed
+    64-bit fixed-point integers (:func:`fixed_point_shift`) with integer atomics, whose sum
+    does not depend on the order of the additions."""
 
-    def __init__(self, ctx: Context, mode: str, total: int, channels: int, needed: bool):
+    def __init__(self, ctx: Context, mode: str, total: int, channels: int, program,
+                 g_flat: np.ndarray, mipmapped: bool):
         self.ctx, self.mode, self.total, self.channels = ctx, mode, total, channels
-        self.needed = needed
+        words = 2 if mode == "per_pixel" else 1
+        _storage_limit(ctx, total * channels * 4 * words, "the texel gradients")
+        self.buffer = _cleared(ctx, "texture.grad_tex", total * channels * 4 * words)
+        self.buffer.bind_to_storage_buffer(9)
+        self.top = None
+        if mipmapped:
+            self.top = _cleared(ctx, "texture.top_level", 4)
+            self.top.bind_to_storage_buffer(10)
         if mode == "per_pixel":
-            self.totals = np.zeros((total, channels)) if needed else None
-        else:
-            self.buffer = _zeroed(ctx, "texture.grad_tex", total * channels * 4)
-            self.buffer.bind_to_storage_buffer(9)
-
-    def bind(self, count: int) -> None:
-        """Bind a chunk's per-pixel slots (per_pixel mode)."""
-        if self.mode == "per_pixel":
-            self.index = self.ctx.scratch_buffer("texture.contrib_index", count * CONTRIB_SLOTS * 4)
-            self.weight = self.ctx.scratch_buffer("texture.contrib_weight",
-                                                  count * CONTRIB_SLOTS * 4)
-            self.index.bind_to_storage_buffer(9)
-            self.weight.bind_to_storage_buffer(10)
-
-    def add(self, count: int, g_rows: np.ndarray) -> None:
-        """After a chunk ran: its (texel, weight) slots times g (count, C) into the totals
-        (per_pixel mode), in float64 and pixel order."""
-        if self.mode != "per_pixel" or not self.needed:
-            return
-        index = _read(self.index, count * CONTRIB_SLOTS, np.int32).reshape(count, -1)
-        weight = _read(self.weight, count * CONTRIB_SLOTS).reshape(count, -1)
-        live = index >= 0
-        keys = index[live]
-        w = weight[live].astype(np.float64)
-        g = g_rows.astype(np.float64)
-        rows = np.broadcast_to(np.arange(count)[:, None], index.shape)[live]
-        for c in range(self.channels):
-            self.totals[:, c] += np.bincount(keys, weights=w * g[rows, c], minlength=self.total)
+            max_abs = float(np.abs(g_flat).max()) if g_flat.size else 0.0
+            self.shift = fixed_point_shift(max_abs, len(g_flat))
+            half = self.shift // 2
+            _set(program, "fixed_scale_a", float(2.0 ** half))
+            _set(program, "fixed_scale_b", float(2.0 ** (self.shift - half)))
 
     def levels(self, args: TextureArgs, firsts, images) -> np.ndarray:
         """(texels, C) float32: every level's texel gradients, base first, a built (or own)
         pyramid's pulled back into the base (then only the base's rows are read back)."""
         if self.mode == "per_pixel":
-            flat = self.totals.astype(np.float32)
+            fixed = _read(self.buffer, self.total * self.channels, np.int64)
+            flat = np.ldexp(fixed.astype(np.float64), -self.shift).astype(np.float32)
+            flat = flat.reshape(-1, self.channels)
             if not args.pulls_pyramid:
                 return flat
-            self.buffer = self.ctx.storage_buffer("texture.grad_tex", flat)
+            self.buffer = self.ctx.storage_buffer("texture.grad_tex_float", flat)
         if not args.pulls_pyramid:
             return _read(self.buffer, self.total * self.channels).reshape(-1, self.channels)
-        _pyramid_passes(self.ctx, self.buffer, args, firsts, images, backward=True)
+        top = None if self.top is None else int(_read(self.top, 1, np.int32)[0])
+        _pyramid_passes(self.ctx, self.buffer, args, firsts, images, backward=True, top=top)
         return _read(self.buffer, firsts[1] * self.channels).reshape(-1, self.channels)
 
 
@@ -268,11 +291,13 @@ def backward(saved: TextureSaved, grad_out, *, needs=None, deterministic: bool =
         saved: the second value :func:`forward` returned.
         grad_out: (B, H, W, C) dL/d out, or None (zero).
         needs: None (all) or one bool per input (tex, uv, uv_da, mip_level_bias, *mip).
-            Without tex or mip levels wanted the texel sums are neither summed on the host
-            nor read back (nor pulled through the pyramid); the coordinates' gradients are
-            read back only where wanted; nothing runs when nothing is wanted.
-        deterministic: bit-identical results from run to run (the texel gradients summed per
-            texel in pixel order in float64 on the host; the pyramid pass is a gather).
+            Without tex or mip levels wanted the shader is compiled without the texel sums
+            (nothing spread, read back or pulled through the pyramid); the coordinates'
+            gradients are read back only where wanted; nothing runs when nothing is wanted.
+        deterministic: bit-identical results from run to run (accumulation "per_pixel":
+            the texel gradients summed on the GPU as 64-bit fixed-point integers, whose sum
+            does not depend on the order of the additions, rounded once to float32; the
+            pyramid pass is a gather).
         accumulate: force one of :data:`glraster.diff.compute.ACCUMULATIONS`.
 
     Returns:
@@ -295,28 +320,28 @@ def backward(saved: TextureSaved, grad_out, *, needs=None, deterministic: bool =
     n, uv_f, da, bias = _pixel_inputs(args)
     channels, coords = args.channels, uv_f.shape[1]
     g_flat = grad_out.reshape(n, channels)
-    defines = dict(_defines(args), BACKWARD=None, **{_DEFINES[mode]: None})
+    defines = dict(_defines(args), BACKWARD=None)
+    if texels:   # else the shader spreads nothing (no texel buffer, no accumulation)
+        defines.update({"TEX_GRAD": None, _ACCUM_DEFINES[mode]: None})
     grad_uv = np.empty((n, coords), np.float32) if want[1] else None
     grad_da = np.zeros((n, 2 * coords), np.float32) if want[2] else None
     grad_bias = np.zeros(n, np.float32) if want[3] else None
-    per_pixel = 4 * (3 * coords + 1 + 2 * channels + 3 * coords + 1) + (
-        8 * CONTRIB_SLOTS if mode == "per_pixel" else 0)
+    per_pixel = 4 * (3 * coords + 1 + 2 * channels + 3 * coords + 1)
     with ctx:
         program = ctx.compute_program(shader_path(_SHADER), defines)
         levels, info, firsts, total, images = _upload_levels(ctx, args)
         levels.bind_to_storage_buffer(0)
-        sums = _TexelGradients(ctx, mode, total, channels, texels)
+        sums = (_TexelGradients(ctx, mode, total, channels, program, g_flat,
+                                args.mipmapped) if texels else None)
         for first, count in _chunks(n, per_pixel):
             part = slice(first, first + count)
             _bind_common(ctx, program, args, defines, part, uv_f, da, bias, info, count, first)
             ctx.storage_buffer("texture.grad_out", g_flat[part]).bind_to_storage_buffer(5)
             outs = _bind_coordinate_outputs(ctx, defines, count, coords)
-            sums.bind(count)
             _run(ctx, program, count)
             for target, (buffer, width) in zip((grad_uv, grad_da, grad_bias), outs):
                 if target is not None and buffer is not None:
                     target[part] = _read(buffer, count * width).reshape(target[part].shape)
-            sums.add(count, g_flat[part])
         flat = sums.levels(args, firsts, images) if texels else None
     grad_tex, grad_mip = (_split_levels(args, flat, firsts, total, want) if texels
                           else (None, [None] * mips))

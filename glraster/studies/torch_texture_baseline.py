@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 
@@ -112,7 +113,10 @@ def perspective_inputs(size: int, channels: int = 4, seed: int = 0):
     return tex, uv, uv_da.contiguous()
 
 
-def benchmark(sizes=(512, 1024), repeat: int = 5, boundary_mode: str = "wrap"):
+MODES = ("nearest", "linear", "linear-mipmap-nearest", "linear-mipmap-linear")
+
+
+def benchmark(sizes=(512, 1024), repeat: int = 5, boundary_mode: str = "wrap", modes=MODES):
     """Rows (size, filter_mode, glraster ms, plain PyTorch ms, max |difference|) of forward
     + backward (gradients to tex and uv, and uv_da in linear-mipmap-linear)."""
     import glraster.torch as dr
@@ -121,7 +125,7 @@ def benchmark(sizes=(512, 1024), repeat: int = 5, boundary_mode: str = "wrap"):
     rows = []
     for size in sizes:
         tex, uv, uv_da = perspective_inputs(size)
-        for mode in ("nearest", "linear", "linear-mipmap-nearest", "linear-mipmap-linear"):
+        for mode in modes:
             da = uv_da if mode.startswith("linear-mipmap") else None
             results = {}
 
@@ -142,6 +146,38 @@ def benchmark(sizes=(512, 1024), repeat: int = 5, boundary_mode: str = "wrap"):
     return rows
 
 
+def core_benchmark(sizes=(512, 1024), repeat: int = 5, boundary_mode: str = "wrap",
+                   modes=MODES):
+    """Rows (size, filter_mode, forward ms, backward ms atomic, backward ms deterministic)
+    of the GPU core alone (:mod:`glraster.diff.texture`, NumPy in and out), on the inputs
+    of :func:`benchmark`; each round times the three calls in turn, medians over rounds."""
+    import statistics
+    import time
+
+    from glraster.diff import texture as gpu
+
+    rows = []
+    for size in sizes:
+        tex, uv, uv_da = (t.numpy() for t in perspective_inputs(size))
+        g = np.ones(uv.shape[:3] + (tex.shape[-1],), np.float32)
+        for mode in modes:
+            da = uv_da if mode.startswith("linear-mipmap") else None
+            (_,), saved = gpu.forward(tex, uv, da, None, filter_mode=mode,
+                                      boundary_mode=boundary_mode)
+            calls = {"forward": lambda: gpu.forward(tex, uv, da, None, filter_mode=mode,
+                                                    boundary_mode=boundary_mode),
+                     "atomic": lambda: gpu.backward(saved, g),
+                     "deterministic": lambda: gpu.backward(saved, g, deterministic=True)}
+            times = {name: [] for name in calls}
+            for _ in range(repeat + 1):           # the first round warms up
+                for name, call in calls.items():
+                    start = time.perf_counter()
+                    call()
+                    times[name].append(time.perf_counter() - start)
+            rows.append((size, mode, *(1e3 * statistics.median(t[1:]) for t in times.values())))
+    return rows
+
+
 def build_parser():
     from glraster.studies.registry import argument_parser
 
@@ -157,6 +193,11 @@ def build_parser():
                         help="timed calls per cell, the median is shown (default 5)")
     parser.add_argument("--boundary", default="wrap", choices=("wrap", "clamp", "zero"),
                         help="boundary_mode (default wrap)")
+    parser.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES,
+                        metavar="MODE", help="filter modes (default: all four)")
+    parser.add_argument("--cores", action="store_true",
+                        help="instead: the GPU core's forward and its backward (atomic and "
+                        "deterministic) alone, NumPy in and out")
     return parser
 
 
@@ -169,13 +210,24 @@ def main(argv=None) -> int:  # pragma: no cover - a measurement, not a test
     if args.repeat < 1:
         parser.error(f"--repeat must be >= 1, got {args.repeat}")
     torch.set_num_threads(max(1, torch.get_num_threads()))
+    if args.cores:
+        print(f"glraster.diff.texture alone, median of {args.repeat} rounds, texture = image "
+              f"size, 4 channels, {args.boundary}")
+        print("| image and texture | filter_mode | forward ms | backward atomic ms | "
+              "backward deterministic ms | deterministic / forward |")
+        print("|---|---|---|---|---|---|")
+        for size, mode, fwd, atomic, det in core_benchmark(tuple(args.sizes), args.repeat,
+                                                           args.boundary, args.modes):
+            print(f"| {size}² | {mode} | {fwd:.1f} | {atomic:.1f} | {det:.1f} | "
+                  f"{det / fwd:.2f} |")
+        return 0
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads; forward + backward, "
           f"median of {args.repeat}, texture = image size, 4 channels, {args.boundary}")
     print("| image and texture | filter_mode | glraster.torch (GL) ms | plain PyTorch ms | "
           "ratio | max / p99.9 |out difference| |")
     print("|---|---|---|---|---|---|")
     for size, mode, gl, pt, dmax, d999 in benchmark(tuple(args.sizes), args.repeat,
-                                                    args.boundary):
+                                                    args.boundary, args.modes):
         print(f"| {size}² | {mode} | {gl:.0f} | {pt:.0f} | {pt / gl:.2f} | "
               f"{dmax:.1e} / {d999:.1e} |")
     return 0

@@ -5,8 +5,10 @@
 //   (docs/differentiable.md, "Texture")
 //   bilinear at texel centres: x = s W_l - 0.5, taps floor(x), floor(x) + 1 (y alike)
 // Defines: FILTER 0 nearest | 1 linear | 2 linear-mipmap-nearest | 3 linear-mipmap-linear;
-// BOUNDARY 0 wrap | 1 clamp | 2 zero | 3 cube; HAS_DA, HAS_BIAS; with BACKWARD one of
-// ACCUM_ATOMIC_FLOAT | ACCUM_CAS | ACCUM_PER_PIXEL (8 (texel, weight) pairs per pixel).
+// BOUNDARY 0 wrap | 1 clamp | 2 zero | 3 cube; HAS_DA, HAS_BIAS; CHANNELS (floats per
+// texel: a constant, so the channel loops unroll); with BACKWARD either TEX_GRAD and one of
+// ACCUM_ATOMIC_FLOAT | ACCUM_CAS | ACCUM_FIXED_POINT (deterministic: see spread), or no
+// TEX_GRAD (no texel gradient wanted: nothing is spread).
 // Layouts (flattened pixels of this dispatch, i = 0 .. n_pixels - 1):
 //   texels  every level (base first), level l from texel level_info[l].x on, texel
 //           ((image * faces + face) * H + j) * W + i, `channels` floats per texel
@@ -46,13 +48,18 @@ layout(std430, binding = 7) writeonly buffer GradDa { float grad_da[]; };
 #ifdef HAS_BIAS
 layout(std430, binding = 8) writeonly buffer GradBias { float grad_bias[]; };
 #endif
-#if defined(ACCUM_ATOMIC_FLOAT)
+#if !defined(TEX_GRAD)
+#elif defined(ACCUM_ATOMIC_FLOAT)
 layout(std430, binding = 9) buffer GradTex { float grad_tex[]; };
 #elif defined(ACCUM_CAS)
 layout(std430, binding = 9) buffer GradTex { uint grad_tex[]; };
 #else
-layout(std430, binding = 9) writeonly buffer ContribIndex { int contrib_index[]; };
-layout(std430, binding = 10) writeonly buffer ContribWeight { float contrib_weight[]; };
+// 64-bit two's complement integers, (low word, high word) per texel float
+layout(std430, binding = 9) buffer GradTex { uint grad_tex[]; };
+#endif
+#if defined(TEX_GRAD) && MIP
+// the highest level any pixel read (the host pulls back only the levels up to it)
+layout(std430, binding = 10) buffer TopLevel { int top_level_read; };
 #endif
 #endif
 
@@ -61,7 +68,11 @@ uniform uint first_pixel;
 uniform uint pixels_per_image;
 uniform int tex_batch;      // 1 (broadcast) or B
 uniform int n_levels;
-uniform int channels;
+const int channels = CHANNELS;
+#ifdef ACCUM_FIXED_POINT
+uniform float fixed_scale_a;  // 2^k: a contribution v is added as round(v 2^k), split into
+uniform float fixed_scale_b;  // two power-of-two factors that each stay in float range
+#endif
 
 // cube faces +x, -x, +y, -y, +z, -z (GL table 8.19): s_c = sigma_s d[axis_s],
 // t_c = sigma_t d[axis_t], m = sigma_m d[axis_m] > 0
@@ -97,9 +108,13 @@ ivec3 cube_neighbour(int face, int i, int j, int n) {
     return ivec3(f2, ((s2 + m) * n) / (2 * m), ((t2 + m) * n) / (2 * m));
 }
 
+// i mod n in [0, n): the quotient in float (vectorises, unlike integer division), then at
+// most one step of correction, exact for |i| < 2^24
 int wrap_index(int i, int n) {
-    if (i < 0) i += n * ((n - 1 - i) / n);
-    return i % n;
+    int r = i - n * int(floor(float(i) / float(n)));
+    if (r < 0) r += n;
+    if (r >= n) r -= n;
+    return r;
 }
 
 // four taps of one level: global texel index (-1: none), weight and its s, t derivatives
@@ -172,6 +187,7 @@ struct Pixel {
     Taps t0, t1;
     float frac;           // weight of t1 (linear-mipmap-linear)
     bool live_level;      // 0 < level < top: the level carries a gradient
+    int last_level;       // the highest level read (mipmapped filters)
     int nearest;          // FILTER 0
     float dlevel_da[6];
     vec3 dlevel_duv;
@@ -184,6 +200,7 @@ Pixel setup(uint i, int image) {
     p.ok = true;
     p.frac = 0.0;
     p.live_level = false;
+    p.last_level = 0;
     p.nearest = -1;
     p.dlevel_duv = vec3(0.0);
     p.ds_duv = vec3(0.0);
@@ -279,11 +296,13 @@ Pixel setup(uint i, int image) {
 #if FILTER == 2
     int l0 = min(int(floor(level + 0.5)), top);
     p.t0 = bilinear(l0, s, t, image, face);
+    p.last_level = l0;
 #else
     int l0 = min(int(floor(level)), top);
     p.frac = level - float(l0);
     p.t0 = bilinear(l0, s, t, image, face);
     p.t1 = bilinear(min(l0 + 1, top), s, t, image, face);
+    p.last_level = min(l0 + 1, top);
 #endif
 #endif
     return p;
@@ -296,20 +315,38 @@ float texel(int index, int c) {
 #ifdef BACKWARD
 #include "include/atomic_add_float.glsl"
 
-void add_tex(int index, float value) {
-#if defined(ACCUM_ATOMIC_FLOAT) || defined(ACCUM_CAS)
-    if (value != 0.0) ATOMIC_ADD_FLOAT(grad_tex[index], value);
-#endif
-}
+float g_pixel[CHANNELS];  // this pixel's dL/d out, read once
 
-void spread(uint i, int slot, int index, float w) {
-#if defined(ACCUM_PER_PIXEL)
-    contrib_index[8u * i + uint(slot)] = w == 0.0 ? -1 : index;
-    contrib_weight[8u * i + uint(slot)] = w;
-#else
+#ifdef ACCUM_FIXED_POINT
+// word pair k += round(value 2^k) as a 64-bit integer: integer addition is associative, so
+// the total is the same whatever order the invocations reach it (bit-identical runs). The
+// magnitude a < 2^62 is an integer-valued float: hi = floor(a / 2^32) and lo = a - hi 2^32
+// are exact (lo has at most 24 significant bits, those of a); a negative value is the
+// two's complement of its magnitude; the low word's carry goes into the high word.
+void add_fixed(int k, float value) {
+    float a = roundEven(abs(value) * fixed_scale_a * fixed_scale_b);
+    if (a == 0.0) return;
+    uint hi = uint(floor(a * (1.0 / 4294967296.0)));
+    uint lo = uint(a - float(hi) * 4294967296.0);
+    if (value < 0.0) { hi = ~hi + (lo == 0u ? 1u : 0u); lo = 0u - lo; }
+    uint old = atomicAdd(grad_tex[2 * k], lo);
+    hi += (old + lo < old) ? 1u : 0u;
+    if (hi != 0u) atomicAdd(grad_tex[2 * k + 1], hi);
+}
+#endif
+
+// dL/d texel += w dL/d out (every channel) for one tap of weight w
+void spread(int index, float w) {
+#ifdef TEX_GRAD
     if (index < 0 || w == 0.0) return;
-    for (int c = 0; c < channels; ++c)
-        add_tex(index * channels + c, w * grad_out[i * uint(channels) + uint(c)]);
+    for (int c = 0; c < channels; ++c) {
+        float value = w * g_pixel[c];
+#ifdef ACCUM_FIXED_POINT
+        add_fixed(index * channels + c, value);
+#else
+        if (value != 0.0) ATOMIC_ADD_FLOAT(grad_tex[index * channels + c], value);
+#endif
+    }
 #endif
 }
 
@@ -317,8 +354,7 @@ void spread(uint i, int slot, int index, float w) {
 float tap_gradient(uint i, int index) {
     if (index < 0) return 0.0;
     float r = 0.0;
-    for (int c = 0; c < channels; ++c)
-        r += grad_out[i * uint(channels) + uint(c)] * texels[index * channels + c];
+    for (int c = 0; c < channels; ++c) r += g_pixel[c] * texels[index * channels + c];
     return r;
 }
 #endif
@@ -344,10 +380,14 @@ void main() {
         out_tex[i * uint(channels) + uint(c)] = p.ok ? v : 0.0;
     }
 #else
+    for (int c = 0; c < channels; ++c) g_pixel[c] = grad_out[i * uint(channels) + uint(c)];
+#if defined(TEX_GRAD) && MIP
+    // a plain read first: once the maximum is known, few invocations reach the atomic
+    if (p.ok && p.last_level > top_level_read) atomicMax(top_level_read, p.last_level);
+#endif
     float gs = 0.0, gt = 0.0, glevel = 0.0;
 #if FILTER == 0
-    spread(i, 0, p.nearest, p.ok ? 1.0 : 0.0);
-    for (int k = 1; k < 8; ++k) spread(i, k, -1, 0.0);
+    spread(p.nearest, p.ok ? 1.0 : 0.0);
 #else
     float w0 = FILTER == 3 ? 1.0 - p.frac : 1.0;
     float s0 = 0.0, s1 = 0.0;
@@ -356,7 +396,7 @@ void main() {
         float tg = tap_gradient(i, p.t0.index[k]);
         gs += p.t0.ds[k] * tg; gt += p.t0.dt[k] * tg;
         s0 += p.t0.w[k] * tg;
-        spread(i, k, p.t0.index[k], ok * w0 * p.t0.w[k]);
+        spread(p.t0.index[k], ok * w0 * p.t0.w[k]);
     }
     gs *= w0; gt *= w0;
 #if FILTER == 3
@@ -365,12 +405,10 @@ void main() {
         float tg = tap_gradient(i, p.t1.index[k]);
         gs1 += p.t1.ds[k] * tg; gt1 += p.t1.dt[k] * tg;
         s1 += p.t1.w[k] * tg;
-        spread(i, 4 + k, p.t1.index[k], ok * p.frac * p.t1.w[k]);
+        spread(p.t1.index[k], ok * p.frac * p.t1.w[k]);
     }
     gs += p.frac * gs1; gt += p.frac * gt1;
     glevel = p.live_level ? s1 - s0 : 0.0;
-#else
-    for (int k = 4; k < 8; ++k) spread(i, k, -1, 0.0);
 #endif
 #endif
     if (!p.ok) { gs = 0.0; gt = 0.0; glevel = 0.0; }

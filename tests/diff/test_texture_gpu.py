@@ -190,6 +190,43 @@ def test_deterministic_backward_is_bit_identical(ctx):
             assert a.tobytes() == b.tobytes()
 
 
+def test_deterministic_texel_sums_are_exact_at_both_ends_of_the_range(ctx):
+    """The deterministic backward's 64-bit fixed point: 4096 pixels of one 1 x 1 texture
+    (nearest) with gradients of mixed signs up to 1e30, and one texel whose terms cancel
+    to exactly 0. The fixed-point sum differs from the float64 sum by at most 2^-k per term
+    (k = fixed_point_shift: 2^-46 of max |g| here), far below the float32
+    rounding of the result (u |sum|), and no accumulator overflows."""
+    n = 64
+    tex = np.zeros((1, 1, 2, 1), np.float32)
+    uv = np.full((1, n, n, 2), 0.25, np.float32)     # texel (0, 0) of the 1 x 2 texture
+    uv[0, :, n // 2:, 0] = 0.75                       # the right half reads texel (0, 1)
+    rng = np.random.default_rng(31)
+    g = (rng.uniform(-1, 1, size=(1, n, n, 1)) * 1e30).astype(np.float32)
+    g[0, :, n // 2:] = np.abs(g[0, :, n // 2:])
+    g[0, :, 3 * n // 4:] = -g[0, :, n // 2:3 * n // 4]   # texel (0, 1) sums to 0 exactly
+    _, saved = texture_forward(tex, uv, filter_mode="nearest", boundary_mode="clamp",
+                               dtype=np.float32, ctx=ctx)
+    grad_tex = texture_backward(saved, g, deterministic=True)[0]
+    left = g[0, :, :n // 2].astype(np.float64).sum()
+    assert grad_tex[0, 0, 1, 0] == 0.0
+    resolution = 2.0 ** -tx.fixed_point_shift(float(np.abs(g).max()), n * n)
+    assert abs(grad_tex[0, 0, 0, 0] - left) <= U * abs(left) + n * n * resolution
+
+
+@pytest.mark.parametrize("deterministic", [False, True])
+@pytest.mark.parametrize("mode", ["linear-mipmap-nearest", "linear-mipmap-linear"])
+def test_pull_back_from_the_highest_level_read_matches_the_reference(ctx, mode, deterministic):
+    """Levels 0 .. 2 of a 7-level pyramid read (levels 0.1 .. 1.4 from the bias, so
+    linear-mipmap-linear reads 0 .. 2, linear-mipmap-nearest 0 .. 1): the backward pulls the
+    texel gradients back from the highest level read only, with the bound of every other
+    mipmapped case."""
+    rng = np.random.default_rng(32)
+    tex = rng.normal(size=(1, 64, 64, 3))
+    uv = rng.uniform(-0.2, 1.2, size=(1, 24, 24, 2))
+    bias = rng.uniform(0.1, 1.4, size=(1, 24, 24))
+    compare(ctx, tex, uv, None, bias, mode, "wrap", deterministic=deterministic)
+
+
 def test_gpu_pyramid_matches_the_reference(ctx):
     rng = np.random.default_rng(29)
     for shape in [(1, 64, 48, 3), (2, 37, 50, 2), (1, 6, 9, 9, 4)]:

@@ -107,3 +107,12 @@ def test_perspective_inputs_are_the_documented_shapes():
     tex, uv, uv_da = baseline.perspective_inputs(16, channels=2)
     assert tex.shape == (1, 16, 16, 2) and uv.shape == (1, 16, 16, 2)
     assert uv_da.shape == (1, 16, 16, 4) and tex.dtype == uv.dtype == torch.float32
+
+
+def test_the_core_timing_runs_its_short_form(ctx, capsys):
+    # docs/differentiable.md quotes `--cores --sizes 1024` (minutes); this is its 16² round
+    assert baseline.main(["--cores", "--sizes", "16", "--repeat", "1",
+                          "--modes", "linear", "linear-mipmap-linear"]) == 0
+    rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| 16²")]
+    assert [row.split("|")[2].strip() for row in rows] == ["linear", "linear-mipmap-linear"]
+    assert all(len(row.split("|")) == 8 for row in rows)
