@@ -18,14 +18,18 @@ from glraster.cli.commands import add_command
 from glraster.io.atomic import write_text
 
 
+def _add_presets(parser) -> None:
+    """``--preset quick|full`` and its two shorthands ``--quick`` / ``--full``."""
+    parser.add_argument("--preset", choices=("quick", "full"), default="quick",
+                        help="case grid (default: quick)")
+    for name in ("quick", "full"):
+        parser.add_argument(f"--{name}", dest="preset", action="store_const", const=name,
+                            help=f"same as --preset {name}")
+
+
 def register(subparsers) -> None:
     p = add_command(subparsers, "bench", __doc__)
-    p.add_argument("--preset", choices=("quick", "full"), default="quick",
-                   help="case grid (default: quick)")
-    p.add_argument("--quick", dest="preset", action="store_const", const="quick",
-                   help="same as --preset quick")
-    p.add_argument("--full", dest="preset", action="store_const", const="full",
-                   help="same as --preset full")
+    _add_presets(p)
     p.add_argument("--methods", default=None, metavar="LIST",
                    help="comma-separated methods (default: all)")
     p.add_argument("--backend", default="egl", choices=("egl", "osmesa"),
@@ -46,17 +50,12 @@ def register(subparsers) -> None:
                     "rasterize with and without rast_db, its backward (atomic and "
                     "deterministic) against the forward, and interpolate forward+backward "
                     "through glraster.torch against the same math in plain PyTorch "
-                    "(glraster.studies.torch_interpolate_baseline), as medians of interleaved rounds, with the "
-                    "goals met or missed. Needs the [torch] extra. The quick preset "
-                    "(256/1024 px, 1k/20k triangles) takes about a minute, the full one "
-                    "(256/512/1024 px, 1k/20k/100k triangles, plus a cProfile breakdown of "
+                    "(glraster.studies.torch_interpolate_baseline), as medians of "
+                    "interleaved rounds, with the goals met or missed. Needs the [torch] "
+                    "extra. The quick preset (256/1024 px, 1k/20k triangles) takes about a "
+                    "minute, the full one (256/512/1024 px, 1k/20k/100k triangles, plus a cProfile breakdown of "
                     "two cells) about 4 minutes on 2 cores (docs/differentiable.md, Speed).")
-    d.add_argument("--preset", choices=("quick", "full"), default="quick",
-                   help="case grid (default: quick)")
-    d.add_argument("--quick", dest="preset", action="store_const", const="quick",
-                   help="same as --preset quick")
-    d.add_argument("--full", dest="preset", action="store_const", const="full",
-                   help="same as --preset full")
+    _add_presets(d)
     d.add_argument("--repeats", type=int, default=None, metavar="N",
                    help="interleaved rounds per cell (default: the preset's)")
     d.add_argument("--backend", default="egl", choices=("egl", "osmesa"),

@@ -92,6 +92,20 @@ def _seeds(args) -> list[int]:
     return list(range(args.first_seed, args.first_seed + _positive("seeds", args.seeds)))
 
 
+def _no_antialias(q) -> None:
+    q.add_argument("--no-antialias", action="store_true",
+                   help="rasterize -> interpolate only (no visibility gradient)")
+
+
+def _resolution(q, default: int) -> None:
+    q.add_argument("--resolution", type=int, default=default,
+                   help=f"image size in pixels ({default})")
+
+
+def _views(q, default: int, what: str) -> None:
+    q.add_argument("--views", type=int, default=default, help=f"{what} ({default})")
+
+
 def register(subparsers) -> None:
     p = add_command(subparsers, "fit", __doc__)
     sub = p.add_subparsers(dest="problem", metavar="PROBLEM", required=True)
@@ -120,11 +134,10 @@ def register(subparsers) -> None:
                                    "random views per iteration.")
     common(q, seeds=5, iterations=1000, out_name="cube")
     q.add_argument("--resolutions", default="4,8,16", help="image sizes in pixels (4,8,16)")
-    q.add_argument("--views", type=int, default=4, help="random views per iteration (4)")
+    _views(q, 4, "random views per iteration")
     q.add_argument("--lr", type=float, default=1e-2, help="Adam's learning rate (1e-2), "
                                                           "falling to a tenth by the end")
-    q.add_argument("--no-antialias", action="store_true",
-                   help="rasterize -> interpolate only (no visibility gradient)")
+    _no_antialias(q)
     q.set_defaults(func=_run_cube)
 
     q = sub.add_parser("pose", help="recover a cube's rotation from an image",
@@ -132,12 +145,11 @@ def register(subparsers) -> None:
                                    "with random restarts and jumps between the cube's "
                                    "symmetric poses.")
     common(q, seeds=5, iterations=300, out_name="pose")
-    q.add_argument("--resolution", type=int, default=32, help="image size in pixels (32)")
+    _resolution(q, 32)
     q.add_argument("--restarts", type=int, default=8, help="random starts per seed (8)")
     q.add_argument("--no-jumps", action="store_true",
                    help="gradient descent from the restarts only (no symmetry jumps)")
-    q.add_argument("--no-antialias", action="store_true",
-                   help="rasterize -> interpolate only (no visibility gradient)")
+    _no_antialias(q)
     q.set_defaults(func=_run_pose)
 
     q = sub.add_parser("texture", help="recover a texture on a sphere, mipmapped and not",
@@ -146,10 +158,10 @@ def register(subparsers) -> None:
                                    "lookups (uv_da from interpolate) and once with linear "
                                    "ones; compares their PSNR.")
     common(q, seeds=1, iterations=1000, out_name="texture")
-    q.add_argument("--resolution", type=int, default=128, help="image size in pixels (128)")
+    _resolution(q, 128)
     q.add_argument("--texture-size", type=int, default=256,
                    help="texture height; the width is twice it (256)")
-    q.add_argument("--views", type=int, default=4, help="views per iteration (4)")
+    _views(q, 4, "views per iteration")
     q.add_argument("--pool", type=int, default=64, help="training views (64)")
     q.add_argument("--eval-every", type=int, default=50,
                    help="iterations between held-out evaluations (50)")
@@ -163,13 +175,13 @@ def register(subparsers) -> None:
                                    "linear-mipmap-linear cube lookups with uv_da per pixel, "
                                    "two random views per iteration (torch only).")
     common(q, seeds=1, iterations=300, out_name="envmap")
-    q.add_argument("--resolution", type=int, default=256, help="image size in pixels (256)")
+    _resolution(q, 256)
     q.add_argument("--env-size", type=int, default=512,
                    help="cube map face size in texels (512)")
     q.add_argument("--mesh", default="128,120",
                    help="the blob's longitudes,latitudes: 2 x their product triangles "
                         "(128,120: 30,720)")
-    q.add_argument("--views", type=int, default=2, help="random views per iteration (2)")
+    _views(q, 2, "random views per iteration")
     q.add_argument("--lr", type=float, default=0.06,
                    help="Adam's learning rate of the colours (0.06), falling to a tenth by "
                         "the end")

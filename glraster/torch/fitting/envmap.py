@@ -50,14 +50,8 @@ import torch
 
 from glraster.fitting.results import EnvmapFit
 from glraster.fitting.scenes import SUN_DIRECTION, blob, studio_cube_map
-from glraster.torch.fitting.common import (
-    Timer,
-    clip_positions,
-    descend,
-    quaternion_matrices,
-    random_quaternions,
-    view_matrices,
-)
+from glraster.torch.fitting.common import Timer, clip_positions, descend
+from glraster.torch.fitting.common import quaternion_matrices, random_quaternions, view_matrices
 from glraster.torch.ops import interpolate, rasterize
 from glraster.torch.texture import texture, texture_construct_mip
 
