@@ -58,16 +58,17 @@ def _skipped(p: ProbeResult, ctx) -> ProbeResult:
 
 
 def _per_count(p: ProbeResult, ctx, check, explains, known_note: str = "") -> ProbeResult:
-    """Run ``check(samples, found)`` at every sample count the driver offers (skipped where
-    it offers none) and give ``p`` its verdict: "fail" on any problem, "known" when only
-    known defects were found, else "pass"; ``explains(scene, failure)`` then tells which
-    scene failures the probe accounts for."""
+    """Run ``check(samples, details, problems, known)`` (lists it appends to) at every
+    sample count the driver offers (skipped where it offers none) and give ``p`` its
+    verdict: "fail" on any problem, "known" when only known defects were found, else
+    "pass"; ``explains(scene, failure)`` then tells which scene failures the probe
+    accounts for."""
     counts = _counts(ctx)
     if not counts:
         return _skipped(p, ctx)
     found = _Found([], [], [])
     for samples in counts:
-        check(samples, found)
+        check(samples, *found)
     p.detail = "; ".join(found.details)
     if found.problems:
         p.status, p.diagnosis = "fail", "; ".join(found.problems + found.known)
@@ -122,8 +123,7 @@ def probe_sample_positions(render, ctx) -> ProbeResult:
                     "coverage is sampled at the positions GL_SAMPLE_POSITION reports "
                     "(measured to 1/128 px), each inside the pixel")
 
-    def check(samples, found):
-        details, problems, _ = found
+    def check(samples, details, problems, _known):
         reported = reported_positions(render, samples)
         measured = measured_positions(render, samples)
         details.append(f"{samples}x reported {reported.tolist()}, measured "
@@ -203,8 +203,7 @@ def probe_sample_perspective(render, ctx) -> ProbeResult:
                     "screen-space triangle")
     model = _unwaived_model(ctx)
 
-    def check(samples, found):
-        details, problems, known = found
+    def check(samples, details, problems, known):
         gpu, ref = _render_perspective(render, samples, "sample")
         rep = compare(gpu, ref, model=model)
         sp, sc = rep.values["persp"], rep.values["screen"]
@@ -244,8 +243,7 @@ def probe_centroid(render, ctx) -> ProbeResult:
                     "triangle, persp perspective-correct at that point")
     model = _unwaived_model(ctx)
 
-    def check(samples, found):
-        details, problems, known = found
+    def check(samples, details, problems, known):
         gpu, ref = _render_perspective(render, samples, "centroid")
         point = compare(gpu, ref, model=model).point
         partial = gpu.mask.any(axis=2) & ~gpu.mask.all(axis=2)
@@ -292,8 +290,7 @@ def probe_sample_depth(render, ctx) -> ProbeResult:
     model = ErrorModel.for_context(ctx)
     res = (16, 16)
 
-    def check(samples, found):
-        details, problems, _ = found
+    def check(samples, details, problems, _known):
         slope = _clip([(0.5, 0.5), (15.5, 0.5), (0.5, 15.5)], res, z=[-0.9, 0.9, 0.0])
         gpu = render(slope, np.array([[0, 1, 2]], np.int32), res, ("depth", "tri_id"),
                      samples=samples)
@@ -337,8 +334,7 @@ def probe_resolve(render, ctx) -> ProbeResult:
     res = (8, 8)
     offset = (1 << 16) + 3
 
-    def check(samples, found):
-        details, problems, _ = found
+    def check(samples, details, problems, _known):
         quad = _clip([(0.2, 0.3), (7.9, 0.1), (0.3, 7.8), (7.7, 7.9)], res)
         pos = np.concatenate([quad, _clip([(0.5, 0.5)], res)])
         tri = np.full((offset + 2, 3), 4, np.int32)      # zero-area triangles, numbered

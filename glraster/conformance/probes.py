@@ -83,6 +83,14 @@ class ProbeResult:
     def failed(self) -> bool:
         return self.status in ("fail", "known")
 
+    def verdict(self, diagnosis: str, *words: str) -> ProbeResult:
+        """Fail with ``diagnosis`` unless it is empty; either way the probe explains the
+        failures of scenes whose messages mention any of ``words``."""
+        if diagnosis:
+            self.status, self.diagnosis = "fail", diagnosis
+        self._explains = lambda _self, scene, f: _mentions(f, *words)
+        return self
+
     def line(self) -> str:
         text = f"{self.name:<22}{self.status.upper():<8} {self.expectation}"
         if self.diagnosis:
@@ -175,12 +183,9 @@ def probe_shared_edges(render, ctx) -> ProbeResult:
     inside = ids[5:20, 5:20]
     holes = int((inside < 0).sum())
     p.detail = f"{holes} of {inside.size} interior centers uncovered"
-    if holes:
-        p.status = "fail"
-        p.diagnosis = (f"{holes} pixel centers on edges shared by two triangles are covered "
-                       "by neither (holes along shared edges)")
-    p._explains = lambda self, scene, f: _mentions(f, "coverage", "triangle id")
-    return p
+    diagnosis = (f"{holes} pixel centers on edges shared by two triangles are covered by "
+                 "neither (holes along shared edges)") if holes else ""
+    return p.verdict(diagnosis, "coverage", "triangle id")
 
 
 def _mentions(text, *words) -> bool:
@@ -196,12 +201,9 @@ def probe_tri_id(render, ctx) -> ProbeResult:
     pos, tri, res = _id_scene(visible, len(visible))
     r = render(pos, tri, res, ("tri_id",))
     wrong, text = _describe_ids(r.tri_id, visible, len(tri))
-    if wrong:
-        p.status = "fail"
-        p.diagnosis = (f"the triangle id source is wrong: {text}; the suite decodes "
-                       "tri_base + gl_PrimitiveID + 1 as the index")
-    p._explains = lambda self, scene, f: _mentions(f, "triangle id", "coverage")
-    return p
+    diagnosis = (f"the triangle id source is wrong: {text}; the suite decodes tri_base + "
+                 "gl_PrimitiveID + 1 as the index") if wrong else ""
+    return p.verdict(diagnosis, "triangle id", "coverage")
 
 
 @contextlib.contextmanager
@@ -362,11 +364,7 @@ def probe_depth(render, ctx, earlier=()) -> ProbeResult:
         problems.append("the depth test keeps " + ", ".join(what.get(t, f"triangle {t}")
                                                              for t in sorted(seen))
                         + " where the nearer second of three triangles must win")
-    if problems:
-        p.status = "fail"
-        p.diagnosis = "; ".join(problems)
-    p._explains = lambda self, scene, f: _mentions(f, "depth", "triangle id")
-    return p
+    return p.verdict("; ".join(problems), "depth", "triangle id")
 
 
 def probe_integer_target(render, ctx) -> ProbeResult:
@@ -393,12 +391,9 @@ def probe_integer_target(render, ctx) -> ProbeResult:
         cell = set(np.unique(got[y0:y0 + 8, x0:x0 + 8]).tolist()) - {-1}
         if cell != {ID_OFFSET + k}:
             wrong.append((k, sorted(cell)))
-    if wrong:
-        p.status = "fail"
-        shown = ", ".join(f"{ID_OFFSET + k} read as {c}" for k, c in wrong[:3])
-        p.diagnosis = f"the integer id target does not hold 32-bit integers: {shown}"
-    p._explains = lambda self, scene, f: _mentions(f, "triangle id", "coverage")
-    return p
+    shown = ", ".join(f"{ID_OFFSET + k} read as {c}" for k, c in wrong[:3])
+    diagnosis = f"the integer id target does not hold 32-bit integers: {shown}" if wrong else ""
+    return p.verdict(diagnosis, "triangle id", "coverage")
 
 
 def probe_float_target(render, ctx) -> ProbeResult:
