@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import weakref
 
 import numpy as np
 import torch
@@ -94,8 +95,53 @@ def texture_construct_mip(tex, max_mip_level=None, cube_mode=False, *, glctx=Non
     return TextureMip(tex, max_mip_level, bridge.flag("cube_mode", cube_mode), glctx)
 
 
-def _levels(tex, mip, uv_da, mip_level_bias, filter_mode, boundary_mode):
+class _PyramidCache:
+    """The pyramids :func:`texture` built for ``mip=None`` calls on textures that require no
+    gradient, one :class:`TextureMip` per (tensor, max_mip_level, cube_mode): a later call
+    on the same tensor object, unchanged since (its memory, view and version counter:
+    :func:`_source_key`), reuses the levels instead of building them again; a changed one
+    is rebuilt silently. An entry lives as long as its tensor (a weak reference drops it
+    when the tensor is freed), so the cache holds no texture alive."""
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self._entries: dict[int, tuple] = {}  # id(tex) -> (weakref(tex), {key: TextureMip})
+        self.builds = 0  # pyramids built, for tests and measurements
+
+    def levels(self, tex: torch.Tensor, max_mip_level, cube_mode: bool, glctx):
+        with self._lock:
+            ref, mips = self._entries.get(id(tex), (None, None))
+            if ref is None or ref() is not tex:
+                mips = {}
+                self._entries[id(tex)] = (weakref.ref(tex, self._forget(id(tex))), mips)
+            mip = mips.get((max_mip_level, cube_mode))
+            if mip is None or mip._key != _source_key(tex) or mip._glctx is not glctx:
+                mip = mips[(max_mip_level, cube_mode)] = TextureMip(tex, max_mip_level,
+                                                                     cube_mode, glctx)
+                self.builds += 1
+            return mip.levels
+
+    def _forget(self, key: int):
+        def forget(ref):
+            with self._lock:
+                if self._entries.get(key, (None,))[0] is ref:
+                    del self._entries[key]
+        return forget
+
+
+_PYRAMIDS = _PyramidCache()
+
+
+def _levels(tex, mip, uv_da, mip_level_bias, filter_mode, boundary_mode, max_mip_level,
+            glctx):
     """(mip level tensors, own_mips) for the TEXTURE op from texture's ``mip``."""
+    cacheable = max_mip_level is None or (isinstance(max_mip_level, int)
+                                          and not isinstance(max_mip_level, bool))
+    if mip is None and cacheable and isinstance(tex, torch.Tensor) and not tex.requires_grad \
+            and _mipmapped(filter_mode, uv_da, mip_level_bias):
+        bridge.tensor("tex", tex)
+        cube = boundary_mode == "cube"
+        return tuple(_PYRAMIDS.levels(tex, max_mip_level, cube, glctx)), True
     if mip is None or isinstance(mip, (list, tuple)):
         return tuple(mip or ()), False
     if not isinstance(mip, TextureMip):
@@ -109,18 +155,26 @@ def _levels(tex, mip, uv_da, mip_level_bias, filter_mode, boundary_mode):
     if mip.levels and mip.levels[0].dtype != tex.dtype:
         raise bridge.ArgumentError("mip", f"mip was built from a {mip.levels[0].dtype} "
                                    f"texture, tex is {tex.dtype}: build it from tex")
-    # "auto" is trilinear with uv_da or mip_level_bias (nvdiffrast); the others read the base
-    mipmapped = (uv_da is not None or mip_level_bias is not None if filter_mode == "auto"
-                 else "mipmap" in str(filter_mode))
+    mipmapped = _mipmapped(filter_mode, uv_da, mip_level_bias)
     return (tuple(mip.levels_for(tex)) if mipmapped else ()), mipmapped
+
+
+def _mipmapped(filter_mode, uv_da, mip_level_bias) -> bool:
+    """The call reads mip levels: "auto" is trilinear with uv_da or mip_level_bias
+    (nvdiffrast); the others read the base."""
+    if filter_mode == "auto":
+        return uv_da is not None or mip_level_bias is not None
+    return "mipmap" in str(filter_mode)
 
 
 def texture(tex, uv, uv_da=None, mip_level_bias=None, mip=None, filter_mode="auto",
             boundary_mode="wrap", max_mip_level=None, *, glctx=None):
     """Filtered texture lookups (nvdiffrast's ``texture``): ``out`` (layouts above).
 
-    mip: a :class:`TextureMip` (its levels instead of building the pyramid, rebuilt if tex
-    changed since; tex's gradient unchanged), or a list of levels 1, 2, ... (used instead
+    mip: None (the pyramid of tex; for a tex that requires no gradient it is built once
+    and reused by later calls on the same tensor while it is unchanged, as with
+    ``texture_construct_mip``), a :class:`TextureMip` (its levels instead of building the
+    pyramid, rebuilt if tex changed since; tex's gradient unchanged), or a list of levels 1, 2, ... (used instead
     of the built pyramid; each gets its own gradient, none goes through them to tex).
     filter_mode: "auto" (linear-mipmap-linear with uv_da or mip_level_bias, else linear),
     "nearest", "linear", "linear-mipmap-nearest" or "linear-mipmap-linear"; boundary_mode:
@@ -129,7 +183,8 @@ def texture(tex, uv, uv_da=None, mip_level_bias=None, mip=None, filter_mode="aut
     Gradients go to tex (summed over the batch where it broadcasts), uv, uv_da and
     mip_level_bias (these two in linear-mipmap-linear only) and each tensor of a mip list.
     """
-    levels, own = _levels(tex, mip, uv_da, mip_level_bias, filter_mode, boundary_mode)
+    levels, own = _levels(tex, mip, uv_da, mip_level_bias, filter_mode, boundary_mode,
+                          max_mip_level, glctx)
     call = bridge.Call(TEXTURE, (tex, uv, uv_da, mip_level_bias, *levels), glctx,
                        filter_mode=filter_mode, boundary_mode=boundary_mode,
                        max_mip_level=max_mip_level, own_mips=own)
