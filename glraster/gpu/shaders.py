@@ -38,6 +38,7 @@ def shader_dir() -> Path:
     raise FileNotFoundError(f"glraster's shaders/ folder was not found next to {_PACKAGE_ROOT}")
 
 
+@functools.lru_cache(maxsize=256)  # resolved once per name: every dispatch names its shader
 def shader_path(name: str) -> Path:
     """Path of a shader file given by name (``"raster/raster.frag"``) or path."""
     path = Path(name)

@@ -14,6 +14,7 @@ of :mod:`glraster.torch.bridge` on :data:`glraster.diff.ops.TEXTURE`. Layouts (B
 
 from __future__ import annotations
 
+import functools
 import logging
 import threading
 import weakref
@@ -95,53 +96,37 @@ def texture_construct_mip(tex, max_mip_level=None, cube_mode=False, *, glctx=Non
     return TextureMip(tex, max_mip_level, bridge.flag("cube_mode", cube_mode), glctx)
 
 
-class _PyramidCache:
-    """The pyramids :func:`texture` built for ``mip=None`` calls on textures that require no
-    gradient, one :class:`TextureMip` per (tensor, max_mip_level, cube_mode): a later call
-    on the same tensor object, unchanged since (its memory, view and version counter:
-    :func:`_source_key`), reuses the levels instead of building them again; a changed one
-    is rebuilt silently. An entry lives as long as its tensor (a weak reference drops it
-    when the tensor is freed), so the cache holds no texture alive."""
-
-    def __init__(self):
-        self._lock = threading.Lock()
-        self._entries: dict[int, tuple] = {}  # id(tex) -> (weakref(tex), {key: TextureMip})
-        self.builds = 0  # pyramids built, for tests and measurements
-
-    def levels(self, tex: torch.Tensor, max_mip_level, cube_mode: bool, glctx):
-        with self._lock:
-            ref, mips = self._entries.get(id(tex), (None, None))
-            if ref is None or ref() is not tex:
-                mips = {}
-                self._entries[id(tex)] = (weakref.ref(tex, self._forget(id(tex))), mips)
-            mip = mips.get((max_mip_level, cube_mode))
-            if mip is None or mip._key != _source_key(tex) or mip._glctx is not glctx:
-                mip = mips[(max_mip_level, cube_mode)] = TextureMip(tex, max_mip_level,
-                                                                     cube_mode, glctx)
-                self.builds += 1
-            return mip.levels
-
-    def _forget(self, key: int):
-        def forget(ref):
-            with self._lock:
-                if self._entries.get(key, (None,))[0] is ref:
-                    del self._entries[key]
-        return forget
+_PYRAMIDS: dict[int, tuple] = {}  # mip=None, no grad: id(tex) -> (weakref(tex), TextureMip)
+_PYRAMIDS_LOCK = threading.Lock()
 
 
-_PYRAMIDS = _PyramidCache()
+def _pyramid(tex: torch.Tensor, max_mip_level, cube_mode: bool, glctx) -> list:
+    """tex's levels, built once and reused while tex is unchanged (as TextureMip); the
+    entry dies with tex (a weak reference), so no texture is held alive by it."""
+    with _PYRAMIDS_LOCK:
+        ref, mip = _PYRAMIDS.get(id(tex), (None, None))
+        if (ref is None or ref() is not tex or mip._key != _source_key(tex)
+                or (mip.max_mip_level, mip.cube_mode, mip._glctx) != (max_mip_level,
+                                                                       cube_mode, glctx)):
+            mip = TextureMip(tex, max_mip_level, cube_mode, glctx)
+            _PYRAMIDS[id(tex)] = (weakref.ref(tex, functools.partial(_forget, id(tex))), mip)
+        return mip.levels
+
+
+def _forget(key: int, ref) -> None:  # no lock: the collector may run it inside _pyramid
+    if _PYRAMIDS.get(key, (None,))[0] is ref:
+        _PYRAMIDS.pop(key, None)
 
 
 def _levels(tex, mip, uv_da, mip_level_bias, filter_mode, boundary_mode, max_mip_level,
             glctx):
     """(mip level tensors, own_mips) for the TEXTURE op from texture's ``mip``."""
-    cacheable = max_mip_level is None or (isinstance(max_mip_level, int)
-                                          and not isinstance(max_mip_level, bool))
-    if mip is None and cacheable and isinstance(tex, torch.Tensor) and not tex.requires_grad \
-            and _mipmapped(filter_mode, uv_da, mip_level_bias):
-        bridge.tensor("tex", tex)
-        cube = boundary_mode == "cube"
-        return tuple(_PYRAMIDS.levels(tex, max_mip_level, cube, glctx)), True
+    # "auto" is trilinear with uv_da or mip_level_bias (nvdiffrast); the others read the base
+    mipmapped = (uv_da is not None or mip_level_bias is not None if filter_mode == "auto"
+                 else "mipmap" in str(filter_mode))
+    if (mip is None and mipmapped and type(max_mip_level) in (int, type(None))  # hashable
+            and isinstance(tex, torch.Tensor) and not tex.requires_grad):
+        return tuple(_pyramid(tex, max_mip_level, boundary_mode == "cube", glctx)), True
     if mip is None or isinstance(mip, (list, tuple)):
         return tuple(mip or ()), False
     if not isinstance(mip, TextureMip):
@@ -155,25 +140,15 @@ def _levels(tex, mip, uv_da, mip_level_bias, filter_mode, boundary_mode, max_mip
     if mip.levels and mip.levels[0].dtype != tex.dtype:
         raise bridge.ArgumentError("mip", f"mip was built from a {mip.levels[0].dtype} "
                                    f"texture, tex is {tex.dtype}: build it from tex")
-    mipmapped = _mipmapped(filter_mode, uv_da, mip_level_bias)
     return (tuple(mip.levels_for(tex)) if mipmapped else ()), mipmapped
-
-
-def _mipmapped(filter_mode, uv_da, mip_level_bias) -> bool:
-    """The call reads mip levels: "auto" is trilinear with uv_da or mip_level_bias
-    (nvdiffrast); the others read the base."""
-    if filter_mode == "auto":
-        return uv_da is not None or mip_level_bias is not None
-    return "mipmap" in str(filter_mode)
 
 
 def texture(tex, uv, uv_da=None, mip_level_bias=None, mip=None, filter_mode="auto",
             boundary_mode="wrap", max_mip_level=None, *, glctx=None):
     """Filtered texture lookups (nvdiffrast's ``texture``): ``out`` (layouts above).
 
-    mip: None (the pyramid of tex; for a tex that requires no gradient it is built once
-    and reused by later calls on the same tensor while it is unchanged, as with
-    ``texture_construct_mip``), a :class:`TextureMip` (its levels instead of building the
+    mip: None (tex's pyramid; for a tex requiring no gradient built once and reused while
+    that tensor is unchanged), a :class:`TextureMip` (its levels instead of building the
     pyramid, rebuilt if tex changed since; tex's gradient unchanged), or a list of levels 1, 2, ... (used instead
     of the built pyramid; each gets its own gradient, none goes through them to tex).
     filter_mode: "auto" (linear-mipmap-linear with uv_da or mip_level_bias, else linear),
