@@ -78,7 +78,7 @@ def _run_worker(tree: Path, iterations: int) -> dict:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--before", type=Path, required=True, help="the older checkout")
+    parser.add_argument("--before", type=Path, help="the older checkout (required)")
     parser.add_argument("--after", type=Path, default=HERE.parents[1])
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--iterations", type=int, default=200)
@@ -87,6 +87,8 @@ def main(argv=None) -> int:
     if args.worker:
         print(json.dumps(worker(args.iterations)))
         return 0
+    if args.before is None:
+        parser.error("--before PATH (a checkout of the older tree) is required")
     trees = {"before": args.before.resolve(), "after": args.after.resolve()}
     runs = {name: [] for name in trees}
     for r in range(args.rounds):
