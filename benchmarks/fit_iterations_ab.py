@@ -3,11 +3,12 @@ texture that does not change, for two source trees in one run (interleaved A/B).
 
     python benchmarks/fit_iterations_ab.py --before /path/to/older/checkout --rounds 5
 
-Each round runs one fresh interpreter per tree, in alternating order; a worker times, after
-a warm-up, the cube fit (``fit_cube``: 4 views, rasterize -> interpolate -> antialias,
-Adam) at 4x4 and 16x16, the pose fit (``fit_pose``, 2 restarts) at 256x256, and forward +
-backward of a linear-mipmap-linear ``texture`` call at 256x256 on a constant 256x256 RGBA
-texture (``mip=None``, gradients to uv and uv_da). The table gives the median over rounds,
+One interpreter per tree, warmed up once; each round asks them in alternating order for
+each case in turn (interleaved A/B, so both see the same load): the cube fit
+(``fit_cube``: 4 views, rasterize -> interpolate -> antialias,
+Adam) at 4x4 and 16x16, the pose fit (``fit_pose``, 2 restarts) at ``--size`` (256), and
+forward + backward of a linear-mipmap-linear ``texture`` call at that size on a constant
+RGBA texture of that size (``mip=None``, gradients to uv and uv_da). The table gives the median over rounds,
 the range, and after / before. float32 on OpenGL, one torch thread (as ``glraster fit``).
 Timings on a shared machine are noisy: read the ratio and the ranges.
 """
@@ -15,7 +16,6 @@ Timings on a shared machine are noisy: read the ratio and the ranges.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import statistics
 import subprocess
@@ -24,11 +24,11 @@ import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve()
-CASES = ("cube 4x4", "cube 16x16", "pose 256x256", "texture 256² mip=None, constant tex")
+CASES = ("cube 4x4", "cube 16x16", "pose", "texture mip=None, constant tex")
 
 
-def worker(iterations: int) -> dict:
-    """{case: iterations (or calls) per second}."""
+def cases(iterations: int, size: int) -> dict:
+    """{case: (run(n), n)}: each run does n iterations (or calls), warmed up once."""
     import torch
 
     import glraster.torch as dr
@@ -37,19 +37,6 @@ def worker(iterations: int) -> dict:
 
     torch.set_num_threads(1)
     glctx = dr.RasterizeGLContext()
-    rate = {}
-
-    def timed(name, fn, count):
-        fn(max(count // 10, 2))                       # warm: shaders, buffers
-        start = time.perf_counter()
-        fn(count)
-        rate[name] = count / (time.perf_counter() - start)
-
-    timed("cube 4x4", lambda n: fit_cube(glctx, 4, 0, iterations=n), iterations)
-    timed("cube 16x16", lambda n: fit_cube(glctx, 16, 0, iterations=n), iterations)
-    timed("pose 256x256", lambda n: fit_pose(glctx, 0, resolution=256, restarts=2,
-                                             iterations=n, jumps=()), max(iterations // 5, 4))
-    size = 256
     tex = torch.rand(1, size, size, 4, generator=torch.Generator().manual_seed(0))
     s = (torch.arange(size) + 0.5) / size
     uv = torch.stack(torch.meshgrid(s, s * 0.7, indexing="xy"), -1)[None].contiguous()
@@ -62,18 +49,41 @@ def worker(iterations: int) -> dict:
             out = dr.texture(tex, uv, uv_da, filter_mode="linear-mipmap-linear", glctx=glctx)
             out.sum().backward()
 
-    timed("texture 256² mip=None, constant tex", texture_calls, max(iterations // 5, 4))
-    return rate
+    few = max(iterations // 5, 4)
+    return {"cube 4x4": (lambda n: fit_cube(glctx, 4, 0, iterations=n), iterations),
+            "cube 16x16": (lambda n: fit_cube(glctx, 16, 0, iterations=n), iterations),
+            "pose": (lambda n: fit_pose(glctx, 0, resolution=size, restarts=2,
+                                                iterations=n, jumps=()), few),
+            CASES[3]: (texture_calls, few)}
 
 
-def _run_worker(tree: Path, iterations: int) -> dict:
+def serve(iterations: int, size: int) -> None:
+    """Read case names from stdin, one a line; answer each with its rate per second."""
+    table = cases(iterations, size)
+    for run, n in table.values():
+        run(max(n // 10, 2))                          # warm: shaders, buffers
+    print("ready", flush=True)
+    for line in sys.stdin:
+        run, n = table[line.strip()]
+        start = time.perf_counter()
+        run(n)
+        print(n / (time.perf_counter() - start), flush=True)
+
+
+def _start(tree: Path, iterations: int, size: int) -> subprocess.Popen:
     env = dict(os.environ, PYTHONPATH=str(tree))
-    done = subprocess.run([sys.executable, str(HERE), "--worker", "--iterations",
-                           str(iterations)], cwd=tree, env=env, capture_output=True,
-                          text=True, timeout=1800)
-    if done.returncode != 0:
-        raise RuntimeError(f"worker in {tree} failed:\n{done.stderr[-3000:]}")
-    return json.loads(done.stdout.strip().splitlines()[-1])
+    proc = subprocess.Popen([sys.executable, str(HERE), "--worker", "--iterations",
+                             str(iterations), "--size", str(size)], cwd=tree, env=env, stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, text=True)
+    if proc.stdout.readline().strip() != "ready":
+        raise RuntimeError(f"the worker in {tree} did not start")
+    return proc
+
+
+def _ask(proc: subprocess.Popen, case: str) -> float:
+    proc.stdin.write(case + "\n")
+    proc.stdin.flush()
+    return float(proc.stdout.readline())
 
 
 def main(argv=None) -> int:
@@ -82,20 +92,28 @@ def main(argv=None) -> int:
     parser.add_argument("--after", type=Path, default=HERE.parents[1])
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--iterations", type=int, default=200)
+    parser.add_argument("--size", type=int, default=256, help="pose and texture image size")
     parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.worker:
-        print(json.dumps(worker(args.iterations)))
+        serve(args.iterations, args.size)
         return 0
     if args.before is None:
         parser.error("--before PATH (a checkout of the older tree) is required")
     trees = {"before": args.before.resolve(), "after": args.after.resolve()}
-    runs = {name: [] for name in trees}
-    for r in range(args.rounds):
-        for name in (list(trees) if r % 2 == 0 else list(trees)[::-1]):
-            runs[name].append(_run_worker(trees[name], args.iterations))
-    print(f"medians of {args.rounds} rounds (one fresh interpreter per tree and round, "
-          "alternating) [range]; iterations (texture: calls) per second")
+    workers = {name: _start(tree, args.iterations, args.size) for name, tree in trees.items()}
+    runs = {name: [{} for _ in range(args.rounds)] for name in trees}
+    try:
+        for r in range(args.rounds):
+            for case in CASES:
+                for name in (list(trees) if r % 2 == 0 else list(trees)[::-1]):
+                    runs[name][r][case] = _ask(workers[name], case)
+    finally:
+        for proc in workers.values():
+            proc.stdin.close()
+            proc.wait(timeout=60)
+    print(f"medians of {args.rounds} rounds (one warm interpreter per tree, the two "
+          "alternating case by case) [range]; iterations (texture: calls) per second")
     print("| case | before /s | after /s | after / before |")
     print("|---|---|---|---|")
     for case in CASES:
@@ -104,7 +122,8 @@ def main(argv=None) -> int:
             values = [run[case] for run in runs[name]]
             cells.append((statistics.median(values), min(values), max(values)))
         (b, b0, b1), (a, a0, a1) = cells
-        print(f"| {case} | {b:.1f} [{b0:.1f} .. {b1:.1f}] | {a:.1f} [{a0:.1f} .. {a1:.1f}] "
+        label = f"{case} {args.size}²" if case in CASES[2:] else case
+        print(f"| {label} | {b:.1f} [{b0:.1f} .. {b1:.1f}] | {a:.1f} [{a0:.1f} .. {a1:.1f}] "
               f"| {a / b:.2f} |")
     return 0
 
