@@ -5,12 +5,13 @@ texture that does not change, for two source trees in one run (interleaved A/B).
 
 One interpreter per tree, warmed up once; each round asks them in alternating order for
 each case in turn (interleaved A/B, so both see the same load): the cube fit
-(``fit_cube``: 4 views, rasterize -> interpolate -> antialias,
-Adam) at 4x4 and 16x16, the pose fit (``fit_pose``, 2 restarts) at ``--size`` (256), and
-forward + backward of a linear-mipmap-linear ``texture`` call at that size on a constant
-RGBA texture of that size (``mip=None``, gradients to uv and uv_da). The table gives the median over rounds,
-the range, and after / before. float32 on OpenGL, one torch thread (as ``glraster fit``).
-Timings on a shared machine are noisy: read the ratio and the ranges.
+(``fit_cube``: 4 views, rasterize -> interpolate -> antialias, Adam) at 4x4 and 16x16,
+the pose fit (``fit_pose``, 2 restarts) at ``--size`` (256), and forward + backward of a
+linear-mipmap-linear ``texture`` call at that size on a constant RGBA texture of that
+size (``mip=None``, gradients to uv and uv_da). The table gives the median over rounds,
+the range, after / before of the medians and the median of each round's after / before
+(paired: both trees measured back to back). float32 on OpenGL, one torch thread (as
+``glraster fit``). Timings on a shared machine are noisy: read the ratio and the ranges.
 """
 
 from __future__ import annotations
@@ -114,17 +115,19 @@ def main(argv=None) -> int:
             proc.wait(timeout=60)
     print(f"medians of {args.rounds} rounds (one warm interpreter per tree, the two "
           "alternating case by case) [range]; iterations (texture: calls) per second")
-    print("| case | before /s | after /s | after / before |")
-    print("|---|---|---|---|")
+    print("| case | before /s | after /s | after / before | median of the rounds' ratios |")
+    print("|---|---|---|---|---|")
     for case in CASES:
         cells = []
         for name in trees:
             values = [run[case] for run in runs[name]]
             cells.append((statistics.median(values), min(values), max(values)))
         (b, b0, b1), (a, a0, a1) = cells
+        paired = statistics.median(r_after[case] / r_before[case]
+                                   for r_before, r_after in zip(*runs.values()))
         label = f"{case} {args.size}²" if case in CASES[2:] else case
         print(f"| {label} | {b:.1f} [{b0:.1f} .. {b1:.1f}] | {a:.1f} [{a0:.1f} .. {a1:.1f}] "
-              f"| {a / b:.2f} |")
+              f"| {a / b:.2f} | {paired:.2f} |")
     return 0
 
 
