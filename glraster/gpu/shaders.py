@@ -19,6 +19,7 @@ line, followed by ``#line 2 0`` so that the driver's line numbers stay those of 
 
 from __future__ import annotations
 
+import functools
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,6 +29,7 @@ from glraster.errors import ShaderCompileError
 _PACKAGE_ROOT = Path(__file__).resolve().parent.parent  # glraster/
 
 
+@functools.cache  # found once: every dispatch names its shader
 def shader_dir() -> Path:
     """The folder holding the GLSL files (wheel install or source checkout)."""
     for candidate in (_PACKAGE_ROOT / "shaders", _PACKAGE_ROOT.parent / "shaders"):
@@ -36,6 +38,7 @@ def shader_dir() -> Path:
     raise FileNotFoundError(f"glraster's shaders/ folder was not found next to {_PACKAGE_ROOT}")
 
 
+@functools.lru_cache(maxsize=256)  # resolved once per name: every dispatch names its shader
 def shader_path(name: str) -> Path:
     """Path of a shader file given by name (``"raster/raster.frag"``) or path."""
     path = Path(name)

@@ -2,8 +2,8 @@
 
 :class:`Call` checks the tensors (CPU, strided, float32 or float64 of one dtype; integer
 ``tri``, ``ranges``), hands NumPy views of them to ``op.check`` (the one validation) and
-runs the core the dtype selects (float32: OpenGL, float64: the float64 reference) in one
-autograd Function, whose backward runs ``core.backward(saved, *grads, needs=...)`` (None
+runs the core the dtype selects (float32: OpenGL, its context current for the whole core
+call; float64: the float64 reference) in one autograd Function, whose backward runs ``core.backward(saved, *grads, needs=...)`` (None
 grads: zero; ``needs``: the inputs that require grad). Inputs and outputs are saved for
 backward, so that an in-place change of one after the forward makes the backward raise
 (the cores keep views of both). No double backward.
@@ -11,6 +11,7 @@ backward, so that an in-place change of one after the forward makes the backward
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import inspect
 
@@ -89,15 +90,23 @@ class Call:
         self.op, self.inputs, self.frozen = op, tuple(inputs), tuple(frozen)
         self.arrays, self.params = op.check(*views, **params, ctx=None)
         self.dtype = dtype_of(self.arrays)
-        if self.dtype == np.float32:
-            self.params["ctx"] = None if glctx is None else glctx.context
+        if self.dtype == np.float32:  # (imported here: float64 needs no OpenGL)
+            from glraster.gpu.context import default_context
+            self.params["ctx"] = default_context() if glctx is None else glctx.context
 
     def __call__(self, forward=None) -> tuple[torch.Tensor, ...]:
         """The outputs; ``forward()`` gives ``(outputs, saved)`` (default: the core's)."""
         core = self.op.core(self.dtype)
         if forward is None:
             forward = lambda: core.forward(*self.arrays, **self.params)  # noqa: E731
-        return _Function.apply((core, self.dtype, self.frozen), forward, *self.inputs)
+        gl = self.params.get("ctx") if self.dtype == np.float32 else None
+        return _Function.apply((core, self.dtype, self.frozen, gl), forward, *self.inputs)
+
+
+def _current(gl):
+    """``gl`` current for a whole core call (its own ``with ctx:`` blocks then nest, not a
+    dozen context switches); nothing for float64."""
+    return contextlib.nullcontext() if gl is None else gl
 
 
 @functools.cache
@@ -109,8 +118,9 @@ def _optional(op) -> frozenset[str]:  # the inputs op.check lets be None
 class _Function(torch.autograd.Function):
     @staticmethod
     def forward(fctx, how, forward, *inputs):
-        fctx.core, fctx.dtype, fctx.frozen = how
-        outputs, fctx.saved = forward()
+        fctx.core, fctx.dtype, fctx.frozen, fctx.gl = how
+        with _current(fctx.gl):
+            outputs, fctx.saved = forward()
         outputs = tuple(to_torch(out, fctx.dtype) for out in outputs)
         fctx.save_for_backward(*inputs, *outputs)
         fctx.shapes = [None if t is None else t.shape for t in inputs]
@@ -126,7 +136,8 @@ class _Function(torch.autograd.Function):
         fctx.saved_tensors  # raises if an input or output changed in place since the forward
         grads = [None if g is None or k in fctx.frozen else np.ascontiguousarray(g.numpy())
                  for k, g in enumerate(grads)]
-        result = tuple(fctx.core.backward(fctx.saved, *grads, needs=needs))
+        with _current(fctx.gl):
+            result = tuple(fctx.core.backward(fctx.saved, *grads, needs=needs))
         result += (None,) * (len(needs) - len(result))  # own mips: no gradients of their own
         return (None, None) + tuple(
             to_torch(g, fctx.dtype).sum_to_size(shape) if need and g is not None else None

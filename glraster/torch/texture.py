@@ -14,8 +14,10 @@ of :mod:`glraster.torch.bridge` on :data:`glraster.diff.ops.TEXTURE`. Layouts (B
 
 from __future__ import annotations
 
+import functools
 import logging
 import threading
+import weakref
 
 import numpy as np
 import torch
@@ -94,8 +96,37 @@ def texture_construct_mip(tex, max_mip_level=None, cube_mode=False, *, glctx=Non
     return TextureMip(tex, max_mip_level, bridge.flag("cube_mode", cube_mode), glctx)
 
 
-def _levels(tex, mip, uv_da, mip_level_bias, filter_mode, boundary_mode):
+_PYRAMIDS: dict[int, tuple] = {}  # mip=None, no grad: id(tex) -> (weakref(tex), TextureMip)
+_PYRAMIDS_LOCK = threading.Lock()
+
+
+def _pyramid(tex: torch.Tensor, max_mip_level, cube_mode: bool, glctx) -> list:
+    """tex's levels, built once and reused while tex is unchanged (as TextureMip); the
+    entry dies with tex (a weak reference), so no texture is held alive by it."""
+    with _PYRAMIDS_LOCK:
+        ref, mip = _PYRAMIDS.get(id(tex), (None, None))
+        if (ref is None or ref() is not tex or mip._key != _source_key(tex)
+                or (mip.max_mip_level, mip.cube_mode, mip._glctx) != (max_mip_level,
+                                                                       cube_mode, glctx)):
+            mip = TextureMip(tex, max_mip_level, cube_mode, glctx)
+            _PYRAMIDS[id(tex)] = (weakref.ref(tex, functools.partial(_forget, id(tex))), mip)
+        return mip.levels
+
+
+def _forget(key: int, ref) -> None:  # no lock: the collector may run it inside _pyramid
+    if _PYRAMIDS.get(key, (None,))[0] is ref:
+        _PYRAMIDS.pop(key, None)
+
+
+def _levels(tex, mip, uv_da, mip_level_bias, filter_mode, boundary_mode, max_mip_level,
+            glctx):
     """(mip level tensors, own_mips) for the TEXTURE op from texture's ``mip``."""
+    # "auto" is trilinear with uv_da or mip_level_bias (nvdiffrast); the others read the base
+    mipmapped = (uv_da is not None or mip_level_bias is not None if filter_mode == "auto"
+                 else "mipmap" in str(filter_mode))
+    if (mip is None and mipmapped and type(max_mip_level) in (int, type(None))  # hashable
+            and isinstance(tex, torch.Tensor) and not tex.requires_grad):
+        return tuple(_pyramid(tex, max_mip_level, boundary_mode == "cube", glctx)), True
     if mip is None or isinstance(mip, (list, tuple)):
         return tuple(mip or ()), False
     if not isinstance(mip, TextureMip):
@@ -109,9 +140,6 @@ def _levels(tex, mip, uv_da, mip_level_bias, filter_mode, boundary_mode):
     if mip.levels and mip.levels[0].dtype != tex.dtype:
         raise bridge.ArgumentError("mip", f"mip was built from a {mip.levels[0].dtype} "
                                    f"texture, tex is {tex.dtype}: build it from tex")
-    # "auto" is trilinear with uv_da or mip_level_bias (nvdiffrast); the others read the base
-    mipmapped = (uv_da is not None or mip_level_bias is not None if filter_mode == "auto"
-                 else "mipmap" in str(filter_mode))
     return (tuple(mip.levels_for(tex)) if mipmapped else ()), mipmapped
 
 
@@ -119,8 +147,9 @@ def texture(tex, uv, uv_da=None, mip_level_bias=None, mip=None, filter_mode="aut
             boundary_mode="wrap", max_mip_level=None, *, glctx=None):
     """Filtered texture lookups (nvdiffrast's ``texture``): ``out`` (layouts above).
 
-    mip: a :class:`TextureMip` (its levels instead of building the pyramid, rebuilt if tex
-    changed since; tex's gradient unchanged), or a list of levels 1, 2, ... (used instead
+    mip: None (tex's pyramid; for a tex requiring no gradient built once and reused while
+    that tensor is unchanged), a :class:`TextureMip` (its levels instead of building the
+    pyramid, rebuilt if tex changed since; tex's gradient unchanged), or a list of levels 1, 2, ... (used instead
     of the built pyramid; each gets its own gradient, none goes through them to tex).
     filter_mode: "auto" (linear-mipmap-linear with uv_da or mip_level_bias, else linear),
     "nearest", "linear", "linear-mipmap-nearest" or "linear-mipmap-linear"; boundary_mode:
@@ -129,7 +158,8 @@ def texture(tex, uv, uv_da=None, mip_level_bias=None, mip=None, filter_mode="aut
     Gradients go to tex (summed over the batch where it broadcasts), uv, uv_da and
     mip_level_bias (these two in linear-mipmap-linear only) and each tensor of a mip list.
     """
-    levels, own = _levels(tex, mip, uv_da, mip_level_bias, filter_mode, boundary_mode)
+    levels, own = _levels(tex, mip, uv_da, mip_level_bias, filter_mode, boundary_mode,
+                          max_mip_level, glctx)
     call = bridge.Call(TEXTURE, (tex, uv, uv_da, mip_level_bias, *levels), glctx,
                        filter_mode=filter_mode, boundary_mode=boundary_mode,
                        max_mip_level=max_mip_level, own_mips=own)

@@ -7,10 +7,13 @@ vertices).
 
 from __future__ import annotations
 
+import weakref
+
 import torch
 
 from glraster.torch.antialias import antialias as _antialias
 from glraster.torch.antialias import antialias_construct_topology_hash
+from glraster.torch.context import RasterizeGLContext
 from glraster.torch.ops import interpolate, rasterize
 
 __all__ = ["shade", "topology_hash"]
@@ -27,8 +30,23 @@ def shade(glctx, clip: torch.Tensor, tri: torch.Tensor, colors: torch.Tensor, re
     ``clip`` (B, V, 4), background 0; with ``antialias`` the silhouettes are blended
     (:func:`glraster.torch.antialias`), which gives the positions their visibility
     gradient. Returns (image, rast)."""
-    rast, _ = rasterize(glctx, clip, tri, resolution, grad_db=False)
+    rast, _ = rasterize(_without_db(glctx), clip, tri, resolution, grad_db=False)
     image, _ = interpolate(colors[None] if colors.ndim == 2 else colors, rast, tri, glctx=glctx)
     if antialias:
         image = _antialias(image, rast, clip, tri, topology, glctx=glctx)
     return image, rast
+
+
+_WITHOUT_DB: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _without_db(glctx: RasterizeGLContext) -> RasterizeGLContext:
+    """``glctx``, or a context drawing with its OpenGL context and ``output_db=False``:
+    :func:`shade` reads no rast_db, so the rasterizer neither draws nor reads it back."""
+    if not glctx.output_db:
+        return glctx
+    sibling = _WITHOUT_DB.get(glctx)
+    if sibling is None:
+        sibling = _WITHOUT_DB[glctx] = RasterizeGLContext(output_db=False,
+                                                          context=glctx.context)
+    return sibling
