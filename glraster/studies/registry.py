@@ -81,6 +81,8 @@ STUDIES: dict[str, Study] = {s.name: s for s in (
           "wrappers over the op cores, against an older tree", extra="torch"),
     Study("deterministic-ab", _S + "deterministic_ab", "the deterministic backward of "
           "rasterize and interpolate against another checkout"),
+    Study("fit-iterations-ab", _S + "fit_iterations_ab", "fit iterations per second against "
+          "an older tree (warm interpreters, case by case)", extra="torch"),
     Study("metrics-ab", _S + "metrics_ab", "the service's /metrics cost against an earlier "
           "revision's (git)", extra="service"),
     Study("service-cpu-overhead", _S + "service_cpu_overhead", "CPU the service spends per "

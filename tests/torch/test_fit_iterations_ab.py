@@ -1,4 +1,4 @@
-"""benchmarks/fit_iterations_ab.py runs its short form (docs/performance.md quotes the long
+"""The fit-iterations-ab study (glraster/studies/fit_iterations_ab.py) runs its short form (docs/performance.md quotes the long
 one): both trees are this one, so only the table's shape is checked, never a timing."""
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ REPO = Path(__file__).resolve().parents[2]
 
 
 def test_the_fit_iterations_benchmark_runs_its_short_form(ctx, capsys, monkeypatch):
-    script = REPO / "benchmarks" / "fit_iterations_ab.py"
+    script = REPO / "glraster" / "studies" / "fit_iterations_ab.py"
     monkeypatch.setattr(sys, "argv", [str(script), "--before", str(REPO), "--rounds", "1",
                                       "--iterations", "4", "--size", "16"])
     namespace = runpy.run_path(str(script))

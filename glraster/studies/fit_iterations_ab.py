@@ -1,7 +1,7 @@
 """Iterations per second of the glraster.torch fits, and a mipmapped texture call on a
 texture that does not change, for two source trees in one run (interleaved A/B).
 
-    python benchmarks/fit_iterations_ab.py --before /path/to/older/checkout --rounds 5
+    glraster study fit-iterations-ab --before /path/to/older/checkout --rounds 5
 
 One interpreter per tree, warmed up once; each round asks them in alternating order for
 each case in turn (interleaved A/B, so both see the same load): the cube fit
@@ -88,9 +88,12 @@ def _ask(proc: subprocess.Popen, case: str) -> float:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    # a plain parser, not studies.registry's: the workers run this file against older
+    # trees, which may not have the registry
+    parser = argparse.ArgumentParser(prog="glraster study fit-iterations-ab",
+                                     description=__doc__.splitlines()[0])
     parser.add_argument("--before", type=Path, help="the older checkout (required)")
-    parser.add_argument("--after", type=Path, default=HERE.parents[1])
+    parser.add_argument("--after", type=Path, default=HERE.parents[2])
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--iterations", type=int, default=200)
     parser.add_argument("--size", type=int, default=256, help="pose and texture image size")
