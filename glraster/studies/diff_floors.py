@@ -33,12 +33,10 @@ at 4x4 and 16x16 (4 views), the pose fit at 256² (8 restarts) and the texture f
   for the work before it, so much of the GL time shows here) and torch (everything
   else: torch, autograd, the optimizer and the fit's own code);
 - the largest host-code functions under cProfile (``--profile-iterations``), as hints;
-- the ratio iteration / (sum of its op calls' floors + the optimizer step): issue 18's
-  "at most 1.5" goal.
+- the ratio iteration / (sum of its op calls' floors + the optimizer step): the goal is
+  "at most 1.5".
 
-The environment-map fit (``envmap``: ``fit envmap``'s defaults, 2 views at 256²) is
-measured where the tree has :mod:`glraster.torch.fitting.envmap`; otherwise its row says
-it is not in this tree.
+The environment-map fit (``envmap``) is ``fit envmap``'s defaults: 2 views at 256².
 
 Timings on a shared machine are noisy: read medians and ratios.
 """
@@ -268,10 +266,6 @@ def ops_table(result: dict) -> str:
 # --------------------------------------------------------------------------- fits
 
 
-class Unavailable(Exception):
-    """A fit this tree cannot run (its module is missing)."""
-
-
 def _adam(params, lr):
     import torch
 
@@ -385,18 +379,15 @@ def _envmap(glctx, resolution: int = 256, views: int = 2, mesh=(128, 120),
     """The environment-map fit (material under the cube-map sky, ``fit envmap``'s
     defaults: 2 views at 256², the 30,720-triangle blob, a 6 x 512² cube map), built from
     :mod:`glraster.torch.fitting.envmap`'s ``make_scene``, ``view_setup`` and
-    ``render_envmap`` where the tree has them."""
+    ``render_envmap``."""
     import torch
 
     from glraster.torch.fitting.common import random_quaternions
 
-    try:
-        from glraster.torch.fitting import envmap
-        make_scene, view_setup = envmap.make_scene, envmap.view_setup
-        render, material = envmap.render_envmap, envmap.TRUE_MATERIAL
-    except (ImportError, AttributeError) as exc:
-        raise Unavailable("glraster.torch.fitting.envmap (make_scene, view_setup, "
-                          "render_envmap) is not in this tree") from exc
+    from glraster.torch.fitting import envmap
+
+    make_scene, view_setup = envmap.make_scene, envmap.view_setup
+    render, material = envmap.render_envmap, envmap.TRUE_MATERIAL
     scene = make_scene(glctx, mesh=mesh, env_size=env_size)
     true = {k: torch.tensor(v, dtype=torch.float32) for k, v in material.items()}
     rng = np.random.default_rng(0)
@@ -543,15 +534,10 @@ def measure_fits(glctx, names, rounds: int, iterations: int, profile_iterations:
     """{fit: {"iteration", "step", "floors": {segment: s}, "core": {segment: s},
     "calls": {segment: n}, "clocked": s, "phases": {phase: s}, "host": [...]}} (seconds
     per iteration, medians; "clocked" and "phases" from iterations under
-    :func:`phase_clock`, interleaved with the plain ones) or {fit: {"unavailable":
-    reason}}."""
+    :func:`phase_clock`, interleaved with the plain ones)."""
     ctx = glctx.context
-    fits, out = {}, {}
-    for name in names:
-        try:
-            fits[name] = BUILDERS[name](glctx)
-        except Unavailable as exc:
-            out[name] = {"unavailable": str(exc)}
+    fits = {name: BUILDERS[name](glctx) for name in names}
+    out = {}
     samples = {name: {"iteration": [], "step": [], "floors": [], "core": [], "phases": [],
                       "clocked": []}
                for name in fits}
@@ -605,9 +591,6 @@ def fits_tables(result: dict) -> str:
     lines = ["| fit | iteration ms | floors + step ms | ratio | clocked ms | "
              + " | ".join(PHASES) + " |", "|---|---|---|---|---|" + "---|" * len(PHASES)]
     for name, fit in result.items():
-        if "unavailable" in fit:
-            lines.append(f"| {name} | {fit['unavailable']} |")
-            continue
         it = fit["iteration"]
         shares = " | ".join(f"{1e3 * fit['phases'][p]:.2f}" for p in PHASES)
         lines.append(f"| {name} | {1e3 * it:.2f} | {1e3 * floor_sum(fit):.2f} | "
@@ -615,8 +598,6 @@ def fits_tables(result: dict) -> str:
     lines += ["", "| fit | op call | calls | core ms | floor ms | core / floor |",
               "|---|---|---|---|---|---|"]
     for name, fit in result.items():
-        if "unavailable" in fit:
-            continue
         for seg in sorted(fit["core"]):
             floor = op_floor(fit["floors"], seg)
             core = fit["core"][seg]
@@ -627,10 +608,9 @@ def fits_tables(result: dict) -> str:
     lines += ["", "| fit | largest host-code entries under cProfile, ms per iteration "
               "(share x iteration) |", "|---|---|"]
     for name, fit in result.items():
-        if "unavailable" not in fit:
-            top = "; ".join(f"`{where}` {1e3 * fit['iteration'] * share:.2f}"
-                            for share, where in fit["host"])
-            lines.append(f"| {name} | {top} |")
+        top = "; ".join(f"`{where}` {1e3 * fit['iteration'] * share:.2f}"
+                        for share, where in fit["host"])
+        lines.append(f"| {name} | {top} |")
     return "\n".join(lines)
 
 

@@ -128,17 +128,8 @@ def test_study_runs_small(gl_backend, tmp_path, capsys):
         assert cube["phases"][phase] > 0, phase
 
 
-def test_a_fit_missing_from_the_tree_gets_a_row_saying_so(gl_backend, monkeypatch, capsys):
-    pytest.importorskip("torch")
-    monkeypatch.setitem(sys.modules, "glraster.torch.fitting.envmap", None)
-    assert diff_floors.main(["--part", "fits", "--fits", "envmap",
-                             "--backend", gl_backend]) == 0
-    assert "| envmap | glraster.torch.fitting.envmap" in capsys.readouterr().out
-
-
 def test_envmap_iteration_runs_small(ctx):
     """Where the tree has the environment-map fit (its own branch until merged)."""
-    pytest.importorskip("glraster.torch.fitting.envmap")
     from glraster.torch.context import RasterizeGLContext
 
     iteration = diff_floors._envmap(RasterizeGLContext(context=ctx), resolution=8, views=1,
