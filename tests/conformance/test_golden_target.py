@@ -35,7 +35,8 @@ def test_update_refuses_the_installed_package_folder(installed, tmp_path, monkey
     assert main(["golden", "update", "basic_triangle"]) == exit_codes.USAGE
     err = capsys.readouterr().err
     target = installed / "golden"
-    assert err == (f"glraster golden: error: not writing goldens to {target}: it is the copy "
+    assert err == (f"glraster golden: error: argument --dir: not writing goldens to {target}: "
+                   f"it is the copy "
                    f"installed inside the glraster package ({target}); pass --dir {target} "
                    "to write there anyway, or --dir DIR for another folder\n")
     assert list(target.iterdir()) == []
