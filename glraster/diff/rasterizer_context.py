@@ -83,3 +83,33 @@ class RasterizerContext:
         made = "not made yet" if self._context is None else repr(self._context)
         return (f"{type(self).__name__}(output_db={self.output_db}, mode={self.mode!r}, "
                 f"context: {made})")
+
+
+class PeelerScope:
+    """The ``with`` rules of nvdiffrast's ``DepthPeeler``, shared by the front ends: one
+    active peeler per context (``raster_ctx.active_depth_peeler``), a finished peeler cannot
+    be entered again, and leaving releases what ``_open`` started (``self._peeler``)."""
+
+    raster_ctx = None
+    _peeler = None
+
+    def _open(self) -> None:
+        """What entering starts (a front end's peeler overrides it)."""
+
+    def __enter__(self):
+        if self.raster_ctx is None:
+            raise RuntimeError("cannot re-enter a finished DepthPeeler")
+        if self.raster_ctx.active_depth_peeler is not None:
+            raise RuntimeError("this context already has an active DepthPeeler")
+        self._open()
+        self.raster_ctx.active_depth_peeler = self
+        return self
+
+    def __exit__(self, *exc):
+        try:
+            if self._peeler is not None:
+                self._peeler.release()
+        finally:
+            if self.raster_ctx is not None and self.raster_ctx.active_depth_peeler is self:
+                self.raster_ctx.active_depth_peeler = None
+            self.raster_ctx = self._peeler = None

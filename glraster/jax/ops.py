@@ -31,6 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from glraster.diff.ops import INTERPOLATE, RASTERIZE, depth_peeler
+from glraster.diff.rasterizer_context import PeelerScope
 from glraster.errors import ArgumentError
 from glraster.jax import bridge
 from glraster.jax.context import check_glctx
@@ -114,7 +115,7 @@ def interpolate(attr, rast, tri, rast_db=None, diff_attrs=None, *, glctx=None):
                              ctx=glctx))
 
 
-class DepthPeeler:
+class DepthPeeler(PeelerScope):
     """Successive depth layers (nvdiffrast's ``DepthPeeler``), as a context manager::
 
         with DepthPeeler(glctx, pos, tri, resolution) as peeler:
@@ -140,25 +141,8 @@ class DepthPeeler:
         self._params = params
         self._peeler = None
 
-    def __enter__(self):
-        if self.raster_ctx is None:
-            raise RuntimeError("cannot re-enter a finished DepthPeeler")
-        if self.raster_ctx.active_depth_peeler is not None:
-            raise RuntimeError("this context already has an active DepthPeeler")
-        self.raster_ctx.active_depth_peeler = self
+    def _open(self):
         self._layers = []   # each layer's saved record, for its backward
-        return self
-
-    def __exit__(self, *exc):
-        try:
-            if self._peeler is not None:
-                self._peeler.release()
-        finally:
-            if self.raster_ctx is not None and self.raster_ctx.active_depth_peeler is self:
-                self.raster_ctx.active_depth_peeler = None
-            self.raster_ctx = None
-            self._peeler = None
-        return None
 
     def rasterize_next_layer(self):
         """The next layer's ``(rast, rast_db)``; layouts as :func:`rasterize`'s."""

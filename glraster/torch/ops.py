@@ -24,6 +24,7 @@ interpolate sends them to ``attr``, rast's u, v and, with ``diff_attrs``, ``rast
 from __future__ import annotations
 
 from glraster.diff.ops import INTERPOLATE, RASTERIZE, depth_peeler
+from glraster.diff.rasterizer_context import PeelerScope
 from glraster.torch import bridge
 
 
@@ -64,7 +65,7 @@ def interpolate(attr, rast, tri, rast_db=None, diff_attrs=None, *, glctx=None):
                        tri=bridge.integers("tri", tri), diff_attrs=diff_attrs)()
 
 
-class DepthPeeler:
+class DepthPeeler(PeelerScope):
     """Successive depth layers (nvdiffrast's ``DepthPeeler``), as a context manager::
 
         with DepthPeeler(glctx, pos, tri, resolution) as peeler:
@@ -82,23 +83,8 @@ class DepthPeeler:
         self.raster_ctx = glctx
         self._peeler = None
 
-    def __enter__(self):
-        if self.raster_ctx is None:
-            raise RuntimeError("cannot re-enter a finished DepthPeeler")
-        if self.raster_ctx.active_depth_peeler is not None:
-            raise RuntimeError("this context already has an active DepthPeeler")
+    def _open(self):
         self._peeler = depth_peeler(*self._call.arrays, **self._call.params)
-        self.raster_ctx.active_depth_peeler = self
-        return self
-
-    def __exit__(self, *exc):
-        try:
-            if self._peeler is not None:
-                self._peeler.release()
-        finally:
-            if self.raster_ctx is not None and self.raster_ctx.active_depth_peeler is self:
-                self.raster_ctx.active_depth_peeler = None
-            self.raster_ctx = self._peeler = self._call = None
 
     def rasterize_next_layer(self):
         """The next layer's ``(rast, rast_db)``; layouts as :func:`rasterize`'s."""
