@@ -56,7 +56,7 @@ from glraster import validate
 from glraster.diff import compute, layout
 from glraster.diff.saved import RasterizeSaved
 from glraster.gpu import cull as _cull
-from glraster.gpu import homogeneous as _homogeneous
+from glraster.gpu import homogeneous_kernel
 from glraster.gpu import pipeline
 from glraster.gpu.context import Context, default_context
 from glraster.gpu.shaders import shader_path
@@ -78,20 +78,17 @@ def _shader_path(name: str):
     return shader_path(name)
 
 
-def setup_records(clip: np.ndarray, resolution) -> np.ndarray:
-    """(T, RECORD_STRIDE) float32 records for shaders/diff/rasterize.frag from ``clip``
-    (T, 3, 4) float32: the "homogeneous" method's 24 values, then z_j / k (k = max_j |w_j|)
-    for j = 0, 1, 2 and one pad."""
-    rec = np.zeros((len(clip), RECORD_STRIDE), np.float32)
-    if len(clip):
-        rec[:, :_homogeneous.STRIDE] = _homogeneous.setup(clip, resolution, fp64=False)
-        c = clip.astype(np.float64)
-        k = np.abs(c[..., 3]).max(1, keepdims=True)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            rec[:, 24:27] = np.nan_to_num(c[..., 2] / k, nan=0.0, posinf=0.0, neginf=0.0)
-    return rec
-
-
+def setup_records(pos: np.ndarray, tri: np.ndarray, resolution, out=None) -> np.ndarray:
+    """(T, RECORD_STRIDE) float32 records for shaders/diff/rasterize.frag of the triangles
+    ``tri`` (T, 3) int over ``pos`` (V, 4) float32: the "homogeneous" method's 24 values,
+    then z_j / k (k = max_j |w_j|) for j = 0, 1, 2 and one pad, in one compiled pass
+    (:func:`glraster.gpu.homogeneous_kernel.records`). ``out``: a (T, RECORD_STRIDE)
+    float32 array to write into instead of a new one."""
+    height, width = resolution
+    if out is None:
+        out = np.empty((len(tri), RECORD_STRIDE), np.float32)
+    homogeneous_kernel.records(pos, tri, width, height, out, True)
+    return out
 
 
 class _Forward:
@@ -115,11 +112,8 @@ class _Forward:
         if grad_db:
             self.colors["rast_db"] = (4, "f4")
         self._items = [self._item(b) for b in range(self.batch)]
-        # the setup records of every item's drawn triangles in one vectorized call
-        clip = [pos[tri] for pos, tri, _, _ in self._items]
-        records = setup_records(np.concatenate(clip), (self.height, self.width))
-        split = np.cumsum([len(c) for c in clip])[:-1]
-        self._records = np.split(records, split)
+        self._records = [setup_records(pos, tri, (self.height, self.width))
+                         for pos, tri, _, _ in self._items]
 
     def _item(self, b):
         """(pos, drawn tri, caller ids of the drawn triangles or None, id_base) of item b."""

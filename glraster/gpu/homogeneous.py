@@ -19,6 +19,11 @@ s_i(a) is evaluated relative to the anchor's vertex j with the adjugate identity
 adj(M) M = det(M) I, i.e. e_i(col_j) = delta_ij det:
     w_j e_i(a) = A_i (a_x w_j - X_j) + B_i (a_y w_j - Y_j) + delta_ij det,
 so no large cancelling term C_i enters (the error would otherwise grow with |a|).
+
+:func:`setup_numpy` is the formulation in NumPy, for any working precision; the float32
+records come from its compiled twin, :func:`glraster.gpu.homogeneous_kernel.records` (the
+same float64 operations, bit-identical records, several times faster), the float64 ones
+from :func:`setup_numpy` in np.longdouble (which numba does not compile).
 """
 
 from __future__ import annotations
@@ -26,9 +31,10 @@ from __future__ import annotations
 import numpy as np
 
 from glraster.geometry.triangles import edge_functions, homogeneous_vertices
+from glraster.gpu import homogeneous_kernel
 
 STRIDE = 24  # values per triangle record, see shaders/methods/homogeneous.frag
-ANCHOR_GRID = 256.0
+ANCHOR_GRID = homogeneous_kernel.ANCHOR_GRID  # anchors on the 1/256 px grid
 
 
 def setup(clip: np.ndarray, resolution, fp64: bool) -> np.ndarray:
@@ -37,9 +43,23 @@ def setup(clip: np.ndarray, resolution, fp64: bool) -> np.ndarray:
     clip : (T, 3, 4) float32 clip-space vertices. resolution : (height, width).
     Returns a C-contiguous (T, STRIDE) array, float64 if ``fp64`` else float32.
     """
+    if fp64:
+        return setup_numpy(clip, resolution, np.longdouble, np.float64)
     height, width = resolution
-    work = np.longdouble if fp64 else np.float64
-    out_t = np.float64 if fp64 else np.float32
+    rec = np.empty((len(clip), STRIDE), np.float32)
+    clip = np.ascontiguousarray(clip, np.float32)
+    vertices = np.arange(3 * len(clip), dtype=np.int64).reshape(-1, 3)
+    homogeneous_kernel.records(clip.reshape(-1, 4), vertices, width, height, rec, False)
+    return rec
+
+
+def setup_numpy(clip: np.ndarray, resolution, work, out_t) -> np.ndarray:
+    """:func:`setup` in NumPy, computed in the float type ``work`` (np.float64 for the
+    float32 records, np.longdouble for the float64 ones), records of type ``out_t``.
+
+    clip : (T, 3, 4) float32. Returns a C-contiguous (T, STRIDE) ``out_t`` array.
+    """
+    height, width = resolution
     T = len(clip)
     vertices = homogeneous_vertices(clip, resolution, work)
     X, Y, w = vertices[..., 0], vertices[..., 1], vertices[..., 2]
