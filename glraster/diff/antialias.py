@@ -34,6 +34,7 @@ import numpy as np
 
 from glraster.diff import compute as _gpu
 from glraster import validate
+from glraster.diff.edge_lists import pair_lists
 from glraster.diff.ids import decode_ids
 from glraster.diff.antialias_args import AntialiasSaved, check, wanted
 from glraster.diff.antialias_reference import MAX_WALK
@@ -74,18 +75,9 @@ class _Passes:
             yield first, min(step, self.batch - first)
 
     def lists(self, first: int, count: int):
-        """(pair codes 2 A + axis, sorted; listed pixels, sorted) of a chunk, local, uint32."""
-        ids = self.ids[first:first + count]
-        width = self.width
-        b, y, x = np.nonzero(ids[:, :, :-1] != ids[:, :, 1:])
-        a_x = (b * self.height + y) * width + x
-        b, y, x = np.nonzero(ids[:, :-1, :] != ids[:, 1:, :])
-        a_y = (b * self.height + y) * width + x
-        codes = np.sort(np.concatenate([2 * a_x, 2 * a_y + 1]))
-        mark = np.zeros(count * self.hw, bool)
-        for index in (a_x, a_x + 1, a_y, a_y + width):
-            mark[index] = True
-        return codes.astype(np.uint32), np.flatnonzero(mark).astype(np.uint32)
+        """(pair codes 2 A + axis, sorted; listed pixels, sorted) of a chunk, local, uint32
+        (:func:`glraster.diff.edge_lists.pair_lists`)."""
+        return pair_lists(self.ids[first:first + count])
 
     def run_pairs(self, first: int, count: int, codes: np.ndarray):
         """Pass 1 over images first .. first + count - 1; returns the records buffer."""

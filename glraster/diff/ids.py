@@ -59,9 +59,11 @@ def decode_ids(values, name: str = "rast id channel") -> np.ndarray:
         raise ArgumentError(name, f"{name} must be a float array of encoded triangle ids, "
                                   f"got {v.dtype}")
     with np.errstate(over="ignore", invalid="ignore"):
-        f32 = np.ascontiguousarray(v, dtype=np.float32)
-    ids = np.empty(f32.shape, np.int64)
-    bad = _decode(f32.reshape(-1), f32.reshape(-1).view(np.uint32), ids.reshape(-1))
+        f32 = np.asarray(v, dtype=np.float32)       # no copy for float32 input
+    flat = f32.reshape(-1)        # a strided view where it can be (rast[..., 3]), no copy
+    ids = np.empty(flat.shape, np.int64)
+    bad = _decode(flat, flat.view(np.uint32), ids)
+    ids = ids.reshape(f32.shape)
     if bad < 0 and v.dtype != np.float32 and not np.array_equal(f32, v):
         bad = int(np.flatnonzero((f32 != v).reshape(-1))[0])   # not a float32 value
     if bad >= 0:
@@ -71,20 +73,33 @@ def decode_ids(values, name: str = "rast id channel") -> np.ndarray:
     return ids
 
 
-@numba.njit(cache=True, nogil=True)
+_compiled = numba.njit(cache=True, nogil=True)
+
+
+@_compiled
 def _decode(values, bits, ids) -> int:
     """ids[i] = decoded index of values[i] (bits: the same float32 as uint32); returns the
-    first index that is no encoded id, or -1. One compiled pass: 5 ms per 1024^2 frame
-    against 28 ms for the NumPy expression it replaced (measured on this machine)."""
+    first index that is no encoded id, or -1. The loop selects instead of branching and
+    only flags bad values (a second pass finds the first), so that it vectorises: 0.08 ms
+    per 2 x 256^2 ids against 0.25 ms for the branching loop (and 28 ms per 1024^2 frame
+    for the NumPy expression before it), measured on this machine."""
+    bad = False
     for i in range(values.shape[0]):
         f = values[i]
-        if not (f >= 0) or f == np.inf:           # negative, NaN or Inf
+        small = f <= EXACT_FLOAT_IDS                 # False for NaN
+        # clamped so that the conversion is defined for every input (-inf included)
+        k = np.int64(min(max(f, np.float32(-1)), np.float32(EXACT_FLOAT_IDS))) if small \
+            else np.int64(0)
+        ids[i] = (k - 1) if small else (np.int64(bits[i]) - ID_BIAS - 1)
+        bad |= not (f >= 0) or f == np.inf or (small and k != f)
+    return _first_bad(values) if bad else -1
+
+
+@_compiled
+def _first_bad(values) -> int:
+    """The first index of values that is no encoded id (negative, NaN, Inf, fractional)."""
+    for i in range(values.shape[0]):
+        f = values[i]
+        if not (f >= 0) or f == np.inf or (f <= EXACT_FLOAT_IDS and np.int64(f) != f):
             return i
-        if f <= EXACT_FLOAT_IDS:
-            k = np.int64(f)
-            if k != f:
-                return i
-            ids[i] = k - 1
-        else:
-            ids[i] = np.int64(bits[i]) - ID_BIAS - 1
     return -1

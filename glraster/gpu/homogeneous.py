@@ -48,7 +48,7 @@ def setup(clip: np.ndarray, resolution, fp64: bool) -> np.ndarray:
     height, width = resolution
     rec = np.empty((len(clip), STRIDE), np.float32)
     clip = np.ascontiguousarray(clip, np.float32)
-    vertices = np.arange(3 * len(clip), dtype=np.int64).reshape(-1, 3)
+    vertices = np.arange(3 * len(clip), dtype=np.int32).reshape(-1, 3)
     homogeneous_kernel.records(clip.reshape(-1, 4), vertices, width, height, rec, False)
     return rec
 

@@ -29,3 +29,23 @@ def test_bad_values_raise_an_argument_error_naming_the_argument(call, argument, 
     with pytest.raises(ArgumentError, match=message) as info:
         call()
     assert info.value.argument == argument
+
+
+def test_decoding_a_strided_channel_inverts_the_encoding():
+    """rast[..., 3] is decoded in place (a strided view), large ids included."""
+    rng = np.random.default_rng(0)
+    index = rng.integers(-1, ids.MAX_ID, (2, 5, 7))
+    index[0, 0, :3] = [-1, 2**24 - 1, 2**24]
+    rast = np.zeros(index.shape + (4,), np.float32)
+    rast[..., 3] = ids.encode_ids(index)
+    assert np.array_equal(ids.decode_ids(rast[..., 3]), index)
+    assert np.array_equal(ids.decode_ids(rast[..., 3].astype(np.float64)), index)
+
+
+@pytest.mark.parametrize("bad", [-np.inf, np.inf, -1.0, 3.5, np.nan, -0.5])
+def test_the_first_bad_value_is_the_one_reported(bad):
+    values = np.zeros((3, 4), np.float32)
+    values[1, 2] = bad
+    values[2, 0] = 0.25                        # a later bad value is not the one named
+    with pytest.raises(ArgumentError, match=r"at \(1, 2\)"):
+        ids.decode_ids(values)

@@ -1,0 +1,70 @@
+"""glraster.diff.edge_lists: the antialias work lists equal their NumPy formulation (pairs
+by comparing shifted id images, pixels by marking both ends of every pair), in values and
+order, on random and structured id images of every degenerate shape."""
+
+import numpy as np
+import pytest
+
+from glraster.diff.edge_lists import pair_lists
+
+
+def _numpy_lists(ids):
+    """The formulation: np.nonzero over shifted comparisons, a sort, a mark array."""
+    batch, height, width = ids.shape
+    b, y, x = np.nonzero(ids[:, :, :-1] != ids[:, :, 1:])
+    a_x = (b * height + y) * width + x
+    b, y, x = np.nonzero(ids[:, :-1, :] != ids[:, 1:, :])
+    a_y = (b * height + y) * width + x
+    codes = np.sort(np.concatenate([2 * a_x, 2 * a_y + 1]))
+    mark = np.zeros(ids.size, bool)
+    for index in (a_x, a_x + 1, a_y, a_y + width):
+        mark[index] = True
+    return codes.astype(np.uint32), np.flatnonzero(mark).astype(np.uint32)
+
+
+def _blocks(rng, shape, count):
+    """Ids constant on random rectangles (silhouettes), -1 elsewhere."""
+    ids = np.full(shape, -1, np.int64)
+    batch, height, width = shape
+    for t in range(count):
+        b = rng.integers(batch)
+        y0, x0 = rng.integers(height), rng.integers(width)
+        ids[b, y0:y0 + rng.integers(1, height + 1), x0:x0 + rng.integers(1, width + 1)] = t
+    return ids
+
+
+@pytest.mark.parametrize("shape", [(1, 1, 1), (1, 1, 9), (2, 7, 1), (3, 5, 6), (2, 64, 48)])
+@pytest.mark.parametrize("kind", ["random", "blocks", "constant"])
+def test_lists_equal_the_numpy_formulation(shape, kind):
+    rng = np.random.default_rng(sum(shape))
+    if kind == "random":
+        ids = rng.integers(-1, 3, shape)
+    elif kind == "blocks":
+        ids = _blocks(rng, shape, 6)
+    else:
+        ids = np.full(shape, 4)
+    codes, pixels = pair_lists(ids)
+    want_codes, want_pixels = _numpy_lists(ids)
+    assert codes.dtype == pixels.dtype == np.uint32
+    assert np.array_equal(codes, want_codes) and np.array_equal(pixels, want_pixels)
+    if kind == "constant":
+        assert len(codes) == len(pixels) == 0
+
+
+def test_pairs_do_not_wrap_across_rows_or_images():
+    ids = np.zeros((2, 2, 2), np.int64)
+    ids[0, 1, 1] = 1              # the last pixel of image 0 ...
+    ids[1, 0, 0] = 1              # ... and the first of image 1 share an id: no pair
+    codes, pixels = pair_lists(ids)
+    assert codes.tolist() == [2 * 1 + 1, 2 * 2] + [2 * 4, 2 * 4 + 1]
+    assert pixels.tolist() == [1, 2, 3, 4, 5, 6]
+
+
+def test_int32_and_sliced_ids():
+    ids = np.random.default_rng(1).integers(-1, 2, (4, 9, 11))
+    part = ids[1:3]
+    codes, pixels = pair_lists(part.astype(np.int32))
+    want_codes, want_pixels = _numpy_lists(part)
+    assert np.array_equal(codes, want_codes) and np.array_equal(pixels, want_pixels)
+    with pytest.raises(ValueError, match="shape"):
+        pair_lists(ids[0])
