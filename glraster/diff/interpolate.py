@@ -125,9 +125,10 @@ def _forward(job: _Pass, rast_db, diff_index: tuple):
             compute.set_uniform(program, "n_pixels", count)
             compute.set_uniform(program, "first_pixel", first)
             compute.run(ctx, program, count)
-            out[part] = compute.read(values, count * num_attr).reshape(count, num_attr)
+            # straight into the outputs' rows (one copy, not bytes then array)
+            values.read_into(out[part], size=count * num_attr * 4)
             if n_diff:
-                out_da[part] = compute.read(derivs, count * 2 * n_diff).reshape(count, -1)
+                derivs.read_into(out_da[part], size=count * 8 * n_diff)
     return job.image(out), job.image(out_da)
 
 
