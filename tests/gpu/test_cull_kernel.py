@@ -71,12 +71,14 @@ def _numpy_cull(pos, tri, resolution, backfaces, llvmpipe, subpixel_bits=8):
 
 
 def _random_mesh(rng, resolution, n=3000):
-    """Vertices in, around and behind the view volume (some w <= 0, some repeated), random
-    triangles over them (repeated indices included)."""
+    """Vertices in, around and behind the view volume (some w <= 0, some repeated, some on
+    the near and far planes), random triangles over them (repeated indices included)."""
     w = rng.uniform(-0.5, 4.0, n)
     xyz = rng.uniform(-1.6, 1.6, (n, 3)) * np.abs(w)[:, None]
     pos = np.column_stack([xyz, w]).astype(np.float32)
     pos[::17] = pos[1::17][: len(pos[::17])]
+    pos[5::31, 2] = pos[5::31, 3]                 # on the far and near planes: |z| = w
+    pos[7::37, 2] = -pos[7::37, 3]
     tri = rng.integers(0, n, (2 * n, 3)).astype(np.int32)
     tri[::13, 2] = tri[::13, 0]
     return pos, tri
