@@ -167,8 +167,8 @@ def build_parser():
     floors_ = parser.add_argument_group("floors")
     floors_.add_argument("--fits", nargs="+", choices=diff_floors.FITS,
                          default=list(diff_floors.FITS))
-    floors_.add_argument("--fit-iterations", type=int, default=5,
-                         help="timed iterations per fit and round (default 5)")
+    floors_.add_argument("--fit-iterations", type=int, default=10,
+                         help="timed iterations per fit and round (default 10)")
     floors_.add_argument("--profile-iterations", type=int, default=2,
                          help="iterations per fit under cProfile (default 2)")
     ab_ = parser.add_argument_group("ab")
@@ -177,9 +177,9 @@ def build_parser():
                      f"(default {fit_iterations_ab.DEFAULT_BEFORE} when neither is given)")
     ab_.add_argument("--after", type=Path, default=fit_iterations_ab.HERE.parents[2])
     ab_.add_argument("--ab-cases", nargs="+", choices=AB_CASES, default=list(AB_CASES))
-    ab_.add_argument("--ab-iterations", type=int, default=100,
+    ab_.add_argument("--ab-iterations", type=int, default=200,
                      help="cube iterations per round (pose: a fifth; envmap: a fiftieth, "
-                          "at least 2; default 100)")
+                          "at least 2; default 200)")
     ab_.add_argument("--ab-size", type=int, default=256, help="the pose fit's image size")
     ab_.add_argument("--envmap-resolution", type=int, default=256)
     ab_.add_argument("--envmap-mesh", type=int, nargs=2, default=[128, 120],
@@ -189,11 +189,11 @@ def build_parser():
     bench_.add_argument("--bench-resolutions", type=int, nargs="+",
                         default=[256, 512, 1024])
     bench_.add_argument("--bench-counts", type=int, nargs="+", default=[1000, 20000, 100000])
-    bench_.add_argument("--bench-repeats", type=int, default=5,
-                        help="rounds per cell (bench-diff --full: 15; default 5)")
+    bench_.add_argument("--bench-repeats", type=int, default=15,
+                        help="rounds per cell (default 15, as bench-diff --full)")
     texture_ = parser.add_argument_group("texture")
     texture_.add_argument("--texture-sizes", type=int, nargs="+", default=[256, 512, 1024])
-    texture_.add_argument("--texture-repeat", type=int, default=3)
+    texture_.add_argument("--texture-repeat", type=int, default=5)
     texture_.add_argument("--texture-modes", nargs="+", default=None,
                           help="filter modes (default: all of texture-baseline's)")
     return parser
