@@ -35,8 +35,9 @@ def test_the_short_form_prints_and_writes_every_goal(ctx, tmp_path, capsys):
         "8² linear: glraster / PyTorch", "8² linear-mipmap-linear: glraster / PyTorch"]
     for g in goals:
         op, target = g["goal"].split()
-        assert g["met"] == {"<=": g["value"] <= float(target), ">=": g["value"] >= float(target),
-                            "<": g["value"] < float(target)}[op], g
+        value, target = g["value"], float(target)
+        assert g["met"] == {"<=": value <= target, ">=": value >= target,
+                            "<": value < target}[op], g
     assert f"{sum(g['met'] for g in goals)} of {len(goals)} met" in printed
     for title in ("floors", "fit-iterations-ab", "bench-diff", "texture-baseline"):
         assert title in printed
