@@ -21,9 +21,10 @@ TINY = ["--rounds", "1", "--iterations", "4", "--size", "16", "--envmap-resoluti
         "--envmap-mesh", "8", "6", "--envmap-env-size", "8"]
 
 
-def test_the_study_runs_its_short_form(ctx, capsys, monkeypatch, tmp_path):
+def test_the_study_runs_its_short_form(gl_backend, capsys, monkeypatch, tmp_path):
     script = REPO / "glraster" / "studies" / "fit_iterations_ab.py"
     out = tmp_path / "rows.json"
+    monkeypatch.setenv("GLRASTER_BACKEND", gl_backend)     # the workers' backend
     monkeypatch.setattr(sys, "argv", [str(script), "--before", str(REPO), *TINY,
                                       "--json", str(out)])
     namespace = runpy.run_path(str(script))

@@ -20,9 +20,9 @@ SHORT = ["--rounds", "1", "--fits", "cube4", "--fit-iterations", "1",
          "--texture-repeat", "1", "--texture-modes", "linear", "linear-mipmap-linear"]
 
 
-def test_the_short_form_prints_and_writes_every_goal(ctx, tmp_path, capsys):
+def test_the_short_form_prints_and_writes_every_goal(gl_backend, tmp_path, capsys):
     out = tmp_path / "goals.json"
-    assert speed_goals.main([*SHORT, "--json", str(out)]) == 0
+    assert speed_goals.main([*SHORT, "--backend", gl_backend, "--json", str(out)]) == 0
     printed = capsys.readouterr().out
     goals = json.loads(out.read_text())["goals"]
     assert [g["figure"] for g in goals] == [
