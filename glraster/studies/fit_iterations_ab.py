@@ -223,7 +223,10 @@ def _start(tree: Path, iterations: int, size: int, names, envmap) -> subprocess.
 def _ask(proc: subprocess.Popen, case: str) -> float:
     proc.stdin.write(case + "\n")
     proc.stdin.flush()
-    return float(proc.stdout.readline())
+    answer = proc.stdout.readline()
+    if not answer:
+        raise RuntimeError(f"a worker stopped during {case!r} (its error is above)")
+    return float(answer)
 
 
 def compare(before: Path, after: Path, *, rounds: int = 5, iterations: int = 200,
