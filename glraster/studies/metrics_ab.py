@@ -1,6 +1,6 @@
 """Cost of the service's metrics now against an earlier revision's, in process.
 
-    glraster study metrics-ab [REV] [--rounds 15]     # REV default 432fdaa, the hand-written text
+    glraster study metrics-ab [REV] [--rounds 15]     # REV default e60bcd9, the hand-written text
 
 Loads ``glraster/service/metrics.py`` of git revision REV beside the current one and times,
 per call, what a request pays (``Metrics.observe`` of one answered request: its counter, its
@@ -58,8 +58,8 @@ def _per_call_us(fn, n: int) -> float:
 
 def main(argv=None) -> int:
     parser = argument_parser("metrics-ab", __doc__)
-    parser.add_argument("rev", nargs="?", default="432fdaa", metavar="REV",
-                        help="the git revision to compare with (default 432fdaa)")
+    parser.add_argument("rev", nargs="?", default="e60bcd9", metavar="REV",
+                        help="the git revision to compare with (default e60bcd9)")
     parser.add_argument("--rounds", type=int, default=15, help="interleaved rounds")
     args = parser.parse_args(argv)
     if args.rounds < 1:

@@ -83,6 +83,9 @@ STUDIES: dict[str, Study] = {s.name: s for s in (
           "rasterize and interpolate against another checkout"),
     Study("fit-iterations-ab", _S + "fit_iterations_ab", "fit iterations per second against "
           "an older tree (warm interpreters, case by case)", extra="torch"),
+    Study("speed-goals", _S + "speed_goals", "the differentiable pipeline's speed goals "
+          "(fit floors, A/B, bench-diff, texture) with met or missed, in one run",
+          extra="torch"),
     Study("metrics-ab", _S + "metrics_ab", "the service's /metrics cost against an earlier "
           "revision's (git)", extra="service"),
     Study("service-cpu-overhead", _S + "service_cpu_overhead", "CPU the service spends per "
