@@ -29,7 +29,7 @@ import ctypes
 import numpy as np
 
 from glraster import validate
-from glraster.diff.compute import accumulation
+from glraster.diff.compute import LOCAL_SIZE, accumulation
 from glraster.diff.compute import chunks as _chunks
 from glraster.diff.compute import read as _read
 from glraster.diff.compute import run as _run
@@ -49,6 +49,8 @@ __all__ = ["backward", "build_mips", "forward", "sampler_probe"]
 
 _SHADER = "diff/texture.comp"
 _MIP_SHADER = "diff/texture_mip.comp"
+_RESOLVE_SHADER = "diff/texture_resolve.comp"
+_MAX_GROUPS = 65535   # GL_MAX_COMPUTE_WORK_GROUP_COUNT's least value (GL 4.6, table 23.75)
 # the texture shader's accumulation defines: deterministic (per_pixel) is its fixed point
 _ACCUM_DEFINES = {"atomic_float": "ACCUM_ATOMIC_FLOAT", "cas": "ACCUM_CAS",
                   "per_pixel": "ACCUM_FIXED_POINT"}
@@ -222,6 +224,26 @@ def fixed_point_shift(max_abs_g: float, pixels: int) -> int:
     return _FIXED_TOTAL_BITS - head - top
 
 
+def fixed_point_values(ctx: Context, words, count: int, shift: int):
+    """The first ``count`` 64-bit fixed-point sums of the uint buffer ``words`` (low word,
+    high word, two's complement; include/fixed_point.glsl) as float32 round(q 2^-shift),
+    in the context's float scratch buffer ``texture.grad_tex_float`` (returned), converted
+    on the GPU (``shaders/diff/texture_resolve.comp``): the float NumPy's int64 -> float64
+    -> ldexp -> float32 gives, with half the bytes to read back and the pyramid's pull-back
+    run where the values are. Inside ``with ctx``."""
+    program = ctx.compute_program(shader_path(_RESOLVE_SHADER), {})
+    out = ctx.scratch_buffer("texture.grad_tex_float", max(count, 1) * 4)
+    words.bind_to_storage_buffer(0)
+    out.bind_to_storage_buffer(1)
+    _set(program, "unit", float(np.ldexp(1.0, -shift)))
+    step = _MAX_GROUPS * LOCAL_SIZE
+    for first in range(0, count, step):      # at most 65535 work groups a dispatch
+        _set(program, "first_value", first)
+        _set(program, "n_values", min(step, count - first))
+        _run(ctx, program, min(step, count - first))
+    return out
+
+
 class _TexelGradients:
     """Where the backward sums the texel gradients (inside ``with ctx``; made only when tex
     or a mip level wants one): a zeroed storage buffer the shader adds into, float32 with
@@ -251,12 +273,8 @@ class _TexelGradients:
         """(texels, C) float32: every level's texel gradients, base first, a built (or own)
         pyramid's pulled back into the base (then only the base's rows are read back)."""
         if self.mode == "per_pixel":
-            fixed = _read(self.buffer, self.total * self.channels, np.int64)
-            flat = np.ldexp(fixed.astype(np.float64), -self.shift).astype(np.float32)
-            flat = flat.reshape(-1, self.channels)
-            if not args.pulls_pyramid:
-                return flat
-            self.buffer = self.ctx.storage_buffer("texture.grad_tex_float", flat)
+            self.buffer = fixed_point_values(self.ctx, self.buffer, self.total * self.channels,
+                                             self.shift)
         if not args.pulls_pyramid:
             return _read(self.buffer, self.total * self.channels).reshape(-1, self.channels)
         top = None if self.top is None else int(_read(self.top, 1, np.int32)[0])

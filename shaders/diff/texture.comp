@@ -318,21 +318,10 @@ float texel(int index, int c) {
 float g_pixel[CHANNELS];  // this pixel's dL/d out, read once
 
 #ifdef ACCUM_FIXED_POINT
-// word pair k += round(value 2^k) as a 64-bit integer: integer addition is associative, so
-// the total is the same whatever order the invocations reach it (bit-identical runs). The
-// magnitude a < 2^62 is an integer-valued float: hi = floor(a / 2^32) and lo = a - hi 2^32
-// are exact (lo has at most 24 significant bits, those of a); a negative value is the
-// two's complement of its magnitude; the low word's carry goes into the high word.
-void add_fixed(int k, float value) {
-    float a = roundEven(abs(value) * fixed_scale_a * fixed_scale_b);
-    if (a == 0.0) return;
-    uint hi = uint(floor(a * (1.0 / 4294967296.0)));
-    uint lo = uint(a - float(hi) * 4294967296.0);
-    if (value < 0.0) { hi = ~hi + (lo == 0u ? 1u : 0u); lo = 0u - lo; }
-    uint old = atomicAdd(grad_tex[2 * k], lo);
-    hi += (old + lo < old) ? 1u : 0u;
-    if (hi != 0u) atomicAdd(grad_tex[2 * k + 1], hi);
-}
+// the texel sums are 64-bit fixed-point integers (include/fixed_point.glsl, one group and no
+// header: value n at words 2n, 2n + 1); integer addition is associative, so the total is the
+// same whatever order the invocations reach it (bit-identical runs)
+#include "include/fixed_point.glsl"
 #endif
 
 // dL/d texel += w dL/d out (every channel) for one tap of weight w
@@ -342,7 +331,9 @@ void spread(int index, float w) {
     for (int c = 0; c < channels; ++c) {
         float value = w * g_pixel[c];
 #ifdef ACCUM_FIXED_POINT
-        add_fixed(index * channels + c, value);
+        // round(value 2^k) with 2^k = a b, each factor in float range
+        FIXED_ADD_WORDS(grad_tex, 0u, uint(index * channels + c),
+                        fixed_point_words(value * fixed_scale_a, fixed_scale_b));
 #else
         if (value != 0.0) ATOMIC_ADD_FLOAT(grad_tex[index * channels + c], value);
 #endif

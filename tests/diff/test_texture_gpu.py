@@ -213,6 +213,27 @@ def test_deterministic_texel_sums_are_exact_at_both_ends_of_the_range(ctx):
     assert abs(grad_tex[0, 0, 0, 0] - left) <= U * abs(left) + n * n * resolution
 
 
+def test_fixed_point_values_round_as_numpy_does(ctx):
+    """The GPU's conversion of the 64-bit fixed-point sums to float32 gives the float of
+    NumPy's int64 -> float64 -> ldexp -> float32, bit for bit: zero (llvmpipe's double
+    ldexp(0, -k) is not 0, so the shader does not use it), both signs, values that round
+    in float64 (above 2^53) and in float32, the ends of the range, a shift past float32's
+    exponents."""
+    rng = np.random.default_rng(41)
+    q = np.concatenate([
+        np.array([0, 1, -1, 2**31, -2**31, 2**32 - 1, 2**32, -2**32, 2**53 + 1, -(2**53) - 3,
+                  2**62 - 1, -(2**62), 2**63 - 1, -(2**63)], np.int64),
+        rng.integers(-2**62, 2**62, 5000, dtype=np.int64),
+        rng.integers(-2**34, 2**34, 5000, dtype=np.int64)])
+    for shift in (0, 38, 140, -20):
+        with ctx:
+            words = ctx.storage_buffer("test.fixed_words", q.view(np.uint32))
+            out = tx.fixed_point_values(ctx, words, q.size, shift)
+            got = np.frombuffer(out.read(size=4 * q.size), np.float32)
+        want = np.ldexp(q.astype(np.float64), -shift).astype(np.float32)
+        assert got.tobytes() == want.tobytes(), shift
+
+
 @pytest.mark.parametrize("deterministic", [False, True])
 @pytest.mark.parametrize("mode", ["linear-mipmap-nearest", "linear-mipmap-linear"])
 def test_pull_back_from_the_highest_level_read_matches_the_reference(ctx, mode, deterministic):
