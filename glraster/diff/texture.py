@@ -25,6 +25,7 @@ derivations in docs/differentiable.md, "Texture"), in compute shaders
 from __future__ import annotations
 
 import ctypes
+import weakref
 
 import numpy as np
 
@@ -93,13 +94,23 @@ def _storage_limit(ctx: Context, nbytes: int, what: str) -> None:
                          "texture, fewer channels or max_mip_level")
 
 
-def _upload_levels(ctx: Context, args: TextureArgs, name: str = "texture.levels"):
-    """Every level in one storage buffer (base uploaded; mips uploaded or built on the GPU).
-    Inside ``with ctx``. Returns (buffer, info, firsts, total texels, images)."""
+# context -> (mark, buffer): the levels its buffer "texture.levels" holds (_upload_levels)
+_HELD: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _upload_levels(ctx: Context, args: TextureArgs, mark=None):
+    """Every level in the context's storage buffer "texture.levels" (base uploaded; mips
+    uploaded or built on the GPU), unless it still holds those of ``mark`` (a mark this
+    function returned, for the same ``args``: no texture call has filled the buffer since).
+    Inside ``with ctx``. Returns (buffer, info, firsts, total texels, images, mark)."""
     info, firsts, total, images = _geometry(args)
     channels = args.channels
     _storage_limit(ctx, total * channels * 4, "the texture and its mip levels")
-    buffer = ctx.scratch_buffer(name, total * channels * 4)
+    buffer = ctx.scratch_buffer("texture.levels", total * channels * 4)
+    if mark is not None and _HELD.get(ctx) == (mark, buffer):
+        return buffer, info, firsts, total, images, mark
+    mark = object()
+    _HELD[ctx] = (mark, buffer)
     buffer.write(np.ascontiguousarray(args.tex, np.float32).tobytes(), offset=0)
     if args.levels > 1 and args.mip is not None:
         for k in range(1, args.levels):
@@ -107,7 +118,7 @@ def _upload_levels(ctx: Context, args: TextureArgs, name: str = "texture.levels"
             buffer.write(level.tobytes(), offset=firsts[k] * channels * 4)
     elif args.levels > 1:
         _pyramid_passes(ctx, buffer, args, firsts, images, backward=False)
-    return buffer, info, firsts, total, images
+    return buffer, info, firsts, total, images, mark
 
 
 def _pyramid_passes(ctx: Context, buffer, args: TextureArgs, firsts, images: int,
@@ -198,7 +209,7 @@ def forward(tex, uv, uv_da=None, mip_level_bias=None, *mip, filter_mode="auto",
     coords = uv_f.shape[1]
     with ctx:
         program = ctx.compute_program(shader_path(_SHADER), defines)
-        levels, info, _, _, _ = _upload_levels(ctx, args)
+        levels, info, _, _, _, mark = _upload_levels(ctx, args)
         levels.bind_to_storage_buffer(0)
         for first, count in _chunks(n, 4 * (3 * coords + 1 + channels)):
             part = slice(first, first + count)
@@ -207,7 +218,7 @@ def forward(tex, uv, uv_da=None, mip_level_bias=None, *mip, filter_mode="auto",
             result.bind_to_storage_buffer(5)
             _run(ctx, program, count)
             out[part] = _read(result, count * channels).reshape(count, channels)
-    return (out.reshape(args.uv.shape[:3] + (channels,)),), TextureSaved(args, None, ctx)
+    return (out.reshape(args.uv.shape[:3] + (channels,)),), TextureSaved(args, None, ctx, mark)
 
 
 # the deterministic mode's accumulators are signed 64-bit integers; sums stay below 2^62
@@ -347,7 +358,7 @@ def backward(saved: TextureSaved, grad_out, *, needs=None, deterministic: bool =
     per_pixel = 4 * (3 * coords + 1 + 2 * channels + 3 * coords + 1)
     with ctx:
         program = ctx.compute_program(shader_path(_SHADER), defines)
-        levels, info, firsts, total, images = _upload_levels(ctx, args)
+        levels, info, firsts, total, images, _ = _upload_levels(ctx, args, saved.uploaded)
         levels.bind_to_storage_buffer(0)
         sums = (_TexelGradients(ctx, mode, total, channels, program, g_flat,
                                 args.mipmapped) if texels else None)
@@ -397,7 +408,7 @@ def build_mips(tex, max_mip_level=None, *, boundary_mode="wrap", ctx: Context | 
                  boundary_mode=boundary_mode, max_mip_level=max_mip_level, dtype=np.float32)
     channels = args.channels
     with ctx:
-        buffer, _, firsts, total, _ = _upload_levels(ctx, args)
+        buffer, _, firsts, total, _, _ = _upload_levels(ctx, args)
         flat = _read(buffer, total * channels).reshape(-1, channels)
     lead = args.tex.shape[:-3]
     out = []
