@@ -1,0 +1,55 @@
+"""The texture bench's plain-PyTorch cube map (glraster.studies.torch_texture_baseline.
+cube_texture, the yardstick of its "cube" cells) computes glraster's linear cube-map
+lookup away from the face edges: output and gradients (tex, directions) against the float64
+texture reference through glraster.diff.ops.TEXTURE, within 1e-12 of the largest entry.
+
+Pixels whose bilinear taps reach past their face's edge (within one texel of it) are left
+out: there glraster reads the neighbouring face and the yardstick clamps to its own (said
+in its docstring); their upstream gradient is 0 and their output is not compared. At least
+half the pixels remain (asserted), and the edge pixels do differ (so the mask is needed,
+and a wrong face table fails).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from glraster.diff.ops import TEXTURE  # noqa: E402
+from glraster.studies import torch_texture_baseline as baseline  # noqa: E402
+
+
+def _inner(direction: np.ndarray, n: int) -> np.ndarray:
+    """(B, H, W) bool: the pixels whose four taps lie on their own face."""
+    a = np.abs(direction)
+    m = a.max(-1)
+    # both face coordinates are the two non-major components over m, in [-1, 1]
+    rest = np.sort(a, axis=-1)[..., :2] / m[..., None]
+    x = (rest + 1) / 2 * n - 0.5                    # texel positions
+    return np.all(x <= n - 1 - 1e-3, axis=-1) & (m > 0)
+
+
+def test_cube_yardstick_matches_the_float64_reference_off_the_edges():
+    n = 8
+    tex32, d32 = baseline.cube_inputs(n, channels=3, seed=4)
+    tex, d = tex32.double().numpy(), d32.double().numpy()
+    inner = _inner(d, n)
+    assert inner.mean() >= 0.5 and not inner.all()
+    g = np.random.default_rng(5).normal(size=d.shape[:3] + (3,))
+    g[~inner] = 0.0
+    params = dict(filter_mode="linear", boundary_mode="cube")
+    (out, ), saved = TEXTURE.forward(tex, d, None, None, **params)
+    want = TEXTURE.core(np.float64).backward(saved, g)[:2]
+    t = torch.from_numpy(tex).requires_grad_()
+    u = torch.from_numpy(d).requires_grad_()
+    got = baseline.cube_texture(t, u)
+    got.backward(torch.from_numpy(g))
+    err = np.abs(got.detach().numpy() - out)
+    assert err[inner].max() <= 1e-12 * max(1.0, np.abs(out).max())
+    assert err[~inner].max() > 1e-3                   # the edges do differ
+    for name, w, x in (("grad tex", want[0], t.grad), ("grad direction", want[1], u.grad)):
+        x = x.numpy()
+        assert x.shape == w.shape, name
+        assert np.abs(x - w).max() <= 1e-12 * max(1.0, np.abs(w).max()), name
