@@ -221,6 +221,10 @@ def forward(tex, uv, uv_da=None, mip_level_bias=None, *mip, filter_mode="auto",
     return (out.reshape(args.uv.shape[:3] + (channels,)),), TextureSaved(args, None, ctx, mark)
 
 
+# pixels per backward invocation: consecutive pixels add their terms for a texel they both
+# read in the invocation, and send each texel's sum once (texture.comp, "Held")
+BACKWARD_RUN = 8
+
 # the deterministic mode's accumulators are signed 64-bit integers; sums stay below 2^62
 _FIXED_TOTAL_BITS = 62
 
@@ -237,21 +241,23 @@ def fixed_point_shift(max_abs_g: float, pixels: int) -> int:
 
 def fixed_point_values(ctx: Context, words, count: int, shift: int):
     """The first ``count`` 64-bit fixed-point sums of the uint buffer ``words`` (low word,
-    high word, two's complement; include/fixed_point.glsl) as float32 round(q 2^-shift),
+    high word, two's complement; include/fixed_point.glsl; it holds a whole number of
+    groups of 4 values, ``-(-count // 4) * 32`` bytes or more) as float32 round(q 2^-shift),
     in the context's float scratch buffer ``texture.grad_tex_float`` (returned), converted
     on the GPU (``shaders/diff/texture_resolve.comp``): the float NumPy's int64 -> float64
     -> ldexp -> float32 gives, with half the bytes to read back and the pyramid's pull-back
     run where the values are. Inside ``with ctx``."""
+    quads = -(-count // 4)
     program = ctx.compute_program(shader_path(_RESOLVE_SHADER), {})
-    out = ctx.scratch_buffer("texture.grad_tex_float", max(count, 1) * 4)
+    out = ctx.scratch_buffer("texture.grad_tex_float", max(quads, 1) * 16)
     words.bind_to_storage_buffer(0)
     out.bind_to_storage_buffer(1)
     _set(program, "unit", float(np.ldexp(1.0, -shift)))
     step = _MAX_GROUPS * LOCAL_SIZE
-    for first in range(0, count, step):      # at most 65535 work groups a dispatch
-        _set(program, "first_value", first)
-        _set(program, "n_values", min(step, count - first))
-        _run(ctx, program, min(step, count - first))
+    for first in range(0, quads, step):      # at most 65535 work groups a dispatch
+        _set(program, "first_quad", first)
+        _set(program, "n_quads", min(step, quads - first))
+        _run(ctx, program, min(step, quads - first))
     return out
 
 
@@ -265,16 +271,17 @@ class _TexelGradients:
     def __init__(self, ctx: Context, mode: str, total: int, channels: int, program,
                  g_flat: np.ndarray, mipmapped: bool):
         self.ctx, self.mode, self.total, self.channels = ctx, mode, total, channels
-        words = 2 if mode == "per_pixel" else 1
-        _storage_limit(ctx, total * channels * 4 * words, "the texel gradients")
-        self.buffer = _cleared(ctx, "texture.grad_tex", total * channels * 4 * words)
+        # per_pixel: two words a value, whole groups of 4 values (fixed_point_values)
+        nbytes = -(-total * channels // 4) * 32 if mode == "per_pixel" else total * channels * 4
+        _storage_limit(ctx, nbytes, "the texel gradients")
+        self.buffer = _cleared(ctx, "texture.grad_tex", nbytes)
         self.buffer.bind_to_storage_buffer(9)
         self.top = None
         if mipmapped:
             self.top = _cleared(ctx, "texture.top_level", 4)
             self.top.bind_to_storage_buffer(10)
         if mode == "per_pixel":
-            max_abs = float(np.abs(g_flat).max()) if g_flat.size else 0.0
+            max_abs = float(max(g_flat.max(), -g_flat.min())) if g_flat.size else 0.0
             self.shift = fixed_point_shift(max_abs, len(g_flat))
             half = self.shift // 2
             _set(program, "fixed_scale_a", float(2.0 ** half))
@@ -349,7 +356,7 @@ def backward(saved: TextureSaved, grad_out, *, needs=None, deterministic: bool =
     n, uv_f, da, bias = _pixel_inputs(args)
     channels, coords = args.channels, uv_f.shape[1]
     g_flat = grad_out.reshape(n, channels)
-    defines = dict(_defines(args), BACKWARD=None)
+    defines = dict(_defines(args), BACKWARD=None, RUN=BACKWARD_RUN)
     if texels:   # else the shader spreads nothing (no texel buffer, no accumulation)
         defines.update({"TEX_GRAD": None, _ACCUM_DEFINES[mode]: None})
     grad_uv = np.empty((n, coords), np.float32) if want[1] else None
@@ -367,7 +374,7 @@ def backward(saved: TextureSaved, grad_out, *, needs=None, deterministic: bool =
             _bind_common(ctx, program, args, defines, part, uv_f, da, bias, info, count, first)
             ctx.storage_buffer("texture.grad_out", g_flat[part]).bind_to_storage_buffer(5)
             outs = _bind_coordinate_outputs(ctx, defines, count, coords)
-            _run(ctx, program, count)
+            _run(ctx, program, -(-count // BACKWARD_RUN))
             for target, (buffer, width) in zip((grad_uv, grad_da, grad_bias), outs):
                 if target is not None and buffer is not None:
                     target[part] = _read(buffer, count * width).reshape(target[part].shape)
