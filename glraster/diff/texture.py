@@ -328,8 +328,9 @@ def backward(saved: TextureSaved, grad_out, *, needs=None, deterministic: bool =
         grad_out: (B, H, W, C) dL/d out, or None (zero).
         needs: None (all) or one bool per input (tex, uv, uv_da, mip_level_bias, *mip).
             Without tex or mip levels wanted the shader is compiled without the texel sums
-            (nothing spread, read back or pulled through the pyramid); the coordinates'
-            gradients are read back only where wanted; nothing runs when nothing is wanted.
+            (nothing spread, read back or pulled through the pyramid); without uv, uv_da
+            and the bias, without their gradients (no texel reads for them, nothing written);
+            each is read back only where wanted; nothing runs when nothing is wanted.
         deterministic: bit-identical results from run to run (accumulation "per_pixel":
             the texel gradients summed on the GPU as 64-bit fixed-point integers, whose sum
             does not depend on the order of the additions, rounded once to float32; the
@@ -359,6 +360,8 @@ def backward(saved: TextureSaved, grad_out, *, needs=None, deterministic: bool =
     defines = dict(_defines(args), BACKWARD=None, RUN=BACKWARD_RUN)
     if texels:   # else the shader spreads nothing (no texel buffer, no accumulation)
         defines.update({"TEX_GRAD": None, _ACCUM_DEFINES[mode]: None})
+    if any(want[1:4]):   # else no texel reads for them and no per-pixel outputs
+        defines["COORD_GRAD"] = None
     grad_uv = np.empty((n, coords), np.float32) if want[1] else None
     grad_da = np.zeros((n, 2 * coords), np.float32) if want[2] else None
     grad_bias = np.zeros(n, np.float32) if want[3] else None
@@ -373,7 +376,8 @@ def backward(saved: TextureSaved, grad_out, *, needs=None, deterministic: bool =
             part = slice(first, first + count)
             _bind_common(ctx, program, args, defines, part, uv_f, da, bias, info, count, first)
             ctx.storage_buffer("texture.grad_out", g_flat[part]).bind_to_storage_buffer(5)
-            outs = _bind_coordinate_outputs(ctx, defines, count, coords)
+            outs = (_bind_coordinate_outputs(ctx, defines, count, coords)
+                    if "COORD_GRAD" in defines else ())
             _run(ctx, program, -(-count // BACKWARD_RUN))
             for target, (buffer, width) in zip((grad_uv, grad_da, grad_bias), outs):
                 if target is not None and buffer is not None:

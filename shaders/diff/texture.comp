@@ -9,7 +9,9 @@
 // texel: a constant, so the channel loops unroll); with BACKWARD either TEX_GRAD and one of
 // ACCUM_ATOMIC_FLOAT | ACCUM_CAS | ACCUM_FIXED_POINT (deterministic: see spread), or no
 // TEX_GRAD (no texel gradient wanted: nothing is spread); with BACKWARD, RUN consecutive
-// pixels per invocation (their terms for a texel they share summed before one atomic add).
+// pixels per invocation (their terms for a texel they share summed before one atomic add);
+// COORD_GRAD: the gradients to uv, uv_da and the bias are wanted (else neither computed nor
+// written).
 // Layouts (flattened pixels of this dispatch, i = 0 .. n_pixels - 1):
 //   texels  every level (base first), level l from texel level_info[l].x on, texel
 //           ((image * faces + face) * H + j) * W + i, `channels` floats per texel
@@ -431,9 +433,11 @@ void backward_pixel(uint i, inout Held held0, inout Held held1) {
     float s0 = 0.0, s1 = 0.0;
     float ok = p.ok ? 1.0 : 0.0;
     for (int k = 0; k < 4; ++k) {
+#ifdef COORD_GRAD
         float tg = tap_gradient(p.t0.index[k]);
         gs += p.t0.ds[k] * tg; gt += p.t0.dt[k] * tg;
         s0 += p.t0.w[k] * tg;
+#endif
 #ifdef TEX_GRAD
         tap_terms(now, k, p.t0.index[k], ok * w0 * p.t0.w[k]);
 #endif
@@ -445,9 +449,11 @@ void backward_pixel(uint i, inout Held held0, inout Held held1) {
 #if FILTER == 3
     float gs1 = 0.0, gt1 = 0.0;
     for (int k = 0; k < 4; ++k) {
+#ifdef COORD_GRAD
         float tg = tap_gradient(p.t1.index[k]);
         gs1 += p.t1.ds[k] * tg; gt1 += p.t1.dt[k] * tg;
         s1 += p.t1.w[k] * tg;
+#endif
 #ifdef TEX_GRAD
         tap_terms(now, k, p.t1.index[k], ok * p.frac * p.t1.w[k]);
 #endif
@@ -459,6 +465,7 @@ void backward_pixel(uint i, inout Held held0, inout Held held1) {
     glevel = p.live_level ? s1 - s0 : 0.0;
 #endif
 #endif
+#ifdef COORD_GRAD
     if (!p.ok) { gs = 0.0; gt = 0.0; glevel = 0.0; }
 #if BOUNDARY == 3
     vec3 gd = gs * p.ds_duv + gt * p.dt_duv + glevel * p.dlevel_duv;
@@ -473,6 +480,7 @@ void backward_pixel(uint i, inout Held held0, inout Held held1) {
 #endif
 #ifdef HAS_BIAS
     grad_bias[i] = glevel;
+#endif
 #endif
 }
 #endif

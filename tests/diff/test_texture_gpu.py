@@ -235,6 +235,25 @@ def test_backward_uses_the_forwards_levels_only_while_they_are_current(ctx):
     assert other[0].tobytes() != fresh[0].tobytes()
 
 
+@pytest.mark.parametrize("mode", ["nearest", "linear", "linear-mipmap-linear"])
+def test_each_gradient_alone_is_the_one_of_the_full_backward(ctx, mode):
+    """needs: tex alone (the shader without the coordinates' gradients) and the coordinates
+    alone (without the texel sums) give the full backward's arrays, bit for bit
+    (deterministic), None for the rest."""
+    tex, uv, da, bias = _f32(*make_inputs(61, "wrap", image=(16, 16), tex_size=(8, 8)))
+    if not mode.startswith("linear-mipmap"):
+        da = bias = None
+    out, saved = tx.forward(tex, uv, da, bias, filter_mode=mode, ctx=ctx)
+    g = np.random.default_rng(62).normal(size=out[0].shape).astype(np.float32)
+    full = tx.backward(saved, g, deterministic=True)
+    texels = tx.backward(saved, g, needs=(True, False, False, False), deterministic=True)
+    coords = tx.backward(saved, g, needs=(False, True, True, True), deterministic=True)
+    assert texels[0].tobytes() == full[0].tobytes() and texels[1:] == (None,) * 3
+    assert coords[0] is None
+    for a, b in zip(coords[1:4], full[1:4]):
+        assert (a is None and b is None) or a.tobytes() == b.tobytes()
+
+
 def test_fixed_point_values_round_as_numpy_does(ctx):
     """The GPU's conversion of the 64-bit fixed-point sums to float32 gives the float of
     NumPy's int64 -> float64 -> ldexp -> float32, bit for bit: zero (llvmpipe's double
