@@ -260,6 +260,33 @@ def core_benchmark(sizes=(512, 1024), repeat: int = 5, boundary_mode: str = "wra
     return rows
 
 
+def clear_benchmark(sizes=(512, 1024), repeat: int = 5, clock=None):
+    """Rows (size, MiB, ms) of the driver's clear of the backward's texel-gradient buffer
+    of a size x size RGBA texture without mips (one ``glClearNamedBufferSubData`` call, as
+    :mod:`glraster.diff.texture` does, waited for), for float sums and for the
+    deterministic 64-bit ones; medians of ``repeat`` calls after one."""
+    import statistics
+    import time
+
+    from glraster.diff import texture as gpu
+    from glraster.gpu.context import default_context
+
+    clock = clock or time.perf_counter
+    ctx = default_context()
+    rows = []
+    with ctx:
+        for size in sizes:
+            for nbytes in (size * size * 16, size * size * 32):
+                times = []
+                for _ in range(repeat + 1):
+                    start = clock()
+                    gpu._cleared(ctx, "texture.grad_tex", nbytes)
+                    ctx.mgl.finish()
+                    times.append(clock() - start)
+                rows.append((size, nbytes / 2**20, 1e3 * statistics.median(times[1:])))
+    return rows
+
+
 def build_parser():
     from glraster.studies.registry import argument_parser
 
@@ -310,6 +337,9 @@ def main(argv=None) -> int:  # pragma: no cover - a measurement, not a test
                 tuple(args.sizes), args.repeat, args.boundary, args.modes, clock):
             print(f"| {size}² | {mode} | {fwd:.1f} | {atomic:.1f} | {det:.1f} | "
                   f"{ratio:.2f} [{low:.2f} .. {high:.2f}] |")
+        print("clearing the texel-gradient buffer (one driver call, no mips): " + ", ".join(
+            f"{size}² {mib:.0f} MiB {ms:.2f} ms" for size, mib, ms in
+            clear_benchmark(tuple(args.sizes), args.repeat, clock)))
         return 0
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads; forward + backward, "
           f"median of {args.repeat} interleaved rounds, texture = image size, 4 channels, "
