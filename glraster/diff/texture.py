@@ -111,11 +111,11 @@ def _upload_levels(ctx: Context, args: TextureArgs, mark=None):
         return buffer, info, firsts, total, images, mark
     mark = object()
     _HELD[ctx] = (mark, buffer)
-    buffer.write(np.ascontiguousarray(args.tex, np.float32).tobytes(), offset=0)
+    buffer.write(np.ascontiguousarray(args.tex, np.float32), offset=0)  # no bytes copy
     if args.levels > 1 and args.mip is not None:
         for k in range(1, args.levels):
             level = np.ascontiguousarray(args.mip[k - 1], np.float32)
-            buffer.write(level.tobytes(), offset=firsts[k] * channels * 4)
+            buffer.write(level, offset=firsts[k] * channels * 4)
     elif args.levels > 1:
         _pyramid_passes(ctx, buffer, args, firsts, images, backward=False)
     return buffer, info, firsts, total, images, mark
@@ -294,18 +294,27 @@ class _TexelGradients:
             self.buffer = fixed_point_values(self.ctx, self.buffer, self.total * self.channels,
                                              self.shift)
         if not args.pulls_pyramid:
-            return _read(self.buffer, self.total * self.channels).reshape(-1, self.channels)
+            return _rows(self.buffer, self.total, self.channels)
         top = None if self.top is None else int(_read(self.top, 1, np.int32)[0])
         _pyramid_passes(self.ctx, self.buffer, args, firsts, images, backward=True, top=top)
-        return _read(self.buffer, firsts[1] * self.channels).reshape(-1, self.channels)
+        return _rows(self.buffer, firsts[1], self.channels)
+
+
+def _rows(buffer, rows: int, channels: int) -> np.ndarray:
+    """The first ``rows`` x ``channels`` floats of ``buffer`` read straight into a new,
+    writable (rows, channels) array (no bytes object, no copy)."""
+    out = np.empty((rows, channels), np.float32)
+    buffer.read_into(out, size=out.nbytes)
+    return out
 
 
 def _split_levels(args: TextureArgs, flat: np.ndarray, firsts, total: int, want):
-    """(grad_tex, [grad of each mip input]) from :meth:`_TexelGradients.levels`' rows."""
+    """(grad_tex, [grad of each mip input]) from :meth:`_TexelGradients.levels`' rows
+    (views of ``flat``)."""
     grad_tex = None
     if want[0]:
         stop = firsts[1] if args.levels > 1 else total
-        grad_tex = np.array(flat[:stop].reshape(args.tex.shape))
+        grad_tex = flat[:stop].reshape(args.tex.shape)   # views of one fresh array
     grad_mip = [None] * len(args.mip or ())
     if args.mipmapped:
         for k, m in enumerate(args.user_mips):
@@ -313,7 +322,7 @@ def _split_levels(args: TextureArgs, flat: np.ndarray, firsts, total: int, want)
                 continue
             if k + 1 < args.levels:
                 start, stop = firsts[k + 1], (firsts[k + 2] if k + 2 < args.levels else total)
-                grad_mip[k] = np.array(flat[start:stop].reshape(m.shape))
+                grad_mip[k] = flat[start:stop].reshape(m.shape)
             else:
                 grad_mip[k] = np.zeros(m.shape, np.float32)
     return grad_tex, grad_mip
