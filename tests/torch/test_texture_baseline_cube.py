@@ -32,9 +32,10 @@ def _inner(direction: np.ndarray, n: int) -> np.ndarray:
 
 
 def test_cube_yardstick_matches_the_float64_reference_off_the_edges():
-    n = 8
-    tex32, d32 = baseline.cube_inputs(n, channels=3, seed=4)
+    tex32, d32 = baseline.cube_inputs(16, channels=3, seed=4)
     tex, d = tex32.double().numpy(), d32.double().numpy()
+    n = tex.shape[2]
+    assert tex.shape == (1, 6, 8, 8, 3) and d.shape == (1, 16, 16, 3)
     inner = _inner(d, n)
     assert inner.mean() >= 0.5 and not inner.all()
     g = np.random.default_rng(5).normal(size=d.shape[:3] + (3,))
