@@ -54,3 +54,17 @@ def test_cube_yardstick_matches_the_float64_reference_off_the_edges():
         x = x.numpy()
         assert x.shape == w.shape, name
         assert np.abs(x - w).max() <= 1e-12 * max(1.0, np.abs(w).max()), name
+
+
+def test_the_bench_runs_its_short_forms(ctx, capsys):
+    """docs/differentiable.md quotes `texture-baseline --sizes 256 512 1024 --repeat 3` and
+    `--cores --cpu-time` over the same sizes (minutes); these are their 16² rounds, the cube
+    cell included: every row printed, ratios and the clear timing line there."""
+    assert baseline.main(["--sizes", "16", "--repeat", "1", "--modes", "nearest", "cube"]) == 0
+    assert baseline.main(["--cores", "--cpu-time", "--sizes", "16", "--repeat", "1",
+                          "--modes", "linear", "cube"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    rows = [line.split("|") for line in out if line.startswith("| 16²")]
+    assert [row[2].strip() for row in rows] == ["nearest", "cube", "linear", "cube"]
+    assert all(len(row) == 8 and "[" in row[5 if i < 2 else 6] for i, row in enumerate(rows))
+    assert any(line.startswith("clearing the texel-gradient buffer") for line in out)
