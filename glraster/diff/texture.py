@@ -14,9 +14,12 @@ derivations in docs/differentiable.md, "Texture"), in compute shaders
   eigenvalue of J^T J, J the texel-space Jacobian from ``uv_da``, plus ``mip_level_bias``,
   clamped to the pyramid) and filters with texel fetches at texel centres (no GL sampler:
   see :func:`sampler_probe` for why);
-* the backward sends gradients to every texel read (float atomics or a compare-and-swap
-  loop, as :mod:`glraster.diff.compute`; deterministic, integer atomics on 64-bit fixed
-  point, :func:`fixed_point_shift`), then pulls a built pyramid's level gradients back into
+* the backward (on the levels its forward left on the GPU, :data:`BACKWARD_RUN` pixels per
+  invocation, whose terms for a texel they share are summed first) sends gradients to
+  every texel read (float atomics or a compare-and-swap loop, as
+  :mod:`glraster.diff.compute`; deterministic, integer atomics on 64-bit fixed point,
+  :func:`fixed_point_shift`, rounded to float32 on the GPU, :func:`fixed_point_values`),
+  then pulls a built pyramid's level gradients back into
   the base through the transpose of its box filter (a gather, one pass per level); to uv
   (through the bilinear weights and, for cube maps, the face projection and the level), to
   uv_da (through the level) and to the bias.
