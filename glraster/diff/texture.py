@@ -14,9 +14,12 @@ derivations in docs/differentiable.md, "Texture"), in compute shaders
   eigenvalue of J^T J, J the texel-space Jacobian from ``uv_da``, plus ``mip_level_bias``,
   clamped to the pyramid) and filters with texel fetches at texel centres (no GL sampler:
   see :func:`sampler_probe` for why);
-* the backward sends gradients to every texel read (float atomics or a compare-and-swap
-  loop, as :mod:`glraster.diff.compute`; deterministic, integer atomics on 64-bit fixed
-  point, :func:`fixed_point_shift`), then pulls a built pyramid's level gradients back into
+* the backward (on the levels its forward left on the GPU, :data:`BACKWARD_RUN` pixels per
+  invocation, whose terms for a texel they share are summed first) sends gradients to
+  every texel read (float atomics or a compare-and-swap loop, as
+  :mod:`glraster.diff.compute`; deterministic, integer atomics on 64-bit fixed point,
+  :func:`fixed_point_shift`, rounded to float32 on the GPU, :func:`fixed_point_values`),
+  then pulls a built pyramid's level gradients back into
   the base through the transpose of its box filter (a gather, one pass per level); to uv
   (through the bilinear weights and, for cube maps, the face projection and the level), to
   uv_da (through the level) and to the bias.
@@ -25,11 +28,12 @@ derivations in docs/differentiable.md, "Texture"), in compute shaders
 from __future__ import annotations
 
 import ctypes
+import weakref
 
 import numpy as np
 
 from glraster import validate
-from glraster.diff.compute import accumulation
+from glraster.diff.compute import LOCAL_SIZE, accumulation
 from glraster.diff.compute import chunks as _chunks
 from glraster.diff.compute import read as _read
 from glraster.diff.compute import run as _run
@@ -49,6 +53,8 @@ __all__ = ["backward", "build_mips", "forward", "sampler_probe"]
 
 _SHADER = "diff/texture.comp"
 _MIP_SHADER = "diff/texture_mip.comp"
+_RESOLVE_SHADER = "diff/texture_resolve.comp"
+_MAX_GROUPS = 65535   # GL_MAX_COMPUTE_WORK_GROUP_COUNT's least value (GL 4.6, table 23.75)
 # the texture shader's accumulation defines: deterministic (per_pixel) is its fixed point
 _ACCUM_DEFINES = {"atomic_float": "ACCUM_ATOMIC_FLOAT", "cas": "ACCUM_CAS",
                   "per_pixel": "ACCUM_FIXED_POINT"}
@@ -91,21 +97,31 @@ def _storage_limit(ctx: Context, nbytes: int, what: str) -> None:
                          "texture, fewer channels or max_mip_level")
 
 
-def _upload_levels(ctx: Context, args: TextureArgs, name: str = "texture.levels"):
-    """Every level in one storage buffer (base uploaded; mips uploaded or built on the GPU).
-    Inside ``with ctx``. Returns (buffer, info, firsts, total texels, images)."""
+# context -> (mark, buffer): the levels its buffer "texture.levels" holds (_upload_levels)
+_HELD: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _upload_levels(ctx: Context, args: TextureArgs, mark=None):
+    """Every level in the context's storage buffer "texture.levels" (base uploaded; mips
+    uploaded or built on the GPU), unless it still holds those of ``mark`` (a mark this
+    function returned, for the same ``args``: no texture call has filled the buffer since).
+    Inside ``with ctx``. Returns (buffer, info, firsts, total texels, images, mark)."""
     info, firsts, total, images = _geometry(args)
     channels = args.channels
     _storage_limit(ctx, total * channels * 4, "the texture and its mip levels")
-    buffer = ctx.scratch_buffer(name, total * channels * 4)
-    buffer.write(np.ascontiguousarray(args.tex, np.float32).tobytes(), offset=0)
+    buffer = ctx.scratch_buffer("texture.levels", total * channels * 4)
+    if mark is not None and _HELD.get(ctx) == (mark, buffer):
+        return buffer, info, firsts, total, images, mark
+    mark = object()
+    _HELD[ctx] = (mark, buffer)
+    buffer.write(np.ascontiguousarray(args.tex, np.float32), offset=0)  # no bytes copy
     if args.levels > 1 and args.mip is not None:
         for k in range(1, args.levels):
             level = np.ascontiguousarray(args.mip[k - 1], np.float32)
-            buffer.write(level.tobytes(), offset=firsts[k] * channels * 4)
+            buffer.write(level, offset=firsts[k] * channels * 4)
     elif args.levels > 1:
         _pyramid_passes(ctx, buffer, args, firsts, images, backward=False)
-    return buffer, info, firsts, total, images
+    return buffer, info, firsts, total, images, mark
 
 
 def _pyramid_passes(ctx: Context, buffer, args: TextureArgs, firsts, images: int,
@@ -196,7 +212,7 @@ def forward(tex, uv, uv_da=None, mip_level_bias=None, *mip, filter_mode="auto",
     coords = uv_f.shape[1]
     with ctx:
         program = ctx.compute_program(shader_path(_SHADER), defines)
-        levels, info, _, _, _ = _upload_levels(ctx, args)
+        levels, info, _, _, _, mark = _upload_levels(ctx, args)
         levels.bind_to_storage_buffer(0)
         for first, count in _chunks(n, 4 * (3 * coords + 1 + channels)):
             part = slice(first, first + count)
@@ -205,8 +221,12 @@ def forward(tex, uv, uv_da=None, mip_level_bias=None, *mip, filter_mode="auto",
             result.bind_to_storage_buffer(5)
             _run(ctx, program, count)
             out[part] = _read(result, count * channels).reshape(count, channels)
-    return (out.reshape(args.uv.shape[:3] + (channels,)),), TextureSaved(args, None, ctx)
+    return (out.reshape(args.uv.shape[:3] + (channels,)),), TextureSaved(args, None, ctx, mark)
 
+
+# pixels per backward invocation: consecutive pixels add their terms for a texel they both
+# read in the invocation, and send each texel's sum once (texture.comp, "Held")
+BACKWARD_RUN = 8
 
 # the deterministic mode's accumulators are signed 64-bit integers; sums stay below 2^62
 _FIXED_TOTAL_BITS = 62
@@ -222,6 +242,28 @@ def fixed_point_shift(max_abs_g: float, pixels: int) -> int:
     return _FIXED_TOTAL_BITS - head - top
 
 
+def fixed_point_values(ctx: Context, words, count: int, shift: int):
+    """The first ``count`` 64-bit fixed-point sums of the uint buffer ``words`` (low word,
+    high word, two's complement; include/fixed_point.glsl; it holds a whole number of
+    groups of 4 values, ``-(-count // 4) * 32`` bytes or more) as float32 round(q 2^-shift),
+    in the context's float scratch buffer ``texture.grad_tex_float`` (returned), converted
+    on the GPU (``shaders/diff/texture_resolve.comp``): the float NumPy's int64 -> float64
+    -> ldexp -> float32 gives, with half the bytes to read back and the pyramid's pull-back
+    run where the values are. Inside ``with ctx``."""
+    quads = -(-count // 4)
+    program = ctx.compute_program(shader_path(_RESOLVE_SHADER), {})
+    out = ctx.scratch_buffer("texture.grad_tex_float", max(quads, 1) * 16)
+    words.bind_to_storage_buffer(0)
+    out.bind_to_storage_buffer(1)
+    _set(program, "unit", float(np.ldexp(1.0, -shift)))
+    step = _MAX_GROUPS * LOCAL_SIZE
+    for first in range(0, quads, step):      # at most 65535 work groups a dispatch
+        _set(program, "first_quad", first)
+        _set(program, "n_quads", min(step, quads - first))
+        _run(ctx, program, min(step, quads - first))
+    return out
+
+
 class _TexelGradients:
     """Where the backward sums the texel gradients (inside ``with ctx``; made only when tex
     or a mip level wants one): a zeroed storage buffer the shader adds into, float32 with
@@ -232,16 +274,17 @@ class _TexelGradients:
     def __init__(self, ctx: Context, mode: str, total: int, channels: int, program,
                  g_flat: np.ndarray, mipmapped: bool):
         self.ctx, self.mode, self.total, self.channels = ctx, mode, total, channels
-        words = 2 if mode == "per_pixel" else 1
-        _storage_limit(ctx, total * channels * 4 * words, "the texel gradients")
-        self.buffer = _cleared(ctx, "texture.grad_tex", total * channels * 4 * words)
+        # per_pixel: two words a value, whole groups of 4 values (fixed_point_values)
+        nbytes = -(-total * channels // 4) * 32 if mode == "per_pixel" else total * channels * 4
+        _storage_limit(ctx, nbytes, "the texel gradients")
+        self.buffer = _cleared(ctx, "texture.grad_tex", nbytes)
         self.buffer.bind_to_storage_buffer(9)
         self.top = None
         if mipmapped:
             self.top = _cleared(ctx, "texture.top_level", 4)
             self.top.bind_to_storage_buffer(10)
         if mode == "per_pixel":
-            max_abs = float(np.abs(g_flat).max()) if g_flat.size else 0.0
+            max_abs = float(max(g_flat.max(), -g_flat.min())) if g_flat.size else 0.0
             self.shift = fixed_point_shift(max_abs, len(g_flat))
             half = self.shift // 2
             _set(program, "fixed_scale_a", float(2.0 ** half))
@@ -251,25 +294,30 @@ class _TexelGradients:
         """(texels, C) float32: every level's texel gradients, base first, a built (or own)
         pyramid's pulled back into the base (then only the base's rows are read back)."""
         if self.mode == "per_pixel":
-            fixed = _read(self.buffer, self.total * self.channels, np.int64)
-            flat = np.ldexp(fixed.astype(np.float64), -self.shift).astype(np.float32)
-            flat = flat.reshape(-1, self.channels)
-            if not args.pulls_pyramid:
-                return flat
-            self.buffer = self.ctx.storage_buffer("texture.grad_tex_float", flat)
+            self.buffer = fixed_point_values(self.ctx, self.buffer, self.total * self.channels,
+                                             self.shift)
         if not args.pulls_pyramid:
-            return _read(self.buffer, self.total * self.channels).reshape(-1, self.channels)
+            return _rows(self.buffer, self.total, self.channels)
         top = None if self.top is None else int(_read(self.top, 1, np.int32)[0])
         _pyramid_passes(self.ctx, self.buffer, args, firsts, images, backward=True, top=top)
-        return _read(self.buffer, firsts[1] * self.channels).reshape(-1, self.channels)
+        return _rows(self.buffer, firsts[1], self.channels)
+
+
+def _rows(buffer, rows: int, channels: int) -> np.ndarray:
+    """The first ``rows`` x ``channels`` floats of ``buffer`` read straight into a new,
+    writable (rows, channels) array (no bytes object, no copy)."""
+    out = np.empty((rows, channels), np.float32)
+    buffer.read_into(out, size=out.nbytes)
+    return out
 
 
 def _split_levels(args: TextureArgs, flat: np.ndarray, firsts, total: int, want):
-    """(grad_tex, [grad of each mip input]) from :meth:`_TexelGradients.levels`' rows."""
+    """(grad_tex, [grad of each mip input]) from :meth:`_TexelGradients.levels`' rows
+    (views of ``flat``)."""
     grad_tex = None
     if want[0]:
         stop = firsts[1] if args.levels > 1 else total
-        grad_tex = np.array(flat[:stop].reshape(args.tex.shape))
+        grad_tex = flat[:stop].reshape(args.tex.shape)   # views of one fresh array
     grad_mip = [None] * len(args.mip or ())
     if args.mipmapped:
         for k, m in enumerate(args.user_mips):
@@ -277,7 +325,7 @@ def _split_levels(args: TextureArgs, flat: np.ndarray, firsts, total: int, want)
                 continue
             if k + 1 < args.levels:
                 start, stop = firsts[k + 1], (firsts[k + 2] if k + 2 < args.levels else total)
-                grad_mip[k] = np.array(flat[start:stop].reshape(m.shape))
+                grad_mip[k] = flat[start:stop].reshape(m.shape)
             else:
                 grad_mip[k] = np.zeros(m.shape, np.float32)
     return grad_tex, grad_mip
@@ -292,8 +340,9 @@ def backward(saved: TextureSaved, grad_out, *, needs=None, deterministic: bool =
         grad_out: (B, H, W, C) dL/d out, or None (zero).
         needs: None (all) or one bool per input (tex, uv, uv_da, mip_level_bias, *mip).
             Without tex or mip levels wanted the shader is compiled without the texel sums
-            (nothing spread, read back or pulled through the pyramid); the coordinates'
-            gradients are read back only where wanted; nothing runs when nothing is wanted.
+            (nothing spread, read back or pulled through the pyramid); without uv, uv_da
+            and the bias, without their gradients (no texel reads for them, nothing written);
+            each is read back only where wanted; nothing runs when nothing is wanted.
         deterministic: bit-identical results from run to run (accumulation "per_pixel":
             the texel gradients summed on the GPU as 64-bit fixed-point integers, whose sum
             does not depend on the order of the additions, rounded once to float32; the
@@ -320,16 +369,18 @@ def backward(saved: TextureSaved, grad_out, *, needs=None, deterministic: bool =
     n, uv_f, da, bias = _pixel_inputs(args)
     channels, coords = args.channels, uv_f.shape[1]
     g_flat = grad_out.reshape(n, channels)
-    defines = dict(_defines(args), BACKWARD=None)
+    defines = dict(_defines(args), BACKWARD=None, RUN=BACKWARD_RUN)
     if texels:   # else the shader spreads nothing (no texel buffer, no accumulation)
         defines.update({"TEX_GRAD": None, _ACCUM_DEFINES[mode]: None})
+    if any(want[1:4]):   # else no texel reads for them and no per-pixel outputs
+        defines["COORD_GRAD"] = None
     grad_uv = np.empty((n, coords), np.float32) if want[1] else None
     grad_da = np.zeros((n, 2 * coords), np.float32) if want[2] else None
     grad_bias = np.zeros(n, np.float32) if want[3] else None
     per_pixel = 4 * (3 * coords + 1 + 2 * channels + 3 * coords + 1)
     with ctx:
         program = ctx.compute_program(shader_path(_SHADER), defines)
-        levels, info, firsts, total, images = _upload_levels(ctx, args)
+        levels, info, firsts, total, images, _ = _upload_levels(ctx, args, saved.uploaded)
         levels.bind_to_storage_buffer(0)
         sums = (_TexelGradients(ctx, mode, total, channels, program, g_flat,
                                 args.mipmapped) if texels else None)
@@ -337,8 +388,9 @@ def backward(saved: TextureSaved, grad_out, *, needs=None, deterministic: bool =
             part = slice(first, first + count)
             _bind_common(ctx, program, args, defines, part, uv_f, da, bias, info, count, first)
             ctx.storage_buffer("texture.grad_out", g_flat[part]).bind_to_storage_buffer(5)
-            outs = _bind_coordinate_outputs(ctx, defines, count, coords)
-            _run(ctx, program, count)
+            outs = (_bind_coordinate_outputs(ctx, defines, count, coords)
+                    if "COORD_GRAD" in defines else ())
+            _run(ctx, program, -(-count // BACKWARD_RUN))
             for target, (buffer, width) in zip((grad_uv, grad_da, grad_bias), outs):
                 if target is not None and buffer is not None:
                     target[part] = _read(buffer, count * width).reshape(target[part].shape)
@@ -379,7 +431,7 @@ def build_mips(tex, max_mip_level=None, *, boundary_mode="wrap", ctx: Context | 
                  boundary_mode=boundary_mode, max_mip_level=max_mip_level, dtype=np.float32)
     channels = args.channels
     with ctx:
-        buffer, _, firsts, total, _ = _upload_levels(ctx, args)
+        buffer, _, firsts, total, _, _ = _upload_levels(ctx, args)
         flat = _read(buffer, total * channels).reshape(-1, channels)
     lead = args.tex.shape[:-3]
     out = []

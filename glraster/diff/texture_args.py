@@ -122,12 +122,15 @@ class TextureArgs:
 class TextureSaved:
     """What a texture core's ``backward`` needs from its ``forward``, the same record from
     both cores: the checked arguments; ``levels``: every level read, base first (the
-    float64 reference's; None on the GPU, which rebuilds them); ``ctx``: the GL context the
-    GPU core ran on (None for the reference)."""
+    float64 reference's; None on the GPU); ``ctx``: the GL context the GPU core ran on
+    (None for the reference); ``uploaded``: the GPU core's mark of the levels it left in
+    the context's levels buffer (its backward uploads and builds them again only when
+    another texture call has replaced them since)."""
 
     args: TextureArgs
     levels: list | None = None
     ctx: Any = None
+    uploaded: Any = None
 
 
 def wanted(needs, count: int) -> list[bool]:

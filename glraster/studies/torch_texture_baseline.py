@@ -92,6 +92,41 @@ def texture(tex, uv, uv_da=None, mip_level_bias=None, filter_mode="auto",
     return out.permute(0, 2, 3, 1)
 
 
+# cube faces +x, -x, +y, -y, +z, -z (GL table 8.19): (axis, sign) of s_c, t_c and of m
+_CUBE_FACES = (((2, -1), (1, -1), (0, 1)), ((2, 1), (1, -1), (0, -1)),
+               ((0, 1), (2, 1), (1, 1)), ((0, 1), (2, -1), (1, -1)),
+               ((0, 1), (1, -1), (2, 1)), ((0, -1), (1, -1), (2, -1)))
+
+
+def cube_texture(tex, direction):
+    """A cube map looked up with linear filtering in plain PyTorch, the way one would
+    without a custom kernel: each pixel's major face by GL's rule (ties to x, then y), its
+    face coordinates 2 s - 1 = s_c / m (GL table 8.19), and per face one ``grid_sample``
+    of that face's pixels (border padding: a tap past a face edge clamps to the face
+    instead of reading the neighbouring face, so this differs from glraster within a
+    texel of the edges). tex (1, 6, N, N, C), direction (B, H, W, 3) -> (B, H, W, C)."""
+    a = direction.detach().abs()
+    x_major = (a[..., 0] >= a[..., 1]) & (a[..., 0] >= a[..., 2])
+    y_major = ~x_major & (a[..., 1] >= a[..., 2])
+    axis = torch.where(x_major, 0, torch.where(y_major, 1, 2))
+    positive = torch.gather(direction.detach(), -1, axis[..., None])[..., 0] >= 0
+    face = 2 * axis + (~positive).long()
+    flat = direction.reshape(-1, 3)
+    faces = face.reshape(-1)
+    out = flat.new_zeros(flat.shape[0], tex.shape[-1])
+    for f, ((sa, ss), (ta, ts), (ma, ms)) in enumerate(_CUBE_FACES):
+        rows = torch.nonzero(faces == f)[:, 0]
+        if rows.numel() == 0:
+            continue
+        d = flat[rows]
+        m = ms * d[:, ma]
+        grid = torch.stack([ss * d[:, sa] / m, ts * d[:, ta] / m], dim=-1)
+        sample = F.grid_sample(tex[:, f].permute(0, 3, 1, 2), grid[None, None], mode="bilinear",
+                               padding_mode="border", align_corners=False)
+        out = out.index_put((rows,), sample[0, :, 0].t())
+    return out.reshape(*direction.shape[:3], tex.shape[-1])
+
+
 # --------------------------------------------------------------------------- benchmark
 
 
@@ -113,68 +148,144 @@ def perspective_inputs(size: int, channels: int = 4, seed: int = 0):
     return tex, uv, uv_da.contiguous()
 
 
-MODES = ("nearest", "linear", "linear-mipmap-nearest", "linear-mipmap-linear")
+def cube_inputs(size: int, channels: int = 4, seed: int = 0):
+    """A size x size view (90 degrees across) toward a corner of a cube map of six
+    n x n faces, n = max(1, size // 2) (1.5 size² texels, about the 2-D cells' size²; at
+    1024² six 1024² faces would need 192 MiB of deterministic sums, more than llvmpipe's
+    128 MiB storage block), so that three faces and their shared corner are seen:
+    tex (1, 6, n, n, channels) uniform in [0, 1), directions (1, size, size, 3), float32."""
+    g = torch.Generator().manual_seed(seed)
+    n = max(1, size // 2)
+    tex = torch.rand(1, 6, n, n, channels, generator=g)
+    forward = torch.tensor([1.0, 0.8, 0.6])
+    forward = forward / forward.norm()
+    right = torch.linalg.cross(forward, torch.tensor([0.0, 1.0, 0.0]))
+    right = right / right.norm()
+    up = torch.linalg.cross(right, forward)
+    ys, xs = torch.meshgrid((torch.arange(size) + 0.5) / size * 2 - 1,
+                            (torch.arange(size) + 0.5) / size * 2 - 1, indexing="ij")
+    d = forward + xs[..., None] * right + ys[..., None] * up
+    return tex, d[None].contiguous().float()
+
+
+MODES = ("nearest", "linear", "linear-mipmap-nearest", "linear-mipmap-linear", "cube")
+
+
+def _cell(size: int, mode: str, boundary_mode: str):
+    """(inputs tex, uv, uv_da; the texture call's keyword arguments; the yardstick) of one
+    bench cell; "cube" is linear filtering of a cube map (:func:`cube_inputs`)."""
+    if mode == "cube":
+        tex, d = cube_inputs(size)
+        return (tex, d, None), dict(filter_mode="linear", boundary_mode="cube"), \
+            lambda t, u, _d, _b, **_: cube_texture(t, u)
+    tex, uv, uv_da = perspective_inputs(size)
+    da = uv_da if mode.startswith("linear-mipmap") else None
+    return (tex, uv, da), dict(filter_mode=mode, boundary_mode=boundary_mode), texture
 
 
 def benchmark(sizes=(512, 1024), repeat: int = 5, boundary_mode: str = "wrap", modes=MODES):
-    """Rows (size, filter_mode, glraster ms, plain PyTorch ms, max |difference|) of forward
-    + backward (gradients to tex and uv, and uv_da in linear-mipmap-linear)."""
+    """Rows (size, mode, glraster ms, plain PyTorch ms, glraster / PyTorch median, its
+    lowest and highest round, max |difference|, p99.9 |difference|) of forward + backward
+    (gradients to tex and uv, and uv_da in the mipmapped modes): ``repeat`` rounds after a
+    warm-up one, each timing one glraster call and one PyTorch call (which goes first
+    alternates), medians over the rounds, so both sides see the same load."""
+    import statistics
+    import time
+
     import glraster.torch as dr
-    from glraster.studies.timing import median_seconds
 
     rows = []
     for size in sizes:
-        tex, uv, uv_da = perspective_inputs(size)
         for mode in modes:
-            da = uv_da if mode.startswith("linear-mipmap") else None
+            (tex, uv, da), params, yardstick = _cell(size, mode, boundary_mode)
             results = {}
 
             def run(impl, key):
                 t = tex.clone().requires_grad_()
                 u = uv.clone().requires_grad_()
                 d = None if da is None else da.clone().requires_grad_()
-                out = impl(t, u, d, None, filter_mode=mode, boundary_mode=boundary_mode)
+                out = impl(t, u, d, None, **params)
                 out.backward(torch.ones_like(out))
                 results[key] = out.detach()
 
-            ms_gl = 1e3 * median_seconds(lambda: run(dr.texture, "gl"), repeat, warmup=1)
-            ms_pt = 1e3 * median_seconds(lambda: run(texture, "pt"), repeat, warmup=1)
+            sides = {"gl": lambda: run(dr.texture, "gl"), "pt": lambda: run(yardstick, "pt")}
+            times = {"gl": [], "pt": []}
+            for k in range(repeat + 1):              # round 0 warms up
+                for key in (("gl", "pt") if k % 2 else ("pt", "gl")):
+                    start = time.perf_counter()
+                    sides[key]()
+                    times[key].append(time.perf_counter() - start)
+            ratios = [a / b for a, b in zip(times["gl"][1:], times["pt"][1:])]
             diff = (results["gl"] - results["pt"]).abs()
-            rows.append((size, mode, ms_gl, ms_pt, float(diff.max()),
+            rows.append((size, mode, 1e3 * statistics.median(times["gl"][1:]),
+                         1e3 * statistics.median(times["pt"][1:]), statistics.median(ratios),
+                         min(ratios), max(ratios), float(diff.max()),
                          float(diff.flatten().kthvalue(max(1, math.ceil(0.999 * diff.numel())))
                                .values)))
     return rows
 
 
 def core_benchmark(sizes=(512, 1024), repeat: int = 5, boundary_mode: str = "wrap",
-                   modes=MODES):
-    """Rows (size, filter_mode, forward ms, backward ms atomic, backward ms deterministic)
-    of the GPU core alone (:mod:`glraster.diff.texture`, NumPy in and out), on the inputs
-    of :func:`benchmark`; each round times the three calls in turn, medians over rounds."""
+                   modes=MODES, clock=None):
+    """Rows (size, mode, forward ms, backward ms atomic, backward ms deterministic,
+    deterministic / atomic median over rounds, its lowest and highest round) of the GPU
+    core alone (:mod:`glraster.diff.texture`, NumPy in and out), on the inputs of
+    :func:`benchmark`; each round times the three calls in turn, medians over rounds.
+    ``clock``: wall time by default; ``time.process_time`` counts the process's CPU time,
+    llvmpipe's threads included (steadier than wall time on shared cores)."""
     import statistics
     import time
 
     from glraster.diff import texture as gpu
 
+    clock = clock or time.perf_counter
     rows = []
     for size in sizes:
-        tex, uv, uv_da = (t.numpy() for t in perspective_inputs(size))
-        g = np.ones(uv.shape[:3] + (tex.shape[-1],), np.float32)
         for mode in modes:
-            da = uv_da if mode.startswith("linear-mipmap") else None
-            (_,), saved = gpu.forward(tex, uv, da, None, filter_mode=mode,
-                                      boundary_mode=boundary_mode)
-            calls = {"forward": lambda: gpu.forward(tex, uv, da, None, filter_mode=mode,
-                                                    boundary_mode=boundary_mode),
+            (tex, uv, da), params, _ = _cell(size, mode, boundary_mode)
+            tex, uv = tex.numpy(), uv.numpy()
+            da = None if da is None else da.numpy()
+            g = np.ones(uv.shape[:3] + (tex.shape[-1],), np.float32)
+            (_,), saved = gpu.forward(tex, uv, da, None, **params)
+            calls = {"forward": lambda: gpu.forward(tex, uv, da, None, **params),
                      "atomic": lambda: gpu.backward(saved, g),
                      "deterministic": lambda: gpu.backward(saved, g, deterministic=True)}
             times = {name: [] for name in calls}
             for _ in range(repeat + 1):           # the first round warms up
                 for name, call in calls.items():
-                    start = time.perf_counter()
+                    start = clock()
                     call()
-                    times[name].append(time.perf_counter() - start)
-            rows.append((size, mode, *(1e3 * statistics.median(t[1:]) for t in times.values())))
+                    times[name].append(clock() - start)
+            ratios = [d / a for d, a in zip(times["deterministic"][1:], times["atomic"][1:])]
+            rows.append((size, mode, *(1e3 * statistics.median(t[1:]) for t in times.values()),
+                         statistics.median(ratios), min(ratios), max(ratios)))
+    return rows
+
+
+def clear_benchmark(sizes=(512, 1024), repeat: int = 5, clock=None):
+    """Rows (size, MiB, ms) of the driver's clear of the backward's texel-gradient buffer
+    of a size x size RGBA texture without mips (one ``glClearNamedBufferSubData`` call, as
+    :mod:`glraster.diff.texture` does, waited for), for float sums and for the
+    deterministic 64-bit ones; medians of ``repeat`` calls after one."""
+    import statistics
+    import time
+
+    from glraster.diff import texture as gpu
+    from glraster.gpu.context import default_context
+
+    clock = clock or time.perf_counter
+    ctx = default_context()
+    rows = []
+    with ctx:
+        for size in sizes:
+            for nbytes in (size * size * 16, size * size * 32):
+                times = []
+                for _ in range(repeat + 1):
+                    start = clock()
+                    gpu._cleared(ctx, "texture.grad_tex", nbytes)
+                    ctx.mgl.finish()
+                    times.append(clock() - start)
+                rows.append((size, nbytes / 2**20, 1e3 * statistics.median(times[1:])))
     return rows
 
 
@@ -194,14 +305,20 @@ def build_parser():
     parser.add_argument("--boundary", default="wrap", choices=("wrap", "clamp", "zero"),
                         help="boundary_mode (default wrap)")
     parser.add_argument("--modes", nargs="+", default=list(MODES), choices=MODES,
-                        metavar="MODE", help="filter modes (default: all four)")
+                        metavar="MODE", help="filter modes, and cube (linear filtering of a "
+                        "cube map seen toward a corner) (default: all five)")
     parser.add_argument("--cores", action="store_true",
                         help="instead: the GPU core's forward and its backward (atomic and "
                         "deterministic) alone, NumPy in and out")
+    parser.add_argument("--cpu-time", action="store_true",
+                        help="with --cores: time the process's CPU time (llvmpipe's threads "
+                        "included) instead of wall time, steadier on shared cores")
     return parser
 
 
 def main(argv=None) -> int:  # pragma: no cover - a measurement, not a test
+    import time
+
     parser = build_parser()
     args = parser.parse_args(argv)
     for size in args.sizes:
@@ -211,25 +328,31 @@ def main(argv=None) -> int:  # pragma: no cover - a measurement, not a test
         parser.error(f"--repeat must be >= 1, got {args.repeat}")
     torch.set_num_threads(max(1, torch.get_num_threads()))
     if args.cores:
-        print(f"glraster.diff.texture alone, median of {args.repeat} rounds, texture = image "
-              f"size, 4 channels, {args.boundary}")
-        print("| image and texture | filter_mode | forward ms | backward atomic ms | "
-              "backward deterministic ms | deterministic / forward |")
+        clock = time.process_time if args.cpu_time else time.perf_counter
+        what = "CPU time of the process" if args.cpu_time else "wall time"
+        print(f"glraster.diff.texture alone, {what}, median of {args.repeat} rounds, texture = "
+              f"image size, 4 channels, {args.boundary} (cube: linear, six (N/2)² faces)")
+        print("| image and texture | mode | forward ms | backward atomic ms | "
+              "backward deterministic ms | deterministic / atomic [rounds] |")
         print("|---|---|---|---|---|---|")
-        for size, mode, fwd, atomic, det in core_benchmark(tuple(args.sizes), args.repeat,
-                                                           args.boundary, args.modes):
+        for size, mode, fwd, atomic, det, ratio, low, high in core_benchmark(
+                tuple(args.sizes), args.repeat, args.boundary, args.modes, clock):
             print(f"| {size}² | {mode} | {fwd:.1f} | {atomic:.1f} | {det:.1f} | "
-                  f"{det / fwd:.2f} |")
+                  f"{ratio:.2f} [{low:.2f} .. {high:.2f}] |")
+        print("clearing the texel-gradient buffer (one driver call, no mips): " + ", ".join(
+            f"{size}² {mib:.0f} MiB {ms:.2f} ms" for size, mib, ms in
+            clear_benchmark(tuple(args.sizes), args.repeat, clock)))
         return 0
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads; forward + backward, "
-          f"median of {args.repeat}, texture = image size, 4 channels, {args.boundary}")
-    print("| image and texture | filter_mode | glraster.torch (GL) ms | plain PyTorch ms | "
-          "ratio | max / p99.9 |out difference| |")
+          f"median of {args.repeat} interleaved rounds, texture = image size, 4 channels, "
+          f"{args.boundary} (cube: linear, six (N/2)² faces)")
+    print("| image and texture | mode | glraster.torch (GL) ms | plain PyTorch ms | "
+          "glraster / PyTorch [rounds] | max / p99.9 |out difference| |")
     print("|---|---|---|---|---|---|")
-    for size, mode, gl, pt, dmax, d999 in benchmark(tuple(args.sizes), args.repeat,
-                                                    args.boundary, args.modes):
-        print(f"| {size}² | {mode} | {gl:.0f} | {pt:.0f} | {pt / gl:.2f} | "
-              f"{dmax:.1e} / {d999:.1e} |")
+    for size, mode, gl, pt, ratio, low, high, dmax, d999 in benchmark(
+            tuple(args.sizes), args.repeat, args.boundary, args.modes):
+        print(f"| {size}² | {mode} | {gl:.1f} | {pt:.1f} | {ratio:.2f} [{low:.2f} .. "
+              f"{high:.2f}] | {dmax:.1e} / {d999:.1e} |")
     return 0
 
 

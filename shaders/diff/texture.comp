@@ -8,7 +8,10 @@
 // BOUNDARY 0 wrap | 1 clamp | 2 zero | 3 cube; HAS_DA, HAS_BIAS; CHANNELS (floats per
 // texel: a constant, so the channel loops unroll); with BACKWARD either TEX_GRAD and one of
 // ACCUM_ATOMIC_FLOAT | ACCUM_CAS | ACCUM_FIXED_POINT (deterministic: see spread), or no
-// TEX_GRAD (no texel gradient wanted: nothing is spread).
+// TEX_GRAD (no texel gradient wanted: nothing is spread); with BACKWARD, RUN consecutive
+// pixels per invocation (their terms for a texel they share summed before one atomic add);
+// COORD_GRAD: the gradients to uv, uv_da and the bias are wanted (else neither computed nor
+// written).
 // Layouts (flattened pixels of this dispatch, i = 0 .. n_pixels - 1):
 //   texels  every level (base first), level l from texel level_info[l].x on, texel
 //           ((image * faces + face) * H + j) * W + i, `channels` floats per texel
@@ -318,53 +321,176 @@ float texel(int index, int c) {
 float g_pixel[CHANNELS];  // this pixel's dL/d out, read once
 
 #ifdef ACCUM_FIXED_POINT
-// word pair k += round(value 2^k) as a 64-bit integer: integer addition is associative, so
-// the total is the same whatever order the invocations reach it (bit-identical runs). The
-// magnitude a < 2^62 is an integer-valued float: hi = floor(a / 2^32) and lo = a - hi 2^32
-// are exact (lo has at most 24 significant bits, those of a); a negative value is the
-// two's complement of its magnitude; the low word's carry goes into the high word.
-void add_fixed(int k, float value) {
-    float a = roundEven(abs(value) * fixed_scale_a * fixed_scale_b);
-    if (a == 0.0) return;
-    uint hi = uint(floor(a * (1.0 / 4294967296.0)));
-    uint lo = uint(a - float(hi) * 4294967296.0);
-    if (value < 0.0) { hi = ~hi + (lo == 0u ? 1u : 0u); lo = 0u - lo; }
-    uint old = atomicAdd(grad_tex[2 * k], lo);
-    hi += (old + lo < old) ? 1u : 0u;
-    if (hi != 0u) atomicAdd(grad_tex[2 * k + 1], hi);
-}
+// the texel sums are 64-bit fixed-point integers (include/fixed_point.glsl, one group and no
+// header: value n at words 2n, 2n + 1); integer addition is associative, so the total is the
+// same whatever order the invocations reach it (bit-identical runs), and adding terms in
+// the invocation first (fixed_point_add) gives the same words as adding each on its own
+#include "include/fixed_point.glsl"
+#define TERM uvec2
+#define TERM_ZERO uvec2(0u)
+#else
+#define TERM float
+#define TERM_ZERO 0.0
 #endif
 
-// dL/d texel += w dL/d out (every channel) for one tap of weight w
-void spread(int index, float w) {
-#ifdef TEX_GRAD
-    if (index < 0 || w == 0.0) return;
+// The texel terms of one level of one pixel, held back so that the next pixel of the
+// invocation can add its own to the texels both read (neighbouring pixels share taps
+// wherever the texture is magnified or near 1:1): a texel's sum leaves the invocation, with
+// one atomic add per channel, when the pixel that follows no longer reads it. index -1:
+// no texel.
+struct Held { ivec4 index; TERM v[4][CHANNELS]; };
+
+Held held_none() {
+    Held h;
+    h.index = ivec4(-1);
+    for (int k = 0; k < 4; ++k)
+        for (int c = 0; c < channels; ++c) h.v[k][c] = TERM_ZERO;
+    return h;
+}
+
+// one tap's terms w dL/d out_c (fixed point: round(w g_c 2^k), 2^k = a b in float range)
+void tap_terms(inout Held h, int k, int index, float w) {
+    h.index[k] = (w == 0.0) ? -1 : index;
     for (int c = 0; c < channels; ++c) {
         float value = w * g_pixel[c];
 #ifdef ACCUM_FIXED_POINT
-        add_fixed(index * channels + c, value);
+        h.v[k][c] = fixed_point_words(value * fixed_scale_a, fixed_scale_b);
 #else
-        if (value != 0.0) ATOMIC_ADD_FLOAT(grad_tex[index * channels + c], value);
+        h.v[k][c] = value;
+#endif
+    }
+}
+
+void send(int index, TERM v[CHANNELS]) {
+#ifdef TEX_GRAD
+    if (index < 0) return;
+    for (int c = 0; c < channels; ++c) {
+#ifdef ACCUM_FIXED_POINT
+        FIXED_ADD_WORDS(grad_tex, 0u, uint(index * channels + c), v[c]);
+#else
+        if (v[c] != 0.0) ATOMIC_ADD_FLOAT(grad_tex[index * channels + c], v[c]);
 #endif
     }
 #endif
 }
 
+// `now` (this pixel's terms) takes over the held terms of each texel it reads too (each
+// held tap goes to at most one of its taps), and the held taps it does not read are sent
+void pass_on(inout Held held, inout Held now) {
+    bvec4 kept = bvec4(false);
+    for (int k = 0; k < 4; ++k) {
+        if (now.index[k] < 0) continue;
+        for (int m = 0; m < 4; ++m) {
+            if (kept[m] || held.index[m] != now.index[k]) continue;
+            kept[m] = true;
+            for (int c = 0; c < channels; ++c) {
+#ifdef ACCUM_FIXED_POINT
+                now.v[k][c] = fixed_point_add(now.v[k][c], held.v[m][c]);
+#else
+                now.v[k][c] += held.v[m][c];
+#endif
+            }
+        }
+    }
+    for (int m = 0; m < 4; ++m)
+        if (!kept[m]) send(held.index[m], held.v[m]);
+    held = now;
+}
+
+void send_all(Held h) {
+    for (int m = 0; m < 4; ++m) send(h.index[m], h.v[m]);
+}
+
 // sum_c g_c texel(index, c): the gradient of the loss by the tap's weight
-float tap_gradient(uint i, int index) {
+float tap_gradient(int index) {
     if (index < 0) return 0.0;
     float r = 0.0;
     for (int c = 0; c < channels; ++c) r += g_pixel[c] * texels[index * channels + c];
     return r;
 }
+
+// pixel i's gradients to uv, uv_da, the bias (written), its texel terms passed on to the
+// held ones of its levels (level 0 only for the filters without a second level)
+void backward_pixel(uint i, inout Held held0, inout Held held1) {
+    int image = tex_batch == 1 ? 0 : int((first_pixel + i) / pixels_per_image);
+    Pixel p = setup(i, image);
+    for (int c = 0; c < channels; ++c) g_pixel[c] = grad_out[i * uint(channels) + uint(c)];
+#if defined(TEX_GRAD) && MIP
+    // a plain read first: once the maximum is known, few invocations reach the atomic
+    if (p.ok && p.last_level > top_level_read) atomicMax(top_level_read, p.last_level);
+#endif
+    float gs = 0.0, gt = 0.0, glevel = 0.0;
+#ifdef TEX_GRAD
+    Held now = held_none();
+#endif
+#if FILTER == 0
+#ifdef TEX_GRAD
+    if (p.ok) tap_terms(now, 0, p.nearest, 1.0);
+    pass_on(held0, now);
+#endif
+#else
+    float w0 = FILTER == 3 ? 1.0 - p.frac : 1.0;
+    float s0 = 0.0, s1 = 0.0;
+    float ok = p.ok ? 1.0 : 0.0;
+    for (int k = 0; k < 4; ++k) {
+#ifdef COORD_GRAD
+        float tg = tap_gradient(p.t0.index[k]);
+        gs += p.t0.ds[k] * tg; gt += p.t0.dt[k] * tg;
+        s0 += p.t0.w[k] * tg;
+#endif
+#ifdef TEX_GRAD
+        tap_terms(now, k, p.t0.index[k], ok * w0 * p.t0.w[k]);
+#endif
+    }
+#ifdef TEX_GRAD
+    pass_on(held0, now);
+#endif
+    gs *= w0; gt *= w0;
+#if FILTER == 3
+    float gs1 = 0.0, gt1 = 0.0;
+    for (int k = 0; k < 4; ++k) {
+#ifdef COORD_GRAD
+        float tg = tap_gradient(p.t1.index[k]);
+        gs1 += p.t1.ds[k] * tg; gt1 += p.t1.dt[k] * tg;
+        s1 += p.t1.w[k] * tg;
+#endif
+#ifdef TEX_GRAD
+        tap_terms(now, k, p.t1.index[k], ok * p.frac * p.t1.w[k]);
+#endif
+    }
+#ifdef TEX_GRAD
+    pass_on(held1, now);
+#endif
+    gs += p.frac * gs1; gt += p.frac * gt1;
+    glevel = p.live_level ? s1 - s0 : 0.0;
+#endif
+#endif
+#ifdef COORD_GRAD
+    if (!p.ok) { gs = 0.0; gt = 0.0; glevel = 0.0; }
+#if BOUNDARY == 3
+    vec3 gd = gs * p.ds_duv + gt * p.dt_duv + glevel * p.dlevel_duv;
+    grad_uv[3u * i] = gd.x; grad_uv[3u * i + 1u] = gd.y; grad_uv[3u * i + 2u] = gd.z;
+#else
+    grad_uv[2u * i] = FILTER == 0 ? 0.0 : gs;
+    grad_uv[2u * i + 1u] = FILTER == 0 ? 0.0 : gt;
+#endif
+#ifdef HAS_DA
+    for (int k = 0; k < 2 * NCOORD; ++k)
+        grad_da[uint(2 * NCOORD) * i + uint(k)] = glevel * p.dlevel_da[k];
+#endif
+#ifdef HAS_BIAS
+    grad_bias[i] = glevel;
+#endif
+#endif
+}
 #endif
 
 void main() {
+#ifndef BACKWARD
     uint i = gl_GlobalInvocationID.x;
     if (i >= n_pixels) return;
     int image = tex_batch == 1 ? 0 : int((first_pixel + i) / pixels_per_image);
     Pixel p = setup(i, image);
-#ifndef BACKWARD
     for (int c = 0; c < channels; ++c) {
         float v = 0.0;
 #if FILTER == 0
@@ -380,51 +506,21 @@ void main() {
         out_tex[i * uint(channels) + uint(c)] = p.ok ? v : 0.0;
     }
 #else
-    for (int c = 0; c < channels; ++c) g_pixel[c] = grad_out[i * uint(channels) + uint(c)];
-#if defined(TEX_GRAD) && MIP
-    // a plain read first: once the maximum is known, few invocations reach the atomic
-    if (p.ok && p.last_level > top_level_read) atomicMax(top_level_read, p.last_level);
-#endif
-    float gs = 0.0, gt = 0.0, glevel = 0.0;
-#if FILTER == 0
-    spread(p.nearest, p.ok ? 1.0 : 0.0);
+    // RUN consecutive pixels (along a row of the image) per invocation
+    uint first = gl_GlobalInvocationID.x * uint(RUN);
+    if (first >= n_pixels) return;
+    uint last = min(first + uint(RUN), n_pixels);
+#ifdef TEX_GRAD
+    Held held0 = held_none(), held1 = held_none();
 #else
-    float w0 = FILTER == 3 ? 1.0 - p.frac : 1.0;
-    float s0 = 0.0, s1 = 0.0;
-    float ok = p.ok ? 1.0 : 0.0;
-    for (int k = 0; k < 4; ++k) {
-        float tg = tap_gradient(i, p.t0.index[k]);
-        gs += p.t0.ds[k] * tg; gt += p.t0.dt[k] * tg;
-        s0 += p.t0.w[k] * tg;
-        spread(p.t0.index[k], ok * w0 * p.t0.w[k]);
-    }
-    gs *= w0; gt *= w0;
+    Held held0, held1;
+#endif
+    for (uint i = first; i < last; ++i) backward_pixel(i, held0, held1);
+#ifdef TEX_GRAD
+    send_all(held0);
 #if FILTER == 3
-    float gs1 = 0.0, gt1 = 0.0;
-    for (int k = 0; k < 4; ++k) {
-        float tg = tap_gradient(i, p.t1.index[k]);
-        gs1 += p.t1.ds[k] * tg; gt1 += p.t1.dt[k] * tg;
-        s1 += p.t1.w[k] * tg;
-        spread(p.t1.index[k], ok * p.frac * p.t1.w[k]);
-    }
-    gs += p.frac * gs1; gt += p.frac * gt1;
-    glevel = p.live_level ? s1 - s0 : 0.0;
+    send_all(held1);
 #endif
-#endif
-    if (!p.ok) { gs = 0.0; gt = 0.0; glevel = 0.0; }
-#if BOUNDARY == 3
-    vec3 gd = gs * p.ds_duv + gt * p.dt_duv + glevel * p.dlevel_duv;
-    grad_uv[3u * i] = gd.x; grad_uv[3u * i + 1u] = gd.y; grad_uv[3u * i + 2u] = gd.z;
-#else
-    grad_uv[2u * i] = FILTER == 0 ? 0.0 : gs;
-    grad_uv[2u * i + 1u] = FILTER == 0 ? 0.0 : gt;
-#endif
-#ifdef HAS_DA
-    for (int k = 0; k < 2 * NCOORD; ++k)
-        grad_da[uint(2 * NCOORD) * i + uint(k)] = glevel * p.dlevel_da[k];
-#endif
-#ifdef HAS_BIAS
-    grad_bias[i] = glevel;
 #endif
 #endif
 }

@@ -213,6 +213,69 @@ def test_deterministic_texel_sums_are_exact_at_both_ends_of_the_range(ctx):
     assert abs(grad_tex[0, 0, 0, 0] - left) <= U * abs(left) + n * n * resolution
 
 
+def test_backward_uses_the_forwards_levels_only_while_they_are_current(ctx):
+    """The backward reads the levels its forward left in the levels buffer (no second
+    upload or pyramid build), and uploads and builds them again after another texture's
+    forward replaced them: gradients equal in both orders, bit for bit."""
+    mode = "linear-mipmap-linear"
+    a = _f32(*make_inputs(51, "wrap", image=(16, 16), tex_size=(16, 16)))
+    b = _f32(*make_inputs(52, "wrap", image=(16, 16), tex_size=(16, 16)))
+    g = np.random.default_rng(53).normal(size=a[1].shape[:3] + (a[0].shape[-1],))
+    g = g.astype(np.float32)
+    _, saved_a = tx.forward(*a, filter_mode=mode, ctx=ctx)
+    fresh = tx.backward(saved_a, g, deterministic=True)
+    assert tx._HELD[ctx][0] is saved_a.uploaded         # read where the forward left them
+    _, saved_b = tx.forward(*b, filter_mode=mode, ctx=ctx)
+    assert tx._HELD[ctx][0] is saved_b.uploaded
+    stale = tx.backward(saved_a, g, deterministic=True)  # b's levels there: a's again
+    assert tx._HELD[ctx][0] is not saved_b.uploaded
+    for x, y in zip(fresh[:4], stale[:4]):
+        assert x.tobytes() == y.tobytes()
+    other = tx.backward(saved_b, g, deterministic=True)
+    assert other[0].tobytes() != fresh[0].tobytes()
+
+
+@pytest.mark.parametrize("mode", ["nearest", "linear", "linear-mipmap-linear"])
+def test_each_gradient_alone_is_the_one_of_the_full_backward(ctx, mode):
+    """needs: tex alone (the shader without the coordinates' gradients) and the coordinates
+    alone (without the texel sums) give the full backward's arrays, bit for bit
+    (deterministic), None for the rest."""
+    tex, uv, da, bias = _f32(*make_inputs(61, "wrap", image=(16, 16), tex_size=(8, 8)))
+    if not mode.startswith("linear-mipmap"):
+        da = bias = None
+    out, saved = tx.forward(tex, uv, da, bias, filter_mode=mode, ctx=ctx)
+    g = np.random.default_rng(62).normal(size=out[0].shape).astype(np.float32)
+    full = tx.backward(saved, g, deterministic=True)
+    texels = tx.backward(saved, g, needs=(True, False, False, False), deterministic=True)
+    coords = tx.backward(saved, g, needs=(False, True, True, True), deterministic=True)
+    assert texels[0].tobytes() == full[0].tobytes() and texels[1:] == (None,) * 3
+    assert coords[0] is None
+    for a, b in zip(coords[1:4], full[1:4]):
+        assert (a is None and b is None) or a.tobytes() == b.tobytes()
+
+
+def test_fixed_point_values_round_as_numpy_does(ctx):
+    """The GPU's conversion of the 64-bit fixed-point sums to float32 gives the float of
+    NumPy's int64 -> float64 -> ldexp -> float32, bit for bit: zero (llvmpipe's double
+    ldexp(0, -k) is not 0, so the shader does not use it), both signs, values that round
+    in float64 (above 2^53) and in float32, the ends of the range, a shift past float32's
+    exponents."""
+    rng = np.random.default_rng(41)
+    q = np.concatenate([
+        np.array([0, 1, -1, 2**31, -2**31, 2**32 - 1, 2**32, -2**32, 2**53 + 1, -(2**53) - 3,
+                  2**62 - 1, -(2**62), 2**63 - 1, -(2**63)], np.int64),
+        rng.integers(-2**62, 2**62, 5000, dtype=np.int64),
+        rng.integers(-2**34, 2**34, 5001, dtype=np.int64)])
+    padded = np.concatenate([q, np.full(-q.size % 4, 7, np.int64)])   # whole groups of 4
+    for shift in (0, 38, 140, -20):
+        with ctx:
+            words = ctx.storage_buffer("test.fixed_words", padded.view(np.uint32))
+            out = tx.fixed_point_values(ctx, words, q.size, shift)
+            got = np.frombuffer(out.read(size=4 * q.size), np.float32)
+        want = np.ldexp(q.astype(np.float64), -shift).astype(np.float32)
+        assert got.tobytes() == want.tobytes(), shift
+
+
 @pytest.mark.parametrize("deterministic", [False, True])
 @pytest.mark.parametrize("mode", ["linear-mipmap-nearest", "linear-mipmap-linear"])
 def test_pull_back_from_the_highest_level_read_matches_the_reference(ctx, mode, deterministic):
