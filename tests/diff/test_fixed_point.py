@@ -44,7 +44,7 @@ def test_exponent_is_the_largest_that_keeps_sums_below_2_63():
 def test_deterministic_is_the_fixed_point_accumulation_of_the_three_ops(ctx):
     assert compute.accumulation(ctx, True, None, compute.FIXED_POINT_ACCUMULATIONS) == \
         "fixed_point"
-    assert compute.accumulation(ctx, True) == "per_pixel", "texture keeps its host sum"
+    assert compute.accumulation(ctx, True) == "per_pixel", "texture's own name for its GPU fixed-point sum"
     with pytest.raises(ValueError, match="accumulate must be one of"):
         compute.accumulation(ctx, accumulate="per_pixel",
                              offered=compute.FIXED_POINT_ACCUMULATIONS)
