@@ -29,25 +29,32 @@ float tap_weight(int n, int j, int k) {  // weight of finer texel 2j + k in coar
 
 void main() {
     uint gid = gl_GlobalInvocationID.x;
+    // the taps' weights and first floats are found once, then used for every channel (the
+    // same products and sums, in the same order, as per channel)
 #ifndef BACKWARD
     int W = coarse_size.x, H = coarse_size.y;
     if (gid >= uint(images * W * H)) return;
     int x = int(gid) % W, y = (int(gid) / W) % H, image = int(gid) / (W * H);
+    float wy[3], wx[3];
+    int at[3][3];
+    for (int k = 0; k < 3; ++k) {
+        wy[k] = tap_weight(fine_size.y, y, k);
+        wx[k] = tap_weight(fine_size.x, x, k);
+    }
+    for (int ky = 0; ky < 3; ++ky)
+        for (int kx = 0; kx < 3; ++kx)
+            at[ky][kx] = fine_first + ((image * fine_size.y + 2 * y + ky) * fine_size.x
+                                       + 2 * x + kx) * channels;
     for (int c = 0; c < channels; ++c) {
         float v = 0.0;
         for (int ky = 0; ky < 3; ++ky) {
-            float wy = tap_weight(fine_size.y, y, ky);
-            if (wy == 0.0) continue;
-            int fy = 2 * y + ky;
+            if (wy[ky] == 0.0) continue;
             float row = 0.0;
             for (int kx = 0; kx < 3; ++kx) {
-                float wx = tap_weight(fine_size.x, x, kx);
-                if (wx == 0.0) continue;
-                int fx = 2 * x + kx;
-                row += wx * levels[fine_first + ((image * fine_size.y + fy) * fine_size.x + fx)
-                                    * channels + c];
+                if (wx[kx] == 0.0) continue;
+                row += wx[kx] * levels[at[ky][kx] + c];
             }
-            v += wy * row;
+            v += wy[ky] * row;
         }
         levels[coarse_first + int(gid) * channels + c] = v;
     }
@@ -55,25 +62,30 @@ void main() {
     int W = fine_size.x, H = fine_size.y;
     if (gid >= uint(images * W * H)) return;
     int x = int(gid) % W, y = (int(gid) / W) % H, image = int(gid) / (W * H);
+    // coarse texels y / 2 - 1 + r, x / 2 - 1 + q (r, q = 0, 1); weight 0: not read
+    float wy[2], wx[2];
+    int cys[2], cxs[2];
+    for (int r = 0; r < 2; ++r) {
+        int cy = y / 2 - 1 + r, ky = y - 2 * cy;
+        wy[r] = (cy < 0 || cy >= coarse_size.y || ky < 0 || ky > 2) ? 0.0
+                                                                    : tap_weight(H, cy, ky);
+        cys[r] = cy;
+        int cx = x / 2 - 1 + r, kx = x - 2 * cx;
+        wx[r] = (cx < 0 || cx >= coarse_size.x || kx < 0 || kx > 2) ? 0.0
+                                                                    : tap_weight(W, cx, kx);
+        cxs[r] = cx;
+    }
     for (int c = 0; c < channels; ++c) {
         float v = 0.0;
-        for (int cy = y / 2 - 1; cy <= y / 2; ++cy) {
-            if (cy < 0 || cy >= coarse_size.y) continue;
-            int ky = y - 2 * cy;
-            if (ky < 0 || ky > 2) continue;
-            float wy = tap_weight(H, cy, ky);
-            if (wy == 0.0) continue;
+        for (int r = 0; r < 2; ++r) {
+            if (wy[r] == 0.0) continue;
             float row = 0.0;
-            for (int cx = x / 2 - 1; cx <= x / 2; ++cx) {
-                if (cx < 0 || cx >= coarse_size.x) continue;
-                int kx = x - 2 * cx;
-                if (kx < 0 || kx > 2) continue;
-                float wx = tap_weight(W, cx, kx);
-                if (wx == 0.0) continue;
-                row += wx * levels[coarse_first + ((image * coarse_size.y + cy) * coarse_size.x
-                                                   + cx) * channels + c];
+            for (int q = 0; q < 2; ++q) {
+                if (wx[q] == 0.0) continue;
+                row += wx[q] * levels[coarse_first + ((image * coarse_size.y + cys[r])
+                                                      * coarse_size.x + cxs[q]) * channels + c];
             }
-            v += wy * row;
+            v += wy[r] * row;
         }
         levels[fine_first + int(gid) * channels + c] += v;
     }
