@@ -183,17 +183,21 @@ def _cell(size: int, mode: str, boundary_mode: str):
     return (tex, uv, da), dict(filter_mode=mode, boundary_mode=boundary_mode), texture
 
 
-def benchmark(sizes=(512, 1024), repeat: int = 5, boundary_mode: str = "wrap", modes=MODES):
+def benchmark(sizes=(512, 1024), repeat: int = 5, boundary_mode: str = "wrap", modes=MODES,
+              clock=None):
     """Rows (size, mode, glraster ms, plain PyTorch ms, glraster / PyTorch median, its
     lowest and highest round, max |difference|, p99.9 |difference|) of forward + backward
     (gradients to tex and uv, and uv_da in the mipmapped modes): ``repeat`` rounds after a
     warm-up one, each timing one glraster call and one PyTorch call (which goes first
-    alternates), medians over the rounds, so both sides see the same load."""
+    alternates), medians over the rounds, so both sides see the same load. ``clock``: wall
+    time by default; ``time.process_time`` counts the process's CPU time (PyTorch's and
+    llvmpipe's threads included), which swings less than wall time on shared cores."""
     import statistics
     import time
 
     import glraster.torch as dr
 
+    clock = clock or time.perf_counter
     rows = []
     for size in sizes:
         for mode in modes:
@@ -212,9 +216,9 @@ def benchmark(sizes=(512, 1024), repeat: int = 5, boundary_mode: str = "wrap", m
             times = {"gl": [], "pt": []}
             for k in range(repeat + 1):              # round 0 warms up
                 for key in (("gl", "pt") if k % 2 else ("pt", "gl")):
-                    start = time.perf_counter()
+                    start = clock()
                     sides[key]()
-                    times[key].append(time.perf_counter() - start)
+                    times[key].append(clock() - start)
             ratios = [a / b for a, b in zip(times["gl"][1:], times["pt"][1:])]
             diff = (results["gl"] - results["pt"]).abs()
             rows.append((size, mode, 1e3 * statistics.median(times["gl"][1:]),
@@ -311,7 +315,7 @@ def build_parser():
                         help="instead: the GPU core's forward and its backward (atomic and "
                         "deterministic) alone, NumPy in and out")
     parser.add_argument("--cpu-time", action="store_true",
-                        help="with --cores: time the process's CPU time (llvmpipe's threads "
+                        help="time the process's CPU time (PyTorch's and llvmpipe's threads "
                         "included) instead of wall time, steadier on shared cores")
     return parser
 
@@ -327,9 +331,9 @@ def main(argv=None) -> int:  # pragma: no cover - a measurement, not a test
     if args.repeat < 1:
         parser.error(f"--repeat must be >= 1, got {args.repeat}")
     torch.set_num_threads(max(1, torch.get_num_threads()))
+    clock = time.process_time if args.cpu_time else time.perf_counter
+    what = "CPU time of the process" if args.cpu_time else "wall time"
     if args.cores:
-        clock = time.process_time if args.cpu_time else time.perf_counter
-        what = "CPU time of the process" if args.cpu_time else "wall time"
         print(f"glraster.diff.texture alone, {what}, median of {args.repeat} rounds, texture = "
               f"image size, 4 channels, {args.boundary} (cube: linear, six (N/2)² faces)")
         print("| image and texture | mode | forward ms | backward atomic ms | "
@@ -344,13 +348,13 @@ def main(argv=None) -> int:  # pragma: no cover - a measurement, not a test
             clear_benchmark(tuple(args.sizes), args.repeat, clock)))
         return 0
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads; forward + backward, "
-          f"median of {args.repeat} interleaved rounds, texture = image size, 4 channels, "
+          f"{what}, median of {args.repeat} interleaved rounds, texture = image size, 4 channels, "
           f"{args.boundary} (cube: linear, six (N/2)² faces)")
     print("| image and texture | mode | glraster.torch (GL) ms | plain PyTorch ms | "
           "glraster / PyTorch [rounds] | max / p99.9 |out difference| |")
     print("|---|---|---|---|---|---|")
     for size, mode, gl, pt, ratio, low, high, dmax, d999 in benchmark(
-            tuple(args.sizes), args.repeat, args.boundary, args.modes):
+            tuple(args.sizes), args.repeat, args.boundary, args.modes, clock):
         print(f"| {size}² | {mode} | {gl:.1f} | {pt:.1f} | {ratio:.2f} [{low:.2f} .. "
               f"{high:.2f}] | {dmax:.1e} / {d999:.1e} |")
     return 0
