@@ -131,12 +131,11 @@ def _pyramid_passes(ctx: Context, buffer, args: TextureArgs, firsts, images: int
     invocation per coarse texel); backward, each level's gradient added into the finer one
     through the transpose of the filter, coarsest first (a gather: one per fine texel),
     from level ``top`` down (None: the coarsest; the levels above it hold zeros)."""
-    program = ctx.compute_program(shader_path(_MIP_SHADER), {"BACKWARD": None} if backward
-                                  else {})
-    buffer.bind_to_storage_buffer(0)
     channels = args.channels
+    defines = {"CHANNELS": channels, **({"BACKWARD": None} if backward else {})}
+    program = ctx.compute_program(shader_path(_MIP_SHADER), defines)
+    buffer.bind_to_storage_buffer(0)
     _set(program, "images", images)
-    _set(program, "channels", channels)
     top = args.levels - 1 if top is None else min(top, args.levels - 1)
     steps = range(top, 0, -1) if backward else range(1, args.levels)
     for k in steps:

@@ -6,7 +6,7 @@
 // finer level over its footprint: taps 2j, 2j + 1, 2j + 2 with weights
 //   n == 1: (1, 0, 0)    n even: (1/2, 1/2, 0)    n = 2m + 1: (m - j, m, j + 1) / (2m + 1)
 // Texel layout: ((image * H + y) * W + x) * channels + c from the level's first float
-// (`images` = texture batch x faces).
+// (`images` = texture batch x faces; CHANNELS floats per texel, a define).
 
 layout(local_size_x = 64) in;
 
@@ -17,7 +17,7 @@ uniform int coarse_first;   // first float of level l
 uniform ivec2 fine_size;    // (W, H) of level l - 1
 uniform ivec2 coarse_size;  // (W, H) of level l
 uniform int images;
-uniform int channels;
+const int channels = CHANNELS;   // a define: the channel loops unroll
 
 float tap_weight(int n, int j, int k) {  // weight of finer texel 2j + k in coarse texel j
     if (n == 1) return k == 0 ? 1.0 : 0.0;
