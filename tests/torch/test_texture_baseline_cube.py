@@ -68,3 +68,14 @@ def test_the_bench_runs_its_short_forms(ctx, capsys):
     assert [row[2].strip() for row in rows] == ["nearest", "cube", "linear", "cube"]
     assert all(len(row) == 8 and "[" in row[5 if i < 2 else 6] for i, row in enumerate(rows))
     assert any(line.startswith("clearing the texel-gradient buffer") for line in out)
+
+
+def test_the_comparison_counts_cpu_time_when_asked(ctx, capsys):
+    """`texture-baseline --cpu-time` without --cores (docs/differentiable.md, "Texture",
+    small cells) times both sides by the process's CPU time and says so."""
+    assert baseline.main(["--cpu-time", "--sizes", "16", "--repeat", "1",
+                          "--modes", "linear"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert "CPU time of the process" in out[0]
+    rows = [line.split("|") for line in out if line.startswith("| 16²")]
+    assert [row[2].strip() for row in rows] == ["linear"] and "[" in rows[0][5]
