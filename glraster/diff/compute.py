@@ -34,7 +34,7 @@ from glraster.gpu.context import Context
 
 __all__ = [
     "ACCUMULATIONS", "DEFINES", "FIXED_POINT_ACCUMULATIONS", "FixedPointSum", "LOCAL_SIZE",
-    "FIXED_POINT_RUN", "MAX_CHUNK_BYTES", "accumulation", "chunks", "corner_vertices", "fixed_point_exponent",
+    "RUN_PIXELS", "MAX_CHUNK_BYTES", "accumulation", "chunks", "corner_vertices", "fixed_point_exponent",
     "has_atomic_float", "read", "reduce_rows", "run", "set_uniform", "zeroed",
 ]
 
@@ -48,10 +48,13 @@ LOCAL_SIZE = 64
 # Largest storage buffer glraster fills in one dispatch (llvmpipe allows 128 MiB); bigger
 # inputs are processed in chunks of pixels.
 MAX_CHUNK_BYTES = 1 << 26
-# Consecutive pixels one invocation of a fixed-point pass handles: the rounded terms of
-# the pixels it finds on one triangle are summed locally, then added with one pair of
-# atomics (measured in docs/differentiable.md, "Deterministic sums").
-FIXED_POINT_RUN = 16
+# Consecutive pixels one invocation of an accumulating backward pass (rasterize,
+# interpolate) handles, in every accumulation: the terms of the pixels it finds on one
+# triangle are summed locally and added with one atomic per value (fixed point: one pair
+# of word atomics), instead of one per pixel. Few triangles over many pixels otherwise
+# put every invocation on the same few addresses (measured in docs/differentiable.md,
+# "Backward accumulation"). 1 adds every term on its own (tests compare the two).
+RUN_PIXELS = 16
 
 
 def has_atomic_float(ctx: Context) -> bool:

@@ -5,9 +5,9 @@
 // Defines: SPACE_SCREEN (u, v are window-space barycentrics, else perspective-correct);
 // ACCUM_ATOMIC_FLOAT (atomicAdd on float, GL_NV_shader_atomic_float) | ACCUM_CAS
 // (atomicCompSwap loop on the float's bits) | ACCUM_FIXED_POINT (64-bit fixed-point integer
-// sums, include/fixed_point.glsl: bit-reproducible; RUN pixels per invocation) |
-// ACCUM_PER_PIXEL (each pixel writes
-// its three vertex contributions, for backward_pixels); GRAD_DB.
+// sums, include/fixed_point.glsl: bit-reproducible) | ACCUM_PER_PIXEL (each pixel writes
+// its three vertex contributions, for backward_pixels); RUN (pixels per invocation, local
+// sums: see main); GRAD_DB.
 //
 // Mathematics (docs/differentiable.md, "Backward on the GPU"). In the pixel-relative window
 // frame V'_j = (X_j - p_x w_j, Y_j - p_y w_j, w_j), with X = (x + w) W/2, Y = (y + w) H/2,
@@ -48,12 +48,18 @@ uniform uint fixed_groups;   // ACCUM_FIXED_POINT: B with batched pos (one scale
 #include "include/atomic_add_float.glsl"
 #include "include/fixed_point.glsl"
 
-void add(uint vertex, vec3 g) {
+// one pixel's terms g = (x, y, w) to a vertex (image b), one atomic each (RUN undefined)
+void add(uint vertex, uint b, vec3 g) {
     uint o = 4u * vertex;
 #if defined(ACCUM_ATOMIC_FLOAT) || defined(ACCUM_CAS)
     ATOMIC_ADD_FLOAT(grad_pos[o + 0u], g.x);
     ATOMIC_ADD_FLOAT(grad_pos[o + 1u], g.y);
     ATOMIC_ADD_FLOAT(grad_pos[o + 3u], g.z);
+#elif defined(ACCUM_FIXED_POINT)
+    uint group = vertex_stride == 0u ? 0u : b;
+    FIXED_ADD(grad_pos, fixed_groups, group, o + 0u, g.x);
+    FIXED_ADD(grad_pos, fixed_groups, group, o + 1u, g.y);
+    FIXED_ADD(grad_pos, fixed_groups, group, o + 3u, g.z);
 #endif
 }
 
@@ -156,27 +162,45 @@ bool pixel_terms(uint i, out int t, out uint b, out uint idx[3], out vec3 terms[
     return true;
 }
 
+#ifdef RUN
+// RUN consecutive pixels per invocation: the terms of a stretch of pixels on one triangle
+// are summed locally and added with one atomic per vertex coordinate (fixed point: one
+// pair of word atomics; 64-bit integer sums are associative, so the same bits), instead
+// of one per pixel.
 #ifdef ACCUM_FIXED_POINT
-// RUN consecutive pixels per invocation: the rounded terms of a stretch of pixels on one
-// triangle are summed locally (64-bit integers: associative, so the same bits) and added
-// with one pair of atomics per vertex coordinate, instead of one pair per pixel.
-void flush(uint group, uint idx[3], uvec2 sum[9], uint largest) {
+#define TERM uvec2
+#define TERM_ZERO uvec2(0u)
+#else
+#define TERM float
+#define TERM_ZERO 0.0
+#endif
+
+void flush(uint b, uint idx[3], TERM sum[9], uint largest) {
+#ifdef ACCUM_FIXED_POINT
+    uint group = vertex_stride == 0u ? 0u : b;
     FIXED_TRACK(grad_pos, group, largest);
+#endif
     for (int j = 0; j < 3; ++j) {
         uint o = 4u * idx[j];
+#ifdef ACCUM_FIXED_POINT
         FIXED_ADD_WORDS(grad_pos, fixed_groups, o + 0u, sum[3 * j]);
         FIXED_ADD_WORDS(grad_pos, fixed_groups, o + 1u, sum[3 * j + 1]);
         FIXED_ADD_WORDS(grad_pos, fixed_groups, o + 3u, sum[3 * j + 2]);
+#else
+        ATOMIC_ADD_FLOAT(grad_pos[o + 0u], sum[3 * j]);
+        ATOMIC_ADD_FLOAT(grad_pos[o + 1u], sum[3 * j + 1]);
+        ATOMIC_ADD_FLOAT(grad_pos[o + 3u], sum[3 * j + 2]);
+#endif
     }
 }
 
 void main() {
     uint start = gl_GlobalInvocationID.x * uint(RUN);
     int open_t = -1;
-    uint open_b = 0u, open_group = 0u;
+    uint open_b = 0u;
     uint open_idx[3] = uint[3](0u, 0u, 0u);
-    uvec2 sum[9];
-    uint largest = 0u;       // fixed_point_magnitude of the largest term
+    TERM sum[9];
+    uint largest = 0u;       // fixed point: fixed_point_magnitude of the largest term
     float scale = 0.0;
     for (uint r = 0u; r < uint(RUN); ++r) {
         uint i = start + r;
@@ -186,24 +210,29 @@ void main() {
         vec3 terms[3];
         if (!pixel_terms(i, t, b, idx, terms)) continue;
         if (t != open_t || b != open_b) {
-            if (open_t >= 0) flush(open_group, open_idx, sum, largest);
+            if (open_t >= 0) flush(open_b, open_idx, sum, largest);
             open_t = t;
             open_b = b;
             open_idx = idx;
-            open_group = vertex_stride == 0u ? 0u : b;
-            scale = uintBitsToFloat(grad_pos[fixed_groups + open_group]);
-            for (int m = 0; m < 9; ++m) sum[m] = uvec2(0u);
+#ifdef ACCUM_FIXED_POINT
+            scale = uintBitsToFloat(grad_pos[fixed_groups + (vertex_stride == 0u ? 0u : b)]);
+#endif
+            for (int m = 0; m < 9; ++m) sum[m] = TERM_ZERO;
             largest = 0u;
         }
         for (int j = 0; j < 3; ++j) {
             for (int c = 0; c < 3; ++c) {
+#ifdef ACCUM_FIXED_POINT
                 largest = max(largest, fixed_point_magnitude(terms[j][c]));
                 sum[3 * j + c] = fixed_point_add(sum[3 * j + c],
                                                  fixed_point_words(terms[j][c], scale));
+#else
+                sum[3 * j + c] += terms[j][c];
+#endif
             }
         }
     }
-    if (open_t >= 0) flush(open_group, open_idx, sum, largest);
+    if (open_t >= 0) flush(open_b, open_idx, sum, largest);
 }
 #else
 void main() {
@@ -217,7 +246,7 @@ void main() {
 #ifdef ACCUM_PER_PIXEL
         contrib[3u * i + uint(j)] = live ? vec4(terms[j].xy, 0.0, terms[j].z) : vec4(0.0);
 #else
-        if (live) add(idx[j], terms[j]);
+        if (live) add(idx[j], b, terms[j]);
 #endif
     }
 }

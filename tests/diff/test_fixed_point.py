@@ -130,10 +130,10 @@ def test_rasterize_bit_identical_for_swapped_images_chunks_and_history(ctx, monk
     gpu_backward(pos, tri, rasts, gs * np.float32(2.0 ** 40), ctx=ctx, deterministic=True)
     after = gpu_backward(pos, tri, rasts, gs, ctx=ctx, deterministic=True)
     assert np.array_equal(bits(want), bits(after)), "the exponent depends on the call only"
-    monkeypatch.setattr(compute, "FIXED_POINT_RUN", 1)
+    monkeypatch.setattr(compute, "RUN_PIXELS", 1)
     single = gpu_backward(pos, tri, rasts, gs, ctx=ctx, deterministic=True)
     assert np.array_equal(bits(want), bits(single))
-    monkeypatch.setattr(compute, "FIXED_POINT_RUN", 5)
+    monkeypatch.setattr(compute, "RUN_PIXELS", 5)
     monkeypatch.setattr(compute, "MAX_CHUNK_BYTES", 16 * 640)
     chunked = gpu_backward(pos, tri, rasts, gs, ctx=ctx, deterministic=True)
     assert np.array_equal(bits(want), bits(chunked))
