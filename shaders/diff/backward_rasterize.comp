@@ -63,42 +63,60 @@ void add(uint vertex, uint b, vec3 g) {
 #endif
 }
 
-// The terms of pixel i (of this dispatch) to the clip-space (x, y, w) of its triangle's
-// vertices idx (batch offset included), b its image; false (terms not set) when it adds
-// nothing (empty, or a zero upstream gradient outside ACCUM_PER_PIXEL).
-bool pixel_terms(uint i, out int t, out uint b, out uint idx[3], out vec3 terms[3]) {
-    t = decode_id(rast[i].w) - 1;
-    vec2 gbary = grad_rast[i].xy;
+// Pixel i (of this dispatch): its triangle t, image b, the pixel centre in NDC and the
+// upstream gradients; false when it adds nothing (empty, or a zero upstream gradient
+// outside ACCUM_PER_PIXEL).
+struct Pixel {
+    int t;
+    uint b;
+    vec2 ndc;
+    vec2 gbary;
+    vec4 gdb;
+};
+
+bool pixel_at(uint i, out Pixel px) {
+    px.t = decode_id(rast[i].w) - 1;
+    px.gbary = grad_rast[i].xy;
 #ifdef GRAD_DB
-    vec4 gdb = grad_db[i];
+    px.gdb = grad_db[i];
+#else
+    px.gdb = vec4(0.0);
 #endif
-    bool live = t >= 0 && t < n_tri;
+    bool live = px.t >= 0 && px.t < n_tri;
     if (!live) return false;
 #ifndef ACCUM_PER_PIXEL
-#ifdef GRAD_DB
-    if (gbary == vec2(0.0) && gdb == vec4(0.0)) return false;
-#else
-    if (gbary == vec2(0.0)) return false;
-#endif
+    if (px.gbary == vec2(0.0) && px.gdb == vec4(0.0)) return false;
 #endif
     uint g = first_pixel + i;
     uint hw = size.x * size.y;
-    b = g / hw;
-    uint r = g - b * hw;
+    px.b = g / hw;
+    uint r = g - px.b * hw;
     uint y = r / size.x;
     uint x = r - y * size.x;
-    vec2 half_size = 0.5 * vec2(size);
-    // the pixel centre in NDC
-    vec2 ndc = (2.0 * vec2(float(x), float(y)) + 1.0) / vec2(size) - 1.0;
+    px.ndc = (2.0 * vec2(float(x), float(y)) + 1.0) / vec2(size) - 1.0;
+    return true;
+}
 
+// the vertices idx (batch offset included) of triangle t in image b, and their positions
+void corners(int t, uint b, out uint idx[3], out vec4 p[3]) {
     uint base = b * vertex_stride;
     idx = uint[3](uint(tri[3 * t]) + base, uint(tri[3 * t + 1]) + base,
                   uint(tri[3 * t + 2]) + base);
+    for (int j = 0; j < 3; ++j) p[j] = pos[idx[j]];
+}
+
+// The pixel's terms to the clip-space (x, y, w) of its triangle's vertices, positions p.
+void pixel_terms(Pixel px, vec4 p[3], out vec3 terms[3]) {
+    vec2 half_size = 0.5 * vec2(size);
+    vec2 ndc = px.ndc;
+    vec2 gbary = px.gbary;
+#ifdef GRAD_DB
+    vec4 gdb = px.gdb;
+#endif
     vec3 V[3];
     for (int j = 0; j < 3; ++j) {
-        vec4 p = pos[idx[j]];
         // pixel-relative homogeneous window coordinates: X' = (W/2) (x - w ndc_x)
-        V[j] = vec3(half_size * fma(-vec2(p.w), ndc, p.xy), p.w);
+        V[j] = vec3(half_size * fma(-vec2(p[j].w), ndc, p[j].xy), p[j].w);
     }
     vec3 N[3];
     for (int k = 0; k < 3; ++k) N[k] = cross(V[(k + 1) % 3], V[(k + 2) % 3]);
@@ -159,7 +177,6 @@ bool pixel_terms(uint i, out int t, out uint b, out uint idx[3], out vec3 terms[
         vec2 gxy = half_size * G[j].xy;
         terms[j] = vec3(gxy, G[j].z - dot(ndc, gxy));
     }
-    return true;
 }
 
 #ifdef RUN
@@ -199,27 +216,28 @@ void main() {
     int open_t = -1;
     uint open_b = 0u;
     uint open_idx[3] = uint[3](0u, 0u, 0u);
+    vec4 open_p[3];          // the open triangle's positions, loaded once per run
     TERM sum[9];
     uint largest = 0u;       // fixed point: fixed_point_magnitude of the largest term
     float scale = 0.0;
     for (uint r = 0u; r < uint(RUN); ++r) {
         uint i = start + r;
         if (i >= n_pixels) break;
-        int t;
-        uint b, idx[3];
-        vec3 terms[3];
-        if (!pixel_terms(i, t, b, idx, terms)) continue;
-        if (t != open_t || b != open_b) {
+        Pixel px;
+        if (!pixel_at(i, px)) continue;
+        if (px.t != open_t || px.b != open_b) {
             if (open_t >= 0) flush(open_b, open_idx, sum, largest);
-            open_t = t;
-            open_b = b;
-            open_idx = idx;
+            open_t = px.t;
+            open_b = px.b;
+            corners(open_t, open_b, open_idx, open_p);
 #ifdef ACCUM_FIXED_POINT
-            scale = uintBitsToFloat(grad_pos[fixed_groups + (vertex_stride == 0u ? 0u : b)]);
+            scale = uintBitsToFloat(grad_pos[fixed_groups + (vertex_stride == 0u ? 0u : open_b)]);
 #endif
             for (int m = 0; m < 9; ++m) sum[m] = TERM_ZERO;
             largest = 0u;
         }
+        vec3 terms[3];
+        pixel_terms(px, open_p, terms);
         for (int j = 0; j < 3; ++j) {
             for (int c = 0; c < 3; ++c) {
 #ifdef ACCUM_FIXED_POINT
@@ -238,15 +256,20 @@ void main() {
 void main() {
     uint i = gl_GlobalInvocationID.x;
     if (i >= n_pixels) return;
-    int t;
-    uint b, idx[3];
+    Pixel px;
+    uint idx[3];
+    vec4 p[3];
     vec3 terms[3];
-    bool live = pixel_terms(i, t, b, idx, terms);
+    bool live = pixel_at(i, px);
+    if (live) {
+        corners(px.t, px.b, idx, p);
+        pixel_terms(px, p, terms);
+    }
     for (int j = 0; j < 3; ++j) {
 #ifdef ACCUM_PER_PIXEL
         contrib[3u * i + uint(j)] = live ? vec4(terms[j].xy, 0.0, terms[j].z) : vec4(0.0);
 #else
-        if (live) add(idx[j], b, terms[j]);
+        if (live) add(idx[j], px.b, terms[j]);
 #endif
     }
 }
