@@ -211,9 +211,8 @@ class _Backward:
         grad_db = np.empty((job.pixels, 4), np.float32) if want_db and n_diff else None
         per_pixel = 4 * (num_attr + 2 * n_diff) + 48
         defines = {compute.DEFINES[mode]: None, "N_DIFF": n_diff, "N_ATTR": num_attr}
-        run = compute.RUN_PIXELS if want_attr else 1
-        if run > 1:
-            defines["RUN"] = run
+        run = compute.RUN_PIXELS
+        defines["RUN"] = run
         if not want_attr:
             defines["NO_GRAD_ATTR"] = None
         if grad_rast is None and grad_db is None:

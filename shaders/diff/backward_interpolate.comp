@@ -55,7 +55,8 @@ uniform uint fixed_groups;   // ACCUM_FIXED_POINT: B with batched attr (one scal
 #define TERM float
 #define TERM_ZERO 0.0
 #endif
-#define SUMS (N_ATTR > 0 ? 3 * N_ATTR : 1)
+#define ROW (N_ATTR > 0 ? N_ATTR : 1)
+#define SUMS (3 * ROW)
 
 // the local sums of a stretch of pixels on one triangle (corner rows o[j], attribute k:
 // sum[3 k + j]) to grad_attr; group: the image when attr is batched, else 0
@@ -83,6 +84,7 @@ void main() {
     int open_t = -1;
     uint open_image = 0u, open_group = 0u;
     uint open_o[3] = uint[3](0u, 0u, 0u);
+    float d0[ROW], d1[ROW];   // the open triangle's a0 - a2, a1 - a2
     TERM sum[SUMS];
     uint largest = 0u;      // fixed point: fixed_point_magnitude of the largest term
     float scale = 0.0;
@@ -101,15 +103,18 @@ void main() {
             continue;
         }
         uint image = (first_pixel + i) / pixels_per_image;
-        uint base = image * vertex_stride;
-        uint o[3] = uint[3]((uint(tri[3 * t]) + base) * A, (uint(tri[3 * t + 1]) + base) * A,
-                            (uint(tri[3 * t + 2]) + base) * A);
-#ifndef NO_GRAD_ATTR
         if (t != open_t || image != open_image) {
             if (open_t >= 0) flush(open_o, open_group, sum, largest);
             open_t = t;
             open_image = image;
-            open_o = o;
+            uint base = image * vertex_stride;
+            open_o = uint[3]((uint(tri[3 * t]) + base) * A, (uint(tri[3 * t + 1]) + base) * A,
+                             (uint(tri[3 * t + 2]) + base) * A);
+            for (uint k = 0u; k < A; ++k) {
+                float c2 = attr[open_o[2] + k];
+                d0[k] = attr[open_o[0] + k] - c2;
+                d1[k] = attr[open_o[1] + k] - c2;
+            }
             open_group = vertex_stride == 0u ? 0u : image;
 #ifdef ACCUM_FIXED_POINT
             scale = uintBitsToFloat(grad_attr[fixed_groups + open_group]);
@@ -117,7 +122,6 @@ void main() {
             for (int m = 0; m < SUMS; ++m) sum[m] = TERM_ZERO;
             largest = 0u;
         }
-#endif
         float u = rs.x, v = rs.y, w = 1.0 - rs.x - rs.y;
         float gu = 0.0, gv = 0.0;
 #if N_DIFF > 0
@@ -126,17 +130,15 @@ void main() {
 #endif
         for (uint k = 0u; k < A; ++k) {
             float g = grad_out[i * A + k];
-            float a2 = attr[o[2] + k];
-            float d0 = attr[o[0] + k] - a2, d1 = attr[o[1] + k] - a2;
-            gu += g * d0;
-            gv += g * d1;
+            gu += g * d0[k];
+            gv += g * d1[k];
             float c0 = 0.0, c1 = 0.0;
 #if N_DIFF > 0
             int j = diff_slot[k];
             if (j >= 0) {
                 float gx = grad_out_da[(i * uint(N_DIFF) + uint(j)) * 2u];
                 float gy = grad_out_da[(i * uint(N_DIFF) + uint(j)) * 2u + 1u];
-                gdb += vec4(gx * d0, gy * d0, gx * d1, gy * d1);
+                gdb += vec4(gx * d0[k], gy * d0[k], gx * d1[k], gy * d1[k]);
                 c0 = gx * db.x + gy * db.y;
                 c1 = gx * db.z + gy * db.w;
             }
