@@ -233,11 +233,12 @@ class FixedPointSum:
         self.buffer.bind_to_storage_buffer(binding)
 
     def _decode(self, words: np.ndarray) -> np.ndarray:
-        low = words[0::2].astype(np.int64)
-        high = words[1::2].view(np.int32).astype(np.int64)
-        exact = (high << 32) + low                        # |exact| < 2^63
-        k = np.repeat(np.asarray(self.exponents, np.int64), self.size)
-        return np.ldexp(exact.astype(np.float64), -k).astype(np.float32)
+        # (low, high) word pairs in memory order are little-endian int64 two's complement
+        # (GL and NumPy share the host's byte order; |exact| < 2^63)
+        exact = np.ascontiguousarray(words).view("<i8").reshape(self.groups, self.size)
+        # 2^-k is exact in float64 (k in [-126, 127]), so the product is ldexp's
+        scale = np.ldexp(1.0, -np.asarray(self.exponents, np.int64))[:, None]
+        return (exact * scale).astype(np.float32).reshape(-1)
 
     def result(self) -> np.ndarray:
         """(groups * size,) float32: the sums of the last :meth:`passes`."""

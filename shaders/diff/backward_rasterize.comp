@@ -76,14 +76,13 @@ struct Pixel {
 
 bool pixel_at(uint i, out Pixel px) {
     px.t = decode_id(rast[i].w) - 1;
+    if (px.t < 0 || px.t >= n_tri) return false;
     px.gbary = grad_rast[i].xy;
 #ifdef GRAD_DB
     px.gdb = grad_db[i];
 #else
     px.gdb = vec4(0.0);
 #endif
-    bool live = px.t >= 0 && px.t < n_tri;
-    if (!live) return false;
 #ifndef ACCUM_PER_PIXEL
     if (px.gbary == vec2(0.0) && px.gdb == vec4(0.0)) return false;
 #endif
