@@ -1,9 +1,12 @@
 """Compute-shader dispatch shared by the GPU cores: pixel chunks, buffers, accumulations.
 
-Every GPU backward (and interpolate's forward) runs one invocation per pixel of the
-flattened (B, H, W) grid, in chunks whose per-pixel buffers stay under
-:data:`MAX_CHUNK_BYTES`. Per-pixel outputs are written in place; per-vertex gradients are
-sums over the pixels of each vertex's triangles, formed by one of three accumulations:
+Every GPU backward (and interpolate's forward) runs over the pixels of the flattened
+(B, H, W) grid (one invocation per pixel; :data:`RUN_PIXELS` consecutive pixels per
+invocation in the rasterize and interpolate backward), in chunks whose per-pixel buffers
+stay under :data:`MAX_CHUNK_BYTES`. Per-pixel outputs are written in place; per-vertex
+gradients are sums over the pixels of each vertex's triangles, formed by one of three
+accumulations (the rasterize and interpolate backward first sum the terms of an
+invocation's run of pixels on one triangle locally, then add each sum with one atomic):
 
 ``"atomic_float"``
     ``atomicAdd`` on float members of a storage buffer (``GL_NV_shader_atomic_float``,
