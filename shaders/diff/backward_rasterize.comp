@@ -74,7 +74,31 @@ struct Pixel {
     vec4 gdb;
 };
 
-bool pixel_at(uint i, out Pixel px) {
+// (x, y, image) of flat pixel g = first_pixel + i (integer divisions: one per invocation,
+// since llvmpipe runs each lane's division on its own)
+uvec3 pixel_position(uint g) {
+    uint hw = size.x * size.y;
+    uint b = g / hw;
+    uint r = g - b * hw;
+    uint y = r / size.x;
+    return uvec3(r - y * size.x, y, b);
+}
+
+// the position of the next flat pixel
+uvec3 next_position(uvec3 at) {
+    at.x += 1u;
+    if (at.x == size.x) {
+        at.x = 0u;
+        at.y += 1u;
+        if (at.y == size.y) {
+            at.y = 0u;
+            at.z += 1u;
+        }
+    }
+    return at;
+}
+
+bool pixel_at(uint i, uvec3 at, out Pixel px) {
     px.t = decode_id(rast[i].w) - 1;
     if (px.t < 0 || px.t >= n_tri) return false;
     px.gbary = grad_rast[i].xy;
@@ -86,13 +110,8 @@ bool pixel_at(uint i, out Pixel px) {
 #ifndef ACCUM_PER_PIXEL
     if (px.gbary == vec2(0.0) && px.gdb == vec4(0.0)) return false;
 #endif
-    uint g = first_pixel + i;
-    uint hw = size.x * size.y;
-    px.b = g / hw;
-    uint r = g - px.b * hw;
-    uint y = r / size.x;
-    uint x = r - y * size.x;
-    px.ndc = (2.0 * vec2(float(x), float(y)) + 1.0) / vec2(size) - 1.0;
+    px.b = at.z;
+    px.ndc = (2.0 * vec2(at.xy) + 1.0) / vec2(size) - 1.0;
     return true;
 }
 
@@ -219,11 +238,12 @@ void main() {
     TERM sum[9];
     uint largest = 0u;       // fixed point: fixed_point_magnitude of the largest term
     float scale = 0.0;
-    for (uint r = 0u; r < uint(RUN); ++r) {
+    uvec3 at = pixel_position(first_pixel + start);
+    for (uint r = 0u; r < uint(RUN); ++r, at = next_position(at)) {
         uint i = start + r;
         if (i >= n_pixels) break;
         Pixel px;
-        if (!pixel_at(i, px)) continue;
+        if (!pixel_at(i, at, px)) continue;
         if (px.t != open_t || px.b != open_b) {
             if (open_t >= 0) flush(open_b, open_idx, sum, largest);
             open_t = px.t;
@@ -259,7 +279,7 @@ void main() {
     uint idx[3];
     vec4 p[3];
     vec3 terms[3];
-    bool live = pixel_at(i, px);
+    bool live = pixel_at(i, pixel_position(first_pixel + i), px);
     if (live) {
         corners(px.t, px.b, idx, p);
         pixel_terms(px, p, terms);
