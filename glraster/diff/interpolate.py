@@ -210,9 +210,9 @@ class _Backward:
         grad_rast = np.empty((job.pixels, 4), np.float32) if want_rast else None
         grad_db = np.empty((job.pixels, 4), np.float32) if want_db and n_diff else None
         per_pixel = 4 * (num_attr + 2 * n_diff) + 48
-        defines = {compute.DEFINES[mode]: None, "N_DIFF": n_diff, "N_ATTR": num_attr}
         run = compute.RUN_PIXELS
-        defines["RUN"] = run
+        defines = {compute.DEFINES[mode]: None, "N_DIFF": n_diff, "N_ATTR": num_attr,
+                   "RUN": run}
         if not want_attr:
             defines["NO_GRAD_ATTR"] = None
         if grad_rast is None and grad_db is None:
