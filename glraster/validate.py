@@ -49,15 +49,22 @@ def finite(name: str, arr: np.ndarray, out: np.ndarray) -> np.ndarray:
     """``out`` (``arr`` converted to a float dtype) when every value is finite; else an
     error naming ``name`` and the index of the first bad value, saying whether the input
     held NaN / Inf or a value beyond ``out``'s range (1e39 -> float32 is Inf)."""
-    bad = ~np.isfinite(out)
-    if bad.any():
-        where = tuple(int(i) for i in np.argwhere(bad)[0])
-        what = "NaN or Inf" if not np.isfinite(arr[where]) else f"a value beyond {out.dtype}"
-        raise ArgumentError(name, f"{name} must be finite, got {what} at index {where}")
-    return out
+    if _all_finite(out):
+        return out
+    where = tuple(int(i) for i in np.argwhere(~np.isfinite(out))[0])
+    what = "NaN or Inf" if not np.isfinite(arr[where]) else f"a value beyond {out.dtype}"
+    raise ArgumentError(name, f"{name} must be finite, got {what} at index {where}")
+
+
+def _all_finite(out: np.ndarray) -> bool:
+    """Every value of the float array ``out`` finite: one fused test (measured faster than
+    testing a sum, which can also overflow, from 256 to 4.7M float32 values)."""
+    return bool(np.isfinite(out).all())
 
 
 def _converted(arr: np.ndarray, dtype) -> np.ndarray:
+    if arr.dtype == dtype and arr.flags.c_contiguous and arr.ndim:
+        return arr                          # as ascontiguousarray (errstate costs 2 us)
     with np.errstate(over="ignore"):        # beyond the dtype's range: Inf, reported by finite
         return np.ascontiguousarray(arr, dtype=dtype)
 
@@ -76,9 +83,8 @@ def positions(pos) -> np.ndarray:
     if arr.ndim != 2 or arr.shape[1] != 4:
         raise ArgumentError("pos", f"pos must have shape (V, 4), got {arr.shape}")
     out = _converted(arr, np.float32)
-    bad = ~np.isfinite(out)
-    if bad.any():
-        row = int(np.argwhere(bad)[0][0])
+    if not _all_finite(out):
+        row = int(np.argwhere(~np.isfinite(out))[0][0])
         what = "NaN or Inf" if not np.isfinite(arr[row]).all() else "values beyond float32 range"
         raise ArgumentError("pos", f"pos must be finite, row {row} has {what}: "
                                    f"{arr[row].tolist()}")
