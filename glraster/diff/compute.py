@@ -109,7 +109,10 @@ def run(ctx: Context, program, count: int) -> None:
 
 
 def read(buffer, count: int, dtype=np.float32) -> np.ndarray:
-    """The first ``count`` values of ``buffer`` as a 1-D array of ``dtype``."""
+    """The first ``count`` values of ``buffer`` as a 1-D array of ``dtype`` (none: no read,
+    GL cannot map 0 bytes)."""
+    if count == 0:
+        return np.empty(0, dtype)
     return np.frombuffer(buffer.read(size=count * np.dtype(dtype).itemsize), dtype=dtype)
 
 
