@@ -27,6 +27,8 @@ from glraster.types import INTERPOLATIONS, OUTPUTS
 
 # The barycentric spaces: perspective-correct (smooth) and window space (noperspective).
 SPACES = ("persp", "screen")
+# dtype kinds (numpy.dtype.kind) of integers (signed, unsigned) and of real numbers
+INTEGER_KINDS, REAL_KINDS = "iu", "iuf"
 
 
 # --------------------------------------------------------------------------- arrays
@@ -37,9 +39,7 @@ def real_array(name: str, value) -> np.ndarray:
     object or text), without copying: convert it after the shape checks, then
     :func:`finite`."""
     arr = np.asarray(value)
-    if arr.dtype == object or arr.dtype == np.bool_ or not (
-        np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)
-    ):
+    if arr.dtype.kind not in REAL_KINDS:
         raise ArgumentError(name, f"{name} must hold real numbers (float or int), "
                                   f"got dtype {arr.dtype}")
     return arr
@@ -108,7 +108,7 @@ def triangles(tri, num_vertices: int, of: str = "pos") -> np.ndarray:
     arr = np.asarray(tri)
     if arr.size == 0 and arr.ndim <= 2 and (arr.ndim < 2 or arr.shape[-1] in (0, 3)):
         return np.zeros((0, 3), np.int32)
-    if not np.issubdtype(arr.dtype, np.integer) or arr.dtype == np.bool_:
+    if arr.dtype.kind not in INTEGER_KINDS:
         raise ArgumentError("tri", f"tri must have an integer dtype, got {arr.dtype}")
     if arr.ndim != 2 or arr.shape[1] != 3:
         raise ArgumentError("tri", f"tri must have shape (T, 3), got {arr.shape}")
@@ -131,7 +131,7 @@ def ranges(value, num_triangles: int, pos_ndim: int) -> np.ndarray | None:
         raise ArgumentError("ranges", "ranges needs pos of shape (V, 4) (range mode); pos is "
                                       "3-D (instanced mode) and must come without ranges")
     arr = np.asarray(value)
-    if arr.dtype == np.bool_ or not np.issubdtype(arr.dtype, np.integer):
+    if arr.dtype.kind not in INTEGER_KINDS:
         raise ArgumentError("ranges", f"ranges must have an integer dtype, got {arr.dtype}")
     if arr.ndim != 2 or arr.shape[1] != 2 or arr.shape[0] == 0:
         raise ArgumentError("ranges", f"ranges must have shape (B, 2) with B >= 1, "

@@ -38,6 +38,7 @@ class UploadCache:
 
     def __init__(self):
         self._declared: dict = {}   # (address, nbytes) -> (key, owner ref), during calls
+        self._sizes: dict = {}      # nbytes -> number of declared regions of that size
         self._holds: dict = {}      # buffer name -> (key, owner ref) of its bytes
         self._where: dict = {}      # key -> buffer name
         self.skipped = 0
@@ -54,18 +55,23 @@ class UploadCache:
         for entry in entries:
             if entry is not None and entry[0][1] and entry[0] not in self._declared:
                 self._declared[entry[0]] = entry[1:]
+                self._sizes[entry[0][1]] = self._sizes.get(entry[0][1], 0) + 1
                 added.append(entry[0])
         try:
             yield
         finally:
             for region in added:
                 del self._declared[region]
+                self._sizes[region[1]] -= 1
+                if not self._sizes[region[1]]:
+                    del self._sizes[region[1]]
 
     def lookup(self, data: np.ndarray):
         """The declared ``(key, owner)`` of ``data`` (C-contiguous), or None."""
-        if not self._declared:
+        nbytes = data.nbytes
+        if nbytes not in self._sizes:       # (no address asked for: ctypes costs 1 us)
             return None
-        return self._declared.get((data.ctypes.data, data.nbytes))
+        return self._declared.get((data.ctypes.data, nbytes))
 
     def held(self, entry) -> str | None:
         """The name of a buffer holding the bytes of ``entry`` (from :meth:`lookup`), or

@@ -24,7 +24,9 @@ import numpy as np
 import torch
 from torch.autograd.function import once_differentiable
 
+from glraster.diff import checked
 from glraster.diff.op import dtype_of
+from glraster.diff.ops import RASTERIZE
 from glraster.errors import ArgumentError
 from glraster.torch.context import RasterizeGLContext
 
@@ -118,7 +120,8 @@ class Call:
                                           "float32 runs on the GPU, float64 through the "
                                           "float64 reference, and one op does not mix them")
         self.op, self.inputs, self.frozen, self.kept = op, tuple(inputs), tuple(frozen), kept
-        self.arrays, self.params = op.check(*views, **params, ctx=None)
+        with checked.declared([upload_entry(t) for t in (*inputs, *kept) if t is not None]):
+            self.arrays, self.params = op.check(*views, **params, ctx=None)
         self.dtype = dtype_of(self.arrays)
         if self.dtype == np.float32:  # (imported here: float64 needs no OpenGL)
             from glraster.gpu.context import default_context
@@ -131,7 +134,10 @@ class Call:
             forward = functools.partial(core.forward, *self.arrays, **self.params)
         gl = self.params["ctx"] if self.dtype == np.float32 else None
         how = (core, self.dtype, self.frozen, gl, len(self.inputs))
-        return _Function.apply(how, forward, *self.inputs, *self.kept)
+        outputs = _Function.apply(how, forward, *self.inputs, *self.kept)
+        if self.op is RASTERIZE:  # its rast: ids of tri, not decoded again while unchanged
+            checked.made(upload_entry(outputs[0]), len(self.params["tri"]))
+        return outputs
 
 
 @functools.cache

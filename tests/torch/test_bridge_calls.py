@@ -59,3 +59,42 @@ def test_antialias_without_silhouette_pixels_returns_color(ctx):
     assert out.equal(color)
     out.sum().backward()
     assert pos.grad.abs().max() == 0 and colors.grad is not None
+
+
+def test_a_raster_rasterize_made_is_not_decoded_again_until_it_changes(ctx, monkeypatch):
+    from glraster.diff import layout
+    from glraster.errors import ArgumentError
+
+    glctx = dr.RasterizeGLContext(context=ctx)
+    vertices, triangles = box()
+    tri = torch.tensor(triangles, dtype=torch.int32)
+    v = torch.tensor(vertices, dtype=torch.float32)
+    pos = torch.cat([v * 0.5, torch.full((len(v), 1), 2.0)], 1)
+    colors = torch.rand(len(v), 3)
+    decoded = []
+    real = layout.rast_ids
+    monkeypatch.setattr(layout, "rast_ids", lambda *a: decoded.append(1) or real(*a))
+    rast, _ = dr.rasterize(glctx, pos, tri, (8, 8))
+    color, _ = dr.interpolate(colors, rast, tri, glctx=glctx)
+    dr.antialias(color, rast, pos, tri, glctx=glctx)
+    assert decoded == []                       # rasterize's own ids, unchanged
+    by_hand = rast.clone()                     # the same values, not rasterize's
+    dr.interpolate(colors, by_hand, tri, glctx=glctx)
+    assert decoded == [1]
+    with torch.no_grad():
+        rast[0, 4, 4, 3] = 99.0                # an in-place change: checked again
+    for call in (lambda: dr.interpolate(colors, rast, tri, glctx=glctx),
+                 lambda: dr.antialias(color, rast, pos, tri, glctx=glctx)):
+        try:
+            call()
+        except ArgumentError as exc:
+            assert exc.argument == "rast" and "99" in str(exc)
+        else:
+            raise AssertionError("an id beyond tri was not caught")
+    # fewer triangles than rasterize drew: the ids are checked against them
+    try:
+        dr.interpolate(colors, dr.rasterize(glctx, pos, tri, (8, 8))[0], tri[:2], glctx=glctx)
+    except ArgumentError as exc:
+        assert exc.argument == "rast"
+    else:
+        raise AssertionError("ids beyond a shorter tri were not caught")
