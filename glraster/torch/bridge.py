@@ -5,13 +5,11 @@
 runs the core the dtype selects (float32: OpenGL, its context current for the whole core
 call; float64: the float64 reference) in one autograd Function, whose backward runs
 ``core.backward(saved, *grads, needs=...)`` (None grads: zero; ``needs``: the inputs that
-require grad). Inputs, ``tri`` / ``ranges`` tensors and outputs are saved for backward, so
-that an in-place change of one after the forward makes the backward raise (the cores keep
-views of them). No double backward.
-
-Skipped uploads: float32 core calls declare those tensors (:func:`upload_entry`) to the
-context (:mod:`glraster.gpu.uploads`): one a buffer holds already, unchanged, is not
-written again.
+require grad). Inputs, ``tri``, ``ranges`` and outputs are saved for backward, so that an
+in-place change of one after the forward makes the backward raise (the cores keep views
+of them). No double backward. Tensors are known by :func:`upload_entry`: an unchanged one
+is not uploaded again (:mod:`glraster.gpu.uploads`), nor rasterize's rast decoded again
+(:mod:`glraster.diff.checked`).
 """
 
 from __future__ import annotations
@@ -31,8 +29,7 @@ from glraster.errors import ArgumentError
 from glraster.torch.context import RasterizeGLContext
 
 FLOATS, INTS = (torch.float32, torch.float64), (torch.int32, torch.int64)
-# integer tensor parameters that Call checks, keys and saves like the inputs
-INTEGER_PARAMS = ("tri", "ranges")
+INTEGER_PARAMS = ("tri", "ranges")  # checked, known and saved like the inputs
 
 
 def tensor(name: str, value, dtypes=FLOATS) -> np.ndarray:
