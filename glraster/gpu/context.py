@@ -8,7 +8,6 @@ the number of calls.
 
 from __future__ import annotations
 
-import contextlib
 import ctypes
 import os
 import re
@@ -237,14 +236,6 @@ class Context:
                 self.mgl.__exit__(*exc)
         finally:
             self._lock.release()
-
-    @contextlib.contextmanager
-    def declared(self, entries):
-        """This context current, and ``entries`` declared to :attr:`uploads`
-        (:meth:`UploadCache.declared <glraster.gpu.uploads.UploadCache.declared>`), for the
-        block: the arrays of one op call."""
-        with self, self.uploads.declared(entries):
-            yield self
 
     # -- cached GL objects ----------------------------------------------------------------
     def program(self, vert: Path, frag: Path, defines: dict):

@@ -44,27 +44,35 @@ class UploadCache:
         self.skipped = 0
         self.written = 0
 
-    @contextmanager
-    def declared(self, entries):
-        """Within the block, the arrays of ``entries`` are known by their key. An entry is
-        ``(region, key, owner)``: ``region`` = (address, nbytes) of a C-contiguous array,
-        ``key`` hashable, ``owner`` a weak reference to the object whose memory it is; a
-        None entry, or one of no bytes, is left out. A region declared already (an
-        enclosing call) keeps its key."""
+    def declare(self, entries) -> list:
+        """Know the arrays of ``entries`` by their key until :meth:`undeclare` of the list
+        returned. An entry is ``(region, key, owner)``: ``region`` = (address, nbytes) of a
+        C-contiguous array, ``key`` hashable, ``owner`` a weak reference to the object
+        whose memory it is; a None entry, or one of no bytes, is left out. A region
+        declared already (an enclosing call) keeps its key."""
         added = []
         for entry in entries:
             if entry is not None and entry[0][1] and entry[0] not in self._declared:
                 self._declared[entry[0]] = entry[1:]
                 self._sizes[entry[0][1]] = self._sizes.get(entry[0][1], 0) + 1
                 added.append(entry[0])
+        return added
+
+    def undeclare(self, added: list) -> None:
+        for region in added:
+            del self._declared[region]
+            self._sizes[region[1]] -= 1
+            if not self._sizes[region[1]]:
+                del self._sizes[region[1]]
+
+    @contextmanager
+    def declared(self, entries):
+        """:meth:`declare` for the block."""
+        added = self.declare(entries)
         try:
             yield
         finally:
-            for region in added:
-                del self._declared[region]
-                self._sizes[region[1]] -= 1
-                if not self._sizes[region[1]]:
-                    del self._sizes[region[1]]
+            self.undeclare(added)
 
     def lookup(self, data: np.ndarray):
         """The declared ``(key, owner)`` of ``data`` (C-contiguous), or None."""

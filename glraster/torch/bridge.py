@@ -76,9 +76,9 @@ def to_torch(array, dtype) -> torch.Tensor:
 
 def upload_entry(value: torch.Tensor):
     """``(region, key, owner)`` of a contiguous tensor for :mod:`glraster.gpu.uploads`
-    (else None): the key names the tensor (a view's base: the owner, held weakly), address,
+    (else, and for None, None): the key names the tensor (a view's base: the owner, held weakly), address,
     version counter (bumped by every in-place change, shared by views), shape, dtype."""
-    if not value.is_contiguous():
+    if value is None or not value.is_contiguous():
         return None
     base = value._base if value._base is not None else value
     address = value.data_ptr()
@@ -92,8 +92,7 @@ class Call:
     before anything runs. ``arrays``, ``params``: the checked values; float32 calls get
     ``ctx`` = ``glctx``'s OpenGL context (glraster's default when None), made only once the
     input is known good. ``frozen``: indices of outputs whose gradient is dropped.
-    ``tri`` / ``ranges`` (None, or integer tensors: :func:`integers`) are checked first and
-    kept with the inputs (``kept``: saved for backward, declared for skipped uploads)."""
+    ``tri``, ``ranges``: None or integer tensors (:func:`integers`), checked first, ``kept``."""
 
     def __init__(self, op, inputs, glctx=None, frozen=(), **params):
         glctx = None if glctx is None else context(glctx)
@@ -105,19 +104,16 @@ class Call:
                 kept.append(value)
         names, optional = _names(op, len(inputs)), _optional(op)
         dtype = getattr(inputs[0], "dtype", None)  # the first input is never optional
-        views = []
+        views = [None if value is None and name in optional else tensor(name, value)
+                 for name, value in zip(names, inputs)]
         for name, value in zip(names, inputs):
-            if value is None and name in optional:
-                views.append(None)
-                continue
-            views.append(tensor(name, value))
-            if value.dtype != dtype:
+            if value is not None and value.dtype != dtype:
                 raise ArgumentError(name, f"{name} must have the dtype of {names[0]} "
                                           f"({dtype}), got {value.dtype}: "
                                           "float32 runs on the GPU, float64 through the "
                                           "float64 reference, and one op does not mix them")
         self.op, self.inputs, self.frozen, self.kept = op, tuple(inputs), tuple(frozen), kept
-        with checked.declared([upload_entry(t) for t in (*inputs, *kept) if t is not None]):
+        with checked.declared(map(upload_entry, (*inputs, *kept))):
             self.arrays, self.params = op.check(*views, **params, ctx=None)
         self.dtype = dtype_of(self.arrays)
         if self.dtype == np.float32:  # (imported here: float64 needs no OpenGL)
@@ -149,24 +145,27 @@ def _optional(op) -> frozenset[str]:  # the inputs op.check lets be None
                      if p.default is None)
 
 
-def _run(gl, tensors, work, entries=()):
+def _run(gl, entries, work):
     """``work()``, for float32 with ``gl`` current for the whole core call (its own ``with
-    ctx:`` blocks then switch nothing) and ``tensors`` (and ``entries``) declared."""
+    ctx:`` blocks then switch nothing) and ``entries`` declared to its upload cache."""
     if gl is None:
         return work()
-    with gl.declared([upload_entry(t) for t in tensors if t is not None] + list(entries)):
-        return work()
+    with gl:
+        added = gl.uploads.declare(entries)
+        try:
+            return work()
+        finally:
+            gl.uploads.undeclare(added)
 
 
 class _Function(torch.autograd.Function):
     @staticmethod
     def forward(fctx, how, forward, *tensors):
         fctx.core, fctx.dtype, fctx.frozen, fctx.gl, fctx.count = how
-        outputs, fctx.saved = _run(fctx.gl, tensors, forward)
+        outputs, fctx.saved = _run(fctx.gl, map(upload_entry, tensors), forward)
         outputs = tuple(to_torch(out, fctx.dtype) for out in outputs)
         fctx.save_for_backward(*tensors, *outputs)
-        # the outputs' entries now: a saved output unpacks as another tensor object
-        fctx.entries = [upload_entry(t) for t in outputs] if fctx.gl is not None else ()
+        fctx.entries = [upload_entry(t) for t in outputs]  # (saved, unpacked as others)
         fctx.shapes = [None if t is None else t.shape for t in tensors[:fctx.count]]
         fctx.set_materialize_grads(False)
         return outputs
@@ -182,7 +181,8 @@ class _Function(torch.autograd.Function):
         grads = [None if g is None or k in fctx.frozen else np.ascontiguousarray(g.numpy())
                  for k, g in enumerate(grads)]
         work = functools.partial(fctx.core.backward, fctx.saved, *grads, needs=needs)
-        result = tuple(_run(fctx.gl, saved[:len(saved) - len(grads)], work, fctx.entries))
+        entries = [*map(upload_entry, saved[:len(saved) - len(grads)]), *fctx.entries]
+        result = tuple(_run(fctx.gl, entries, work))
         result += (None,) * (len(needs) - len(result))  # own mips: no gradients of their own
         grads = tuple(_gradient(g, fctx.dtype, shape) if need and g is not None else None
                       for g, shape, need in zip(result, fctx.shapes, needs))

@@ -102,7 +102,7 @@ def test_scratch_buffers_and_undeclared_data_are_always_written(ctx):
     data = np.arange(16, dtype=np.float32)
     owner = torch.from_numpy(data)
     entry = dr.bridge.upload_entry(owner)
-    with ctx.declared([entry]):
+    with ctx, ctx.uploads.declared([entry]):
         ctx.storage_buffer("test.a", data)
         assert ctx.storage_buffer("test.b", data) is ctx.storage_buffer("test.a", data)
         skipped = ctx.uploads.skipped
