@@ -113,7 +113,8 @@ class Call:
                                           "float32 runs on the GPU, float64 through the "
                                           "float64 reference, and one op does not mix them")
         self.op, self.inputs, self.frozen, self.kept = op, tuple(inputs), tuple(frozen), kept
-        with checked.declared(map(upload_entry, (*inputs, *kept))):
+        self.entries = [*map(upload_entry, (*inputs, *kept))]  # (for the check, the forward)
+        with checked.declared(self.entries):
             self.arrays, self.params = op.check(*views, **params, ctx=None)
         self.dtype = dtype_of(self.arrays)
         if self.dtype == np.float32:  # (imported here: float64 needs no OpenGL)
@@ -126,7 +127,9 @@ class Call:
         if forward is None:
             forward = functools.partial(core.forward, *self.arrays, **self.params)
         gl = self.params["ctx"] if self.dtype == np.float32 else None
-        how = (core, self.dtype, self.frozen, gl, len(self.inputs))
+        entries = self.entries if forward is None else [  # (later layers: their own)
+            *map(upload_entry, (*self.inputs, *self.kept))]
+        how = (core, self.dtype, self.frozen, gl, len(self.inputs), entries)
         outputs = _Function.apply(how, forward, *self.inputs, *self.kept)
         if self.op is RASTERIZE:  # its rast: ids of tri, not decoded again while unchanged
             checked.made(upload_entry(outputs[0]), len(self.params["tri"]))
@@ -161,11 +164,11 @@ def _run(gl, entries, work):
 class _Function(torch.autograd.Function):
     @staticmethod
     def forward(fctx, how, forward, *tensors):
-        fctx.core, fctx.dtype, fctx.frozen, fctx.gl, fctx.count = how
-        outputs, fctx.saved = _run(fctx.gl, map(upload_entry, tensors), forward)
+        fctx.core, fctx.dtype, fctx.frozen, fctx.gl, fctx.count, entries = how
+        outputs, fctx.saved = _run(fctx.gl, entries, forward)
         outputs = tuple(to_torch(out, fctx.dtype) for out in outputs)
         fctx.save_for_backward(*tensors, *outputs)
-        fctx.entries = [upload_entry(t) for t in outputs]  # (saved, unpacked as others)
+        fctx.entries = entries + [upload_entry(t) for t in outputs]  # valid while saved
         fctx.shapes = [None if t is None else t.shape for t in tensors[:fctx.count]]
         fctx.set_materialize_grads(False)
         return outputs
@@ -177,18 +180,12 @@ class _Function(torch.autograd.Function):
         needs = tuple(fctx.needs_input_grad[2:2 + fctx.count])
         if not any(needs) or all(g is None for g in grads):
             return nothing
-        saved = fctx.saved_tensors  # raises if a saved tensor changed in place since
+        fctx.saved_tensors  # raises if a saved tensor changed in place since (keys stay)
         grads = [None if g is None or k in fctx.frozen else np.ascontiguousarray(g.numpy())
                  for k, g in enumerate(grads)]
         work = functools.partial(fctx.core.backward, fctx.saved, *grads, needs=needs)
-        entries = [*map(upload_entry, saved[:len(saved) - len(grads)]), *fctx.entries]
-        result = tuple(_run(fctx.gl, entries, work))
+        result = tuple(_run(fctx.gl, fctx.entries, work))
         result += (None,) * (len(needs) - len(result))  # own mips: no gradients of their own
-        grads = tuple(_gradient(g, fctx.dtype, shape) if need and g is not None else None
-                      for g, shape, need in zip(result, fctx.shapes, needs))
+        grads = tuple(to_torch(g, fctx.dtype).sum_to_size(shape) if need and g is not None
+                      else None for g, shape, need in zip(result, fctx.shapes, needs))  # sum: broadcasts
         return (None, None) + grads + nothing[2 + len(grads):]
-
-
-def _gradient(array, dtype, shape) -> torch.Tensor:  # summed over broadcast axes
-    grad = to_torch(array, dtype)
-    return grad if grad.shape == shape else grad.sum_to_size(shape)
