@@ -2,8 +2,8 @@
 front end.
 
 A front end that knows when an array last changed declares the arrays of an op call, each
-with a *key*, for the duration of the call (:meth:`UploadCache.declared`; glraster.torch's
-key is the tensor's storage address, torch's version counter, shape, strides and dtype).
+with a *key*, for the duration of the call (:meth:`UploadCache.declare`; glraster.torch's
+key names the tensor, its address, torch's version counter, shape and dtype).
 :meth:`glraster.gpu.context.Context.storage_buffer` asks its cache (:meth:`UploadCache.held`)
 before it writes: when the bytes to upload are exactly a declared array (the same address
 and size) and some buffer of the context last received that array under the same key,
@@ -77,7 +77,7 @@ class UploadCache:
     def lookup(self, data: np.ndarray):
         """The declared ``(key, owner)`` of ``data`` (C-contiguous), or None."""
         nbytes = data.nbytes
-        if nbytes not in self._sizes:       # (no address asked for: ctypes costs 1 us)
+        if nbytes not in self._sizes or not data.flags.c_contiguous:  # (ctypes: 1 us)
             return None
         return self._declared.get((data.ctypes.data, nbytes))
 
