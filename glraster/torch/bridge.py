@@ -30,6 +30,7 @@ from glraster.torch.context import RasterizeGLContext
 
 FLOATS, INTS = (torch.float32, torch.float64), (torch.int32, torch.int64)
 INTEGER_PARAMS = ("tri", "ranges")  # checked, known and saved like the inputs
+KEYED_BYTES = 1024  # smaller tensors are not keyed: a key costs more than their upload
 
 
 def tensor(name: str, value, dtypes=FLOATS) -> np.ndarray:
@@ -75,10 +76,11 @@ def to_torch(array, dtype) -> torch.Tensor:
 
 
 def upload_entry(value: torch.Tensor):
-    """``(region, key, owner)`` of a contiguous tensor for :mod:`glraster.gpu.uploads`
-    (else, and for None, None): the key names the tensor (a view's base: the owner, held weakly), address,
-    version counter (bumped by every in-place change, shared by views), shape, dtype."""
-    if value is None or not value.is_contiguous():
+    """``(region, key, owner)`` of a contiguous tensor of KEYED_BYTES or more (else None)
+    for :mod:`glraster.gpu.uploads`: the key names the tensor (a view's base: the owner,
+    held weakly), address, version counter (bumped by every in-place change, shared by
+    views), shape, dtype."""
+    if value is None or value.nbytes < KEYED_BYTES or not value.is_contiguous():
         return None
     base = value._base if value._base is not None else value
     address = value.data_ptr()

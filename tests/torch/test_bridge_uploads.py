@@ -1,7 +1,8 @@
-"""Skipped uploads through glraster.torch: a tensor unchanged since a buffer received it is
-not written again (``Context.uploads`` counts the skips), and one changed in place (its
-version counter bumped), or a new tensor in the same memory, is uploaded again, so the
-result is that of a context that never saw it before."""
+"""Skipped uploads through glraster.torch: a tensor (of 1 KiB or more, ``KEYED_BYTES``)
+unchanged since a buffer received it is not written again (``Context.uploads`` counts the
+skips), and one changed in place (its version counter bumped), or a new tensor in the
+same memory, is uploaded again, so the result is that of a context that never saw it
+before."""
 
 from __future__ import annotations
 
@@ -15,13 +16,17 @@ from glraster.geometry.shapes import box
 from glraster.gpu.context import Context
 
 
-def _scene():
+def _scene(copies: int = 10):
+    """``copies`` boxes, each a little smaller (tri, pos and colors above KEYED_BYTES)."""
     vertices, triangles = box()
-    tri = torch.tensor(triangles, dtype=torch.int32)
     v = torch.tensor(vertices, dtype=torch.float32)
-    pos = torch.cat([v * 0.8, torch.full((len(v), 1), 2.0)], 1)
+    v = torch.cat([v * (0.8 - 0.03 * k) for k in range(copies)])
+    tri = torch.tensor(np.concatenate([triangles + len(vertices) * k for k in range(copies)]),
+                       dtype=torch.int32)
+    pos = torch.cat([v, torch.full((len(v), 1), 2.0)], 1)
     pos[:, 2] = 0.1 * pos[:, 0]
-    colors = torch.rand(len(v), 3, generator=torch.Generator().manual_seed(1))
+    colors = torch.rand(len(v), 4, generator=torch.Generator().manual_seed(1))
+    assert min(t.nbytes for t in (tri, pos, colors)) >= dr.bridge.KEYED_BYTES
     return pos, tri, colors
 
 
@@ -97,17 +102,18 @@ def test_a_new_tensor_in_reused_memory_is_uploaded_again(ctx):
 
 
 def test_scratch_buffers_and_undeclared_data_are_always_written(ctx):
-    """What a shader may write, and data nobody declared (JAX, arrays a core computes),
-    never matches a key."""
-    data = np.arange(16, dtype=np.float32)
+    """What a shader may write, and data nobody declared (JAX, arrays a core computes, a
+    tensor under KEYED_BYTES), never matches a key."""
+    assert dr.bridge.upload_entry(torch.zeros(255)) is None
+    data = np.arange(512, dtype=np.float32)
     owner = torch.from_numpy(data)
     entry = dr.bridge.upload_entry(owner)
     with ctx, ctx.uploads.declared([entry]):
         ctx.storage_buffer("test.a", data)
         assert ctx.storage_buffer("test.b", data) is ctx.storage_buffer("test.a", data)
         skipped = ctx.uploads.skipped
-        ctx.scratch_buffer("test.a", 64)                # a shader may write it now
-        ctx.scratch_buffer("test.b", 64)
+        ctx.scratch_buffer("test.a", 2048)              # a shader may write it now
+        ctx.scratch_buffer("test.b", 2048)
         ctx.storage_buffer("test.a", data)
         assert ctx.uploads.skipped == skipped
     skipped = ctx.uploads.skipped
@@ -115,4 +121,4 @@ def test_scratch_buffers_and_undeclared_data_are_always_written(ctx):
     assert ctx.uploads.skipped == skipped
     with ctx:
         np.testing.assert_array_equal(
-            np.frombuffer(ctx.storage_buffer("test.a", data).read(size=64), np.float32), data)
+            np.frombuffer(ctx.storage_buffer("test.a", data).read(size=2048), np.float32), data)
