@@ -87,11 +87,18 @@ def accumulation(ctx: Context, deterministic: bool = False, accumulate: str | No
 
 
 def set_uniform(program, name: str, value) -> None:
-    """Set a uniform the shader uses (the compiler drops unused ones)."""
-    try:
-        program[name].value = value
-    except KeyError:
-        pass
+    """Set a uniform the shader uses (the compiler drops unused ones). The handles are
+    looked up once per program, and a value equal to the one last set here is not written
+    again (a program keeps its uniforms' values, GL 4.5 section 7.6): set a program's
+    uniforms through this function only."""
+    cache = program.__dict__.get("_uniforms")
+    if cache is None:
+        cache = program._uniforms = {}
+    held = cache.get(name)
+    if held is None:
+        held = cache[name] = [program.get(name, None), None]
+    if held[0] is not None and held[1] != value:
+        held[0].value = held[1] = value
 
 
 def chunks(total: int, bytes_per_pixel: int):
@@ -108,7 +115,10 @@ def run(ctx: Context, program, count: int) -> None:
 
 
 def read(buffer, count: int, dtype=np.float32) -> np.ndarray:
-    """The first ``count`` values of ``buffer`` as a 1-D array of ``dtype``."""
+    """The first ``count`` values of ``buffer`` as a 1-D array of ``dtype`` (none: no read,
+    GL cannot map 0 bytes)."""
+    if count == 0:
+        return np.empty(0, dtype)
     return np.frombuffer(buffer.read(size=count * np.dtype(dtype).itemsize), dtype=dtype)
 
 
