@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from glraster import validate
-from glraster.diff import layout
+from glraster.diff import checked, layout
 from glraster.diff.topology_hash import TopologyHash, topology_hash_for
 from glraster.errors import ArgumentError
 
@@ -58,7 +58,8 @@ def check(color, rast, pos, tri, topology_hash=None, pos_gradient_boost=1.0, con
         raise ArgumentError("pos", f"pos has a batch of {pos.shape[0]}, rast of {batch_n}: "
                             "3-D pos needs one entry per image")
     tri = validate.triangles(tri, pos.shape[-2])
-    layout.rast_ids(rast, len(tri))
+    if not checked.vouched(rast, len(tri)):     # (rasterize's own, unchanged: valid)
+        layout.rast_ids(rast, len(tri))
     th = topology_hash_for(topology_hash, tri, pos.shape[-2])
     if isinstance(pos_gradient_boost, (bool, np.bool_)) or not isinstance(
             pos_gradient_boost, (int, float, np.integer, np.floating)) \

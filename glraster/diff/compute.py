@@ -1,9 +1,12 @@
 """Compute-shader dispatch shared by the GPU cores: pixel chunks, buffers, accumulations.
 
-Every GPU backward (and interpolate's forward) runs one invocation per pixel of the
-flattened (B, H, W) grid, in chunks whose per-pixel buffers stay under
-:data:`MAX_CHUNK_BYTES`. Per-pixel outputs are written in place; per-vertex gradients are
-sums over the pixels of each vertex's triangles, formed by one of three accumulations:
+Every GPU backward (and interpolate's forward) runs over the pixels of the flattened
+(B, H, W) grid (one invocation per pixel; :data:`RUN_PIXELS` consecutive pixels per
+invocation in the rasterize and interpolate backward), in chunks whose per-pixel buffers
+stay under :data:`MAX_CHUNK_BYTES`. Per-pixel outputs are written in place; per-vertex
+gradients are sums over the pixels of each vertex's triangles, formed by one of three
+accumulations (the rasterize and interpolate backward first sum the terms of an
+invocation's run of pixels on one triangle locally, then add each sum with one atomic):
 
 ``"atomic_float"``
     ``atomicAdd`` on float members of a storage buffer (``GL_NV_shader_atomic_float``,
@@ -34,7 +37,7 @@ from glraster.gpu.context import Context
 
 __all__ = [
     "ACCUMULATIONS", "DEFINES", "FIXED_POINT_ACCUMULATIONS", "FixedPointSum", "LOCAL_SIZE",
-    "FIXED_POINT_RUN", "MAX_CHUNK_BYTES", "accumulation", "chunks", "corner_vertices", "fixed_point_exponent",
+    "RUN_PIXELS", "MAX_CHUNK_BYTES", "accumulation", "chunks", "corner_vertices", "fixed_point_exponent",
     "has_atomic_float", "read", "reduce_rows", "run", "set_uniform", "zeroed",
 ]
 
@@ -48,10 +51,13 @@ LOCAL_SIZE = 64
 # Largest storage buffer glraster fills in one dispatch (llvmpipe allows 128 MiB); bigger
 # inputs are processed in chunks of pixels.
 MAX_CHUNK_BYTES = 1 << 26
-# Consecutive pixels one invocation of a fixed-point pass handles: the rounded terms of
-# the pixels it finds on one triangle are summed locally, then added with one pair of
-# atomics (measured in docs/differentiable.md, "Deterministic sums").
-FIXED_POINT_RUN = 16
+# Consecutive pixels one invocation of an accumulating backward pass (rasterize,
+# interpolate) handles, in every accumulation: the terms of the pixels it finds on one
+# triangle are summed locally and added with one atomic per value (fixed point: one pair
+# of word atomics), instead of one per pixel. Few triangles over many pixels otherwise
+# put every invocation on the same few addresses (measured in docs/differentiable.md,
+# "Backward accumulation"). 1 adds every term on its own (tests compare the two).
+RUN_PIXELS = 16
 
 
 def has_atomic_float(ctx: Context) -> bool:
@@ -81,11 +87,18 @@ def accumulation(ctx: Context, deterministic: bool = False, accumulate: str | No
 
 
 def set_uniform(program, name: str, value) -> None:
-    """Set a uniform the shader uses (the compiler drops unused ones)."""
-    try:
-        program[name].value = value
-    except KeyError:
-        pass
+    """Set a uniform the shader uses (the compiler drops unused ones). The handles are
+    looked up once per program, and a value equal to the one last set here is not written
+    again (a program keeps its uniforms' values, GL 4.5 section 7.6): set a program's
+    uniforms through this function only."""
+    cache = program.__dict__.get("_uniforms")
+    if cache is None:
+        cache = program._uniforms = {}
+    held = cache.get(name)
+    if held is None:
+        held = cache[name] = [program.get(name, None), None]
+    if held[0] is not None and held[1] != value:
+        held[0].value = held[1] = value
 
 
 def chunks(total: int, bytes_per_pixel: int):
@@ -102,7 +115,10 @@ def run(ctx: Context, program, count: int) -> None:
 
 
 def read(buffer, count: int, dtype=np.float32) -> np.ndarray:
-    """The first ``count`` values of ``buffer`` as a 1-D array of ``dtype``."""
+    """The first ``count`` values of ``buffer`` as a 1-D array of ``dtype`` (none: no read,
+    GL cannot map 0 bytes)."""
+    if count == 0:
+        return np.empty(0, dtype)
     return np.frombuffer(buffer.read(size=count * np.dtype(dtype).itemsize), dtype=dtype)
 
 
@@ -230,11 +246,12 @@ class FixedPointSum:
         self.buffer.bind_to_storage_buffer(binding)
 
     def _decode(self, words: np.ndarray) -> np.ndarray:
-        low = words[0::2].astype(np.int64)
-        high = words[1::2].view(np.int32).astype(np.int64)
-        exact = (high << 32) + low                        # |exact| < 2^63
-        k = np.repeat(np.asarray(self.exponents, np.int64), self.size)
-        return np.ldexp(exact.astype(np.float64), -k).astype(np.float32)
+        # (low, high) word pairs in memory order are little-endian int64 two's complement
+        # (GL and NumPy share the host's byte order; |exact| < 2^63)
+        exact = np.ascontiguousarray(words).view("<i8").reshape(self.groups, self.size)
+        # 2^-k is exact in float64 (k in [-126, 127]), so the product is ldexp's
+        scale = np.ldexp(1.0, -np.asarray(self.exponents, np.int64))[:, None]
+        return (exact * scale).astype(np.float32).reshape(-1)
 
     def result(self) -> np.ndarray:
         """(groups * size,) float32: the sums of the last :meth:`passes`."""

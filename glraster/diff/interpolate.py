@@ -211,7 +211,9 @@ class _Backward:
         grad_rast = np.empty((job.pixels, 4), np.float32) if want_rast else None
         grad_db = np.empty((job.pixels, 4), np.float32) if want_db and n_diff else None
         per_pixel = 4 * (num_attr + 2 * n_diff) + 48
-        defines = {compute.DEFINES[mode]: None, "N_DIFF": n_diff}
+        run = compute.RUN_PIXELS
+        defines = {compute.DEFINES[mode]: None, "N_DIFF": n_diff, "N_ATTR": num_attr,
+                   "RUN": run}
         if not want_attr:
             defines["NO_GRAD_ATTR"] = None
         if grad_rast is None and grad_db is None:
@@ -220,7 +222,7 @@ class _Backward:
         def dispatch():
             for first, count in compute.chunks(job.pixels, per_pixel):
                 part = slice(first, first + count)
-                out_rast, out_db = self._chunk(program, flat, first, count, n_diff)
+                out_rast, out_db = self._chunk(program, flat, first, count, n_diff, run)
                 if grad_rast is not None:
                     grad_rast[part] = compute.read(out_rast, count * 4).reshape(count, 4)
                 if grad_db is not None:
@@ -262,9 +264,9 @@ class _Backward:
             slots[k] = j
         return slots
 
-    def _chunk(self, program, flat, first: int, count: int, n_diff: int):
-        """Run pixels first .. first + count - 1: the buffers holding their grad_rast and
-        grad_rast_db (or None)."""
+    def _chunk(self, program, flat, first: int, count: int, n_diff: int, run: int):
+        """Run pixels first .. first + count - 1, ``run`` per invocation: the buffers
+        holding their grad_rast and grad_rast_db (or None)."""
         ctx = self.job.ctx
         part = slice(first, first + count)
         ctx.storage_buffer("interpolate.rast", flat[0][part]).bind_to_storage_buffer(2)
@@ -279,5 +281,5 @@ class _Backward:
             out_db.bind_to_storage_buffer(9)
         compute.set_uniform(program, "n_pixels", count)
         compute.set_uniform(program, "first_pixel", first)
-        compute.run(ctx, program, count)
+        compute.run(ctx, program, -(-count // run))
         return out_rast, out_db

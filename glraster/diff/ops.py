@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from glraster import validate
-from glraster.diff import antialias_args, layout, texture_args
+from glraster.diff import antialias_args, checked, layout, texture_args
 from glraster.diff.op import Op
 from glraster.errors import ArgumentError
 
@@ -74,7 +74,8 @@ def _interpolate_check(attr, rast, rast_db=None, *, tri, diff_attrs=None, ctx=No
     attr = validate.attributes(attr, rast.shape[0], dtype=dtype)
     tri = validate.triangles(tri, attr.shape[-2], "attr")
     diff = validate.diff_attrs(diff_attrs, attr.shape[-1])
-    layout.rast_ids(rast, len(tri))         # every id a triangle of tri, or empty
+    if not checked.vouched(rast, len(tri)):  # (rasterize's own, unchanged: valid)
+        layout.rast_ids(rast, len(tri))     # every id a triangle of tri, or empty
     if rast_db is not None:
         rast_db = validate.image("rast_db", rast_db, rast.shape, dtype)
     elif diff:

@@ -280,8 +280,9 @@ class _Backward:
         self.pos3 = pos if pos.ndim == 3 else pos[None]
         self.stride = pos.shape[-2] if pos.ndim == 3 else 0
         self.defines = {compute.DEFINES[mode]: None}
-        if mode == "fixed_point":
-            self.defines["RUN"] = compute.FIXED_POINT_RUN
+        self.run_length = compute.RUN_PIXELS if mode != "per_pixel" else 1
+        if self.run_length > 1:
+            self.defines["RUN"] = self.run_length
         if saved.space == "screen":
             self.defines["SPACE_SCREEN"] = None
         if grad_db is not None:
@@ -338,8 +339,7 @@ class _Backward:
             out.bind_to_storage_buffer(5)
         compute.set_uniform(program, "n_pixels", count)
         compute.set_uniform(program, "first_pixel", first)
-        run = compute.FIXED_POINT_RUN if self.mode == "fixed_point" else 1
-        compute.run(ctx, program, -(-count // run))
+        compute.run(ctx, program, -(-count // self.run_length))
         if self.mode == "per_pixel":
             return compute.read(out, count * 12).reshape(count, 3, 4)
         return None

@@ -23,6 +23,7 @@ from glraster.errors import ArgumentError, BadEnvironment, GLVersionError
 from glraster.gpu.backends import create_backend
 from glraster.gpu.backends.current import MIN_GL, version_text
 from glraster.gpu.shaders import compile_compute, compile_program
+from glraster.gpu.uploads import UploadCache
 
 # Framebuffers kept alive: enough for a test suite that alternates a few sizes.
 FRAMEBUFFER_CACHE_SIZE = 4
@@ -111,6 +112,7 @@ class Context:
     ``with ctx:`` (and every call: rasterize, gl_error, release_targets, release ...) makes
     this context current and afterwards makes current again whatever context was current
     on the thread before, as does construction: a caller's own GL context keeps working.
+    A block nested directly in a block of the same context switches nothing.
 
     Raises :class:`~glraster.errors.BackendUnavailable` (or a subclass: ``LibraryMissing``,
     ``DriverTooOld``, ``BackendCrashed``, ``BadEnvironment``) when no context can be made;
@@ -133,6 +135,7 @@ class Context:
         self._compute: dict = {}
         self._framebuffers: OrderedDict = OrderedDict()
         self._buffers: dict = {}
+        self.uploads = UploadCache()    # which declared array each buffer holds
         self._attribute_arrays: dict = {}  # (program glo, name) -> (buffers..., vao)
         self._gl_functions: dict = {}
         self._sample_counts: tuple | None = None
@@ -215,12 +218,22 @@ class Context:
     # -- making the context current -------------------------------------------------------
     def __enter__(self):
         self._lock.acquire()
-        self.mgl.__enter__()
+        stack = _entered()
+        # directly inside a block of this context: it is current already, nothing to switch
+        switch = not stack or stack[-1][0] is not self
+        if switch:
+            try:
+                self.mgl.__enter__()
+            except BaseException:
+                self._lock.release()
+                raise
+        stack.append((self, switch))
         return self
 
     def __exit__(self, *exc):
         try:
-            self.mgl.__exit__(*exc)
+            if _entered().pop()[1]:
+                self.mgl.__exit__(*exc)
         finally:
             self._lock.release()
 
@@ -318,17 +331,29 @@ class Context:
         return count.value, positions
 
     def storage_buffer(self, name: str, data):
-        """A buffer holding ``data`` (a C-contiguous array), reused between calls; grows by
-        doubling when needed."""
-        data = memoryview(data).cast("B")
-        buffer = self.scratch_buffer(name, data.nbytes)
-        if data.nbytes:
-            buffer.write(data)
+        """A buffer holding ``data`` (a C-contiguous array) for shaders to read, reused
+        between calls under ``name``; grows by doubling when needed. Data a front end
+        declared (:mod:`glraster.gpu.uploads`) that a buffer of this context holds already
+        is not written again: that buffer is returned (it may be another name's)."""
+        entry = self.uploads.lookup(data) if isinstance(data, np.ndarray) else None
+        if entry is not None:
+            held = self.uploads.held(entry)
+            if held is not None:
+                return self._buffers[held]
+        view = memoryview(data).cast("B")
+        buffer = self._buffer(name, view.nbytes)
+        if view.nbytes:
+            buffer.write(view)
+        self.uploads.wrote(name, entry)
         return buffer
 
     def scratch_buffer(self, name: str, nbytes: int):
         """A buffer of at least ``nbytes`` with undefined contents (for shader output),
         reused between calls under ``name``; grows by doubling when needed."""
+        self.uploads.forget(name)
+        return self._buffer(name, nbytes)
+
+    def _buffer(self, name: str, nbytes: int):
         nbytes = max(int(nbytes), 16)
         buffer = self._buffers.get(name)
         if buffer is None or buffer.size < nbytes:
@@ -404,11 +429,23 @@ class Context:
         self._attribute_arrays.clear()
         self._framebuffers.clear()
         self._buffers.clear()
+        self.uploads.clear()
         self.mgl.release()
         self._backend.release()
 
     def __repr__(self):
         return f"glraster.Context(backend={self.backend!r}, renderer={self.renderer!r})"
+
+
+_tls = threading.local()
+
+
+def _entered() -> list:
+    """This thread's open ``with`` blocks of Contexts: (context, switched) pairs."""
+    stack = getattr(_tls, "stack", None)
+    if stack is None:
+        stack = _tls.stack = []
+    return stack
 
 
 _default_context: Context | None = None

@@ -33,6 +33,7 @@ and do not get gradients), are static: they are checked once and closed over.
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections.abc import Sequence
 
@@ -165,6 +166,12 @@ def _build(op: Op, names, layout, dtype, checked_params: dict, traced: bool):
             return checked_params
         return dict(checked_params, ctx=glctx.context if dtype == np.float32 else None)
 
+    def current():
+        """The OpenGL context, current for a whole core call (its own ``with ctx:`` blocks
+        then switch nothing); nothing for float64."""
+        ctx = core_params().get("ctx")
+        return contextlib.nullcontext() if ctx is None else ctx
+
     def full(values):
         """The core's positional inputs from the present arrays (None where absent)."""
         args = [None] * len(layout)
@@ -180,8 +187,9 @@ def _build(op: Op, names, layout, dtype, checked_params: dict, traced: bool):
 
     def forward_host(*values):
         values = [np.asarray(v, dtype) for v in values]
-        return _batched(values, shapes, ranks, out_shapes, foldable,
-                        lambda vs: tuple(run_forward(vs)[0]), reduce_inputs=False)
+        with current():
+            return _batched(values, shapes, ranks, out_shapes, foldable,
+                            lambda vs: tuple(run_forward(vs)[0]), reduce_inputs=False)
 
     def backward_host(*values_and_grads):
         values = [np.asarray(v, dtype) for v in values_and_grads[:len(present)]]
@@ -198,9 +206,10 @@ def _build(op: Op, names, layout, dtype, checked_params: dict, traced: bool):
                            else np.asarray(g, dtype).reshape(v.shape))
             return tuple(out)
 
-        return _batched(values + grads, shapes + list(out_shapes),
-                        ranks + [None] * len(out_shapes), shapes, foldable, one,
-                        reduce_inputs=True, n_inputs=len(present))
+        with current():
+            return _batched(values + grads, shapes + list(out_shapes),
+                            ranks + [None] * len(out_shapes), shapes, foldable, one,
+                            reduce_inputs=True, n_inputs=len(present))
 
     @jax.custom_vjp
     def call(*values):

@@ -35,6 +35,6 @@ def antialias(color, rast, pos, tri, topology_hash=None, pos_gradient_boost=1.0,
     pos_gradient_boost: factor on pos' gradients. glraster's: glctx, the context float32
     runs on; convex, scale a pixel's blend weights to sum to 1 where they would sum past it
     (out stays within the inputs' range; False: the plain sum)."""
-    return bridge.Call(ANTIALIAS, (color, rast, pos), glctx, tri=bridge.integers("tri", tri),
+    return bridge.Call(ANTIALIAS, (color, rast, pos), glctx, tri=tri,
                        topology_hash=topology_hash, pos_gradient_boost=pos_gradient_boost,
                        convex=convex)()[0]

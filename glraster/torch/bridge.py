@@ -3,34 +3,41 @@
 :class:`Call` checks the tensors (CPU, strided, float32 or float64 of one dtype; integer
 ``tri``, ``ranges``), hands NumPy views of them to ``op.check`` (the one validation) and
 runs the core the dtype selects (float32: OpenGL, its context current for the whole core
-call; float64: the float64 reference) in one autograd Function, whose backward runs ``core.backward(saved, *grads, needs=...)`` (None
-grads: zero; ``needs``: the inputs that require grad). Inputs and outputs are saved for
-backward, so that an in-place change of one after the forward makes the backward raise
-(the cores keep views of both). No double backward.
+call; float64: the float64 reference) in one autograd Function, whose backward runs
+``core.backward(saved, *grads, needs=...)`` (None grads: zero; ``needs``: the inputs that
+require grad). Inputs, ``tri``, ``ranges`` and outputs are saved for backward, so that an
+in-place change of one after the forward makes the backward raise (the cores keep views
+of them). No double backward. Tensors are known by :func:`upload_entry`: an unchanged one
+is not uploaded again (:mod:`glraster.gpu.uploads`), nor rasterize's rast decoded again
+(:mod:`glraster.diff.checked`).
 """
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import inspect
+import weakref
 
 import numpy as np
 import torch
 from torch.autograd.function import once_differentiable
 
+from glraster.diff import checked
 from glraster.diff.op import dtype_of
+from glraster.diff.ops import RASTERIZE
 from glraster.errors import ArgumentError
 from glraster.torch.context import RasterizeGLContext
 
 FLOATS, INTS = (torch.float32, torch.float64), (torch.int32, torch.int64)
+INTEGER_PARAMS = ("tri", "ranges")  # checked, known and saved like the inputs
+KEYED_BYTES = 1024  # smaller tensors are not keyed: a key costs more than their upload
 
 
 def tensor(name: str, value, dtypes=FLOATS) -> np.ndarray:
     """A NumPy view of ``value``, once it is a dense CPU tensor of one of ``dtypes``."""
     if not isinstance(value, torch.Tensor):
         problem = f"be a torch.Tensor, got {type(value).__name__}"
-    elif value.device.type != "cpu":
+    elif not value.is_cpu:
         problem = (f"be on the CPU (glraster.torch reads tensors back to host memory), got "
                    f"device {value.device}")
     elif value.layout != torch.strided:
@@ -68,27 +75,49 @@ def to_torch(array, dtype) -> torch.Tensor:
     return torch.from_numpy(array)
 
 
+def upload_entry(value: torch.Tensor):
+    """``(region, key, owner)`` of a contiguous tensor of KEYED_BYTES or more (else None)
+    for :mod:`glraster.gpu.uploads`: the key names the tensor (a view's base: the owner,
+    held weakly), address, version counter (bumped by every in-place change, shared by
+    views), shape, dtype."""
+    if value is None or value.nbytes < KEYED_BYTES or not value.is_contiguous():
+        return None
+    base = value._base if value._base is not None else value
+    address = value.data_ptr()
+    return ((address, value.nbytes),
+            (id(base), address, value._version, value.shape, value.dtype), weakref.ref(base))
+
+
 class Call:
     """One checked call of ``op`` on ``inputs`` (tensors or None in ``op.inputs`` order, a
     variadic tail flattened) with keyword ``params``; an ArgumentError naming the argument
     before anything runs. ``arrays``, ``params``: the checked values; float32 calls get
     ``ctx`` = ``glctx``'s OpenGL context (glraster's default when None), made only once the
-    input is known good. ``frozen``: indices of outputs whose gradient is dropped."""
+    input is known good. ``frozen``: indices of outputs whose gradient is dropped.
+    ``tri``, ``ranges``: None or integer tensors (:func:`integers`), checked first, ``kept``."""
 
     def __init__(self, op, inputs, glctx=None, frozen=(), **params):
         glctx = None if glctx is None else context(glctx)
-        names = [n for n in op.inputs if not n.startswith("*")]
-        names += [f"{op.inputs[-1][1:]}[{k}]" for k in range(len(inputs) - len(names))]
-        views = [None if t is None and n in _optional(op) else tensor(n, t)
-                 for n, t in zip(names, inputs)]
-        for name, value in zip(names, inputs):  # the first input is never optional
-            if value is not None and value.dtype != inputs[0].dtype:
+        kept = []
+        for name in INTEGER_PARAMS:
+            value = params.get(name)
+            if value is not None and not isinstance(value, np.ndarray):  # (arrays: checked)
+                params[name] = integers(name, value)
+                kept.append(value)
+        names, optional = _names(op, len(inputs)), _optional(op)
+        dtype = getattr(inputs[0], "dtype", None)  # the first input is never optional
+        views = [None if value is None and name in optional else tensor(name, value)
+                 for name, value in zip(names, inputs)]
+        for name, value in zip(names, inputs):
+            if value is not None and value.dtype != dtype:
                 raise ArgumentError(name, f"{name} must have the dtype of {names[0]} "
-                                          f"({inputs[0].dtype}), got {value.dtype}: "
+                                          f"({dtype}), got {value.dtype}: "
                                           "float32 runs on the GPU, float64 through the "
                                           "float64 reference, and one op does not mix them")
-        self.op, self.inputs, self.frozen = op, tuple(inputs), tuple(frozen)
-        self.arrays, self.params = op.check(*views, **params, ctx=None)
+        self.op, self.inputs, self.frozen, self.kept = op, tuple(inputs), tuple(frozen), kept
+        self.entries = [*map(upload_entry, (*inputs, *kept))]  # (for the check, the forward)
+        with checked.declared(self.entries):
+            self.arrays, self.params = op.check(*views, **params, ctx=None)
         self.dtype = dtype_of(self.arrays)
         if self.dtype == np.float32:  # (imported here: float64 needs no OpenGL)
             from glraster.gpu.context import default_context
@@ -98,15 +127,21 @@ class Call:
         """The outputs; ``forward()`` gives ``(outputs, saved)`` (default: the core's)."""
         core = self.op.core(self.dtype)
         if forward is None:
-            forward = lambda: core.forward(*self.arrays, **self.params)  # noqa: E731
-        gl = self.params.get("ctx") if self.dtype == np.float32 else None
-        return _Function.apply((core, self.dtype, self.frozen, gl), forward, *self.inputs)
+            forward = functools.partial(core.forward, *self.arrays, **self.params)
+        gl = self.params["ctx"] if self.dtype == np.float32 else None
+        entries = self.entries if forward is None else [  # (later layers: their own)
+            *map(upload_entry, (*self.inputs, *self.kept))]
+        how = (core, self.dtype, self.frozen, gl, len(self.inputs), entries)
+        outputs = _Function.apply(how, forward, *self.inputs, *self.kept)
+        if self.op is RASTERIZE:  # its rast: ids of tri, not decoded again while unchanged
+            checked.made(upload_entry(outputs[0]), len(self.params["tri"]))
+        return outputs
 
 
-def _current(gl):
-    """``gl`` current for a whole core call (its own ``with ctx:`` blocks then nest, not a
-    dozen context switches); nothing for float64."""
-    return contextlib.nullcontext() if gl is None else gl
+@functools.cache
+def _names(op, count: int) -> tuple[str, ...]:  # the inputs' names, a variadic tail numbered
+    names = [n for n in op.inputs if not n.startswith("*")]
+    return tuple(names + [f"{op.inputs[-1][1:]}[{k}]" for k in range(count - len(names))])
 
 
 @functools.cache
@@ -115,30 +150,44 @@ def _optional(op) -> frozenset[str]:  # the inputs op.check lets be None
                      if p.default is None)
 
 
+def _run(gl, entries, work):
+    """``work()``, for float32 with ``gl`` current for the whole core call (its own ``with
+    ctx:`` blocks then switch nothing) and ``entries`` declared to its upload cache."""
+    if gl is None:
+        return work()
+    with gl:
+        added = gl.uploads.declare(entries)
+        try:
+            return work()
+        finally:
+            gl.uploads.undeclare(added)
+
+
 class _Function(torch.autograd.Function):
     @staticmethod
-    def forward(fctx, how, forward, *inputs):
-        fctx.core, fctx.dtype, fctx.frozen, fctx.gl = how
-        with _current(fctx.gl):
-            outputs, fctx.saved = forward()
+    def forward(fctx, how, forward, *tensors):
+        fctx.core, fctx.dtype, fctx.frozen, fctx.gl, fctx.count, entries = how
+        outputs, fctx.saved = _run(fctx.gl, entries, forward)
         outputs = tuple(to_torch(out, fctx.dtype) for out in outputs)
-        fctx.save_for_backward(*inputs, *outputs)
-        fctx.shapes = [None if t is None else t.shape for t in inputs]
+        fctx.save_for_backward(*tensors, *outputs)
+        fctx.entries = entries + [upload_entry(t) for t in outputs]  # valid while saved
+        fctx.shapes = [None if t is None else t.shape for t in tensors[:fctx.count]]
         fctx.set_materialize_grads(False)
         return outputs
 
     @staticmethod
     @once_differentiable
     def backward(fctx, *grads):
-        needs = tuple(fctx.needs_input_grad[2:])
+        nothing = (None,) * len(fctx.needs_input_grad)
+        needs = tuple(fctx.needs_input_grad[2:2 + fctx.count])
         if not any(needs) or all(g is None for g in grads):
-            return (None,) * (2 + len(needs))
-        fctx.saved_tensors  # raises if an input or output changed in place since the forward
+            return nothing
+        fctx.saved_tensors  # raises if a saved tensor changed in place since (keys stay)
         grads = [None if g is None or k in fctx.frozen else np.ascontiguousarray(g.numpy())
                  for k, g in enumerate(grads)]
-        with _current(fctx.gl):
-            result = tuple(fctx.core.backward(fctx.saved, *grads, needs=needs))
+        work = functools.partial(fctx.core.backward, fctx.saved, *grads, needs=needs)
+        result = tuple(_run(fctx.gl, fctx.entries, work))
         result += (None,) * (len(needs) - len(result))  # own mips: no gradients of their own
-        return (None, None) + tuple(
-            to_torch(g, fctx.dtype).sum_to_size(shape) if need and g is not None else None
-            for g, shape, need in zip(result, fctx.shapes, needs))  # sum: broadcast inputs
+        grads = tuple(to_torch(g, fctx.dtype).sum_to_size(shape) if need and g is not None
+                      else None for g, shape, need in zip(result, fctx.shapes, needs))  # sum: broadcasts
+        return (None, None) + grads + nothing[2 + len(grads):]

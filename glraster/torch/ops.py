@@ -29,9 +29,8 @@ from glraster.torch import bridge
 
 
 def _rasterize_call(glctx, pos, tri, resolution, ranges, grad_db):
-    return bridge.Call(RASTERIZE, (pos,), bridge.context(glctx), tri=bridge.integers("tri", tri),
-                       resolution=resolution, ranges=bridge.integers("ranges", ranges),
-                       grad_db=glctx.output_db,
+    return bridge.Call(RASTERIZE, (pos,), bridge.context(glctx), tri=tri,
+                       resolution=resolution, ranges=ranges, grad_db=glctx.output_db,
                        frozen=() if bridge.flag("grad_db", grad_db) else (1,))
 
 
@@ -61,8 +60,8 @@ def interpolate(attr, rast, tri, rast_db=None, diff_attrs=None, *, glctx=None):
         rast_db, diff_attrs = None, None  # as nvdiffrast: rast_db is then not used
     if bridge.tensor("attr", attr).ndim == 3 and attr.shape[0] == 1:
         attr = attr[0]  # a batch of 1 broadcasts (as (V, A))
-    return bridge.Call(INTERPOLATE, (attr, rast, rast_db), glctx,
-                       tri=bridge.integers("tri", tri), diff_attrs=diff_attrs)()
+    return bridge.Call(INTERPOLATE, (attr, rast, rast_db), glctx, tri=tri,
+                       diff_attrs=diff_attrs)()
 
 
 class DepthPeeler(PeelerScope):

@@ -5,9 +5,9 @@
 // Defines: SPACE_SCREEN (u, v are window-space barycentrics, else perspective-correct);
 // ACCUM_ATOMIC_FLOAT (atomicAdd on float, GL_NV_shader_atomic_float) | ACCUM_CAS
 // (atomicCompSwap loop on the float's bits) | ACCUM_FIXED_POINT (64-bit fixed-point integer
-// sums, include/fixed_point.glsl: bit-reproducible; RUN pixels per invocation) |
-// ACCUM_PER_PIXEL (each pixel writes
-// its three vertex contributions, for backward_pixels); GRAD_DB.
+// sums, include/fixed_point.glsl: bit-reproducible) | ACCUM_PER_PIXEL (each pixel writes
+// its three vertex contributions, for backward_pixels); RUN (pixels per invocation, local
+// sums: see main); GRAD_DB.
 //
 // Mathematics (docs/differentiable.md, "Backward on the GPU"). In the pixel-relative window
 // frame V'_j = (X_j - p_x w_j, Y_j - p_y w_j, w_j), with X = (x + w) W/2, Y = (y + w) H/2,
@@ -48,51 +48,93 @@ uniform uint fixed_groups;   // ACCUM_FIXED_POINT: B with batched pos (one scale
 #include "include/atomic_add_float.glsl"
 #include "include/fixed_point.glsl"
 
-void add(uint vertex, vec3 g) {
+// one pixel's terms g = (x, y, w) to a vertex (image b), one atomic each (RUN undefined)
+void add(uint vertex, uint b, vec3 g) {
     uint o = 4u * vertex;
 #if defined(ACCUM_ATOMIC_FLOAT) || defined(ACCUM_CAS)
     ATOMIC_ADD_FLOAT(grad_pos[o + 0u], g.x);
     ATOMIC_ADD_FLOAT(grad_pos[o + 1u], g.y);
     ATOMIC_ADD_FLOAT(grad_pos[o + 3u], g.z);
+#elif defined(ACCUM_FIXED_POINT)
+    uint group = vertex_stride == 0u ? 0u : b;
+    FIXED_ADD(grad_pos, fixed_groups, group, o + 0u, g.x);
+    FIXED_ADD(grad_pos, fixed_groups, group, o + 1u, g.y);
+    FIXED_ADD(grad_pos, fixed_groups, group, o + 3u, g.z);
 #endif
 }
 
-// The terms of pixel i (of this dispatch) to the clip-space (x, y, w) of its triangle's
-// vertices idx (batch offset included), b its image; false (terms not set) when it adds
-// nothing (empty, or a zero upstream gradient outside ACCUM_PER_PIXEL).
-bool pixel_terms(uint i, out int t, out uint b, out uint idx[3], out vec3 terms[3]) {
-    t = decode_id(rast[i].w) - 1;
-    vec2 gbary = grad_rast[i].xy;
-#ifdef GRAD_DB
-    vec4 gdb = grad_db[i];
-#endif
-    bool live = t >= 0 && t < n_tri;
-    if (!live) return false;
-#ifndef ACCUM_PER_PIXEL
-#ifdef GRAD_DB
-    if (gbary == vec2(0.0) && gdb == vec4(0.0)) return false;
-#else
-    if (gbary == vec2(0.0)) return false;
-#endif
-#endif
-    uint g = first_pixel + i;
+// Pixel i (of this dispatch): its triangle t, image b, the pixel centre in NDC and the
+// upstream gradients; false when it adds nothing (empty, or a zero upstream gradient
+// outside ACCUM_PER_PIXEL).
+struct Pixel {
+    int t;
+    uint b;
+    vec2 ndc;
+    vec2 gbary;
+    vec4 gdb;
+};
+
+// (x, y, image) of flat pixel g = first_pixel + i (integer divisions: one per invocation,
+// since llvmpipe runs each lane's division on its own)
+uvec3 pixel_position(uint g) {
     uint hw = size.x * size.y;
-    b = g / hw;
+    uint b = g / hw;
     uint r = g - b * hw;
     uint y = r / size.x;
-    uint x = r - y * size.x;
-    vec2 half_size = 0.5 * vec2(size);
-    // the pixel centre in NDC
-    vec2 ndc = (2.0 * vec2(float(x), float(y)) + 1.0) / vec2(size) - 1.0;
+    return uvec3(r - y * size.x, y, b);
+}
 
+// the position of the next flat pixel
+uvec3 next_position(uvec3 at) {
+    at.x += 1u;
+    if (at.x == size.x) {
+        at.x = 0u;
+        at.y += 1u;
+        if (at.y == size.y) {
+            at.y = 0u;
+            at.z += 1u;
+        }
+    }
+    return at;
+}
+
+bool pixel_at(uint i, uvec3 at, out Pixel px) {
+    px.t = decode_id(rast[i].w) - 1;
+    if (px.t < 0 || px.t >= n_tri) return false;
+    px.gbary = grad_rast[i].xy;
+#ifdef GRAD_DB
+    px.gdb = grad_db[i];
+#else
+    px.gdb = vec4(0.0);
+#endif
+#ifndef ACCUM_PER_PIXEL
+    if (px.gbary == vec2(0.0) && px.gdb == vec4(0.0)) return false;
+#endif
+    px.b = at.z;
+    px.ndc = (2.0 * vec2(at.xy) + 1.0) / vec2(size) - 1.0;
+    return true;
+}
+
+// the vertices idx (batch offset included) of triangle t in image b, and their positions
+void corners(int t, uint b, out uint idx[3], out vec4 p[3]) {
     uint base = b * vertex_stride;
     idx = uint[3](uint(tri[3 * t]) + base, uint(tri[3 * t + 1]) + base,
                   uint(tri[3 * t + 2]) + base);
+    for (int j = 0; j < 3; ++j) p[j] = pos[idx[j]];
+}
+
+// The pixel's terms to the clip-space (x, y, w) of its triangle's vertices, positions p.
+void pixel_terms(Pixel px, vec4 p[3], out vec3 terms[3]) {
+    vec2 half_size = 0.5 * vec2(size);
+    vec2 ndc = px.ndc;
+    vec2 gbary = px.gbary;
+#ifdef GRAD_DB
+    vec4 gdb = px.gdb;
+#endif
     vec3 V[3];
     for (int j = 0; j < 3; ++j) {
-        vec4 p = pos[idx[j]];
         // pixel-relative homogeneous window coordinates: X' = (W/2) (x - w ndc_x)
-        V[j] = vec3(half_size * fma(-vec2(p.w), ndc, p.xy), p.w);
+        V[j] = vec3(half_size * fma(-vec2(p[j].w), ndc, p[j].xy), p[j].w);
     }
     vec3 N[3];
     for (int k = 0; k < 3; ++k) N[k] = cross(V[(k + 1) % 3], V[(k + 2) % 3]);
@@ -153,71 +195,100 @@ bool pixel_terms(uint i, out int t, out uint b, out uint idx[3], out vec3 terms[
         vec2 gxy = half_size * G[j].xy;
         terms[j] = vec3(gxy, G[j].z - dot(ndc, gxy));
     }
-    return true;
 }
 
+#ifdef RUN
+// RUN consecutive pixels per invocation: the terms of a stretch of pixels on one triangle
+// are summed locally and added with one atomic per vertex coordinate (fixed point: one
+// pair of word atomics; 64-bit integer sums are associative, so the same bits), instead
+// of one per pixel.
 #ifdef ACCUM_FIXED_POINT
-// RUN consecutive pixels per invocation: the rounded terms of a stretch of pixels on one
-// triangle are summed locally (64-bit integers: associative, so the same bits) and added
-// with one pair of atomics per vertex coordinate, instead of one pair per pixel.
-void flush(uint group, uint idx[3], uvec2 sum[9], uint largest) {
+#define TERM uvec2
+#define TERM_ZERO uvec2(0u)
+#else
+#define TERM float
+#define TERM_ZERO 0.0
+#endif
+
+void flush(uint b, uint idx[3], TERM sum[9], uint largest) {
+#ifdef ACCUM_FIXED_POINT
+    uint group = vertex_stride == 0u ? 0u : b;
     FIXED_TRACK(grad_pos, group, largest);
+#endif
     for (int j = 0; j < 3; ++j) {
         uint o = 4u * idx[j];
+#ifdef ACCUM_FIXED_POINT
         FIXED_ADD_WORDS(grad_pos, fixed_groups, o + 0u, sum[3 * j]);
         FIXED_ADD_WORDS(grad_pos, fixed_groups, o + 1u, sum[3 * j + 1]);
         FIXED_ADD_WORDS(grad_pos, fixed_groups, o + 3u, sum[3 * j + 2]);
+#else
+        ATOMIC_ADD_FLOAT(grad_pos[o + 0u], sum[3 * j]);
+        ATOMIC_ADD_FLOAT(grad_pos[o + 1u], sum[3 * j + 1]);
+        ATOMIC_ADD_FLOAT(grad_pos[o + 3u], sum[3 * j + 2]);
+#endif
     }
 }
 
 void main() {
     uint start = gl_GlobalInvocationID.x * uint(RUN);
     int open_t = -1;
-    uint open_b = 0u, open_group = 0u;
+    uint open_b = 0u;
     uint open_idx[3] = uint[3](0u, 0u, 0u);
-    uvec2 sum[9];
-    uint largest = 0u;       // fixed_point_magnitude of the largest term
+    vec4 open_p[3];          // the open triangle's positions, loaded once per run
+    TERM sum[9];
+    uint largest = 0u;       // fixed point: fixed_point_magnitude of the largest term
     float scale = 0.0;
-    for (uint r = 0u; r < uint(RUN); ++r) {
+    uvec3 at = pixel_position(first_pixel + start);
+    for (uint r = 0u; r < uint(RUN); ++r, at = next_position(at)) {
         uint i = start + r;
         if (i >= n_pixels) break;
-        int t;
-        uint b, idx[3];
-        vec3 terms[3];
-        if (!pixel_terms(i, t, b, idx, terms)) continue;
-        if (t != open_t || b != open_b) {
-            if (open_t >= 0) flush(open_group, open_idx, sum, largest);
-            open_t = t;
-            open_b = b;
-            open_idx = idx;
-            open_group = vertex_stride == 0u ? 0u : b;
-            scale = uintBitsToFloat(grad_pos[fixed_groups + open_group]);
-            for (int m = 0; m < 9; ++m) sum[m] = uvec2(0u);
+        Pixel px;
+        if (!pixel_at(i, at, px)) continue;
+        if (px.t != open_t || px.b != open_b) {
+            if (open_t >= 0) flush(open_b, open_idx, sum, largest);
+            open_t = px.t;
+            open_b = px.b;
+            corners(open_t, open_b, open_idx, open_p);
+#ifdef ACCUM_FIXED_POINT
+            scale = uintBitsToFloat(grad_pos[fixed_groups + (vertex_stride == 0u ? 0u : open_b)]);
+#endif
+            for (int m = 0; m < 9; ++m) sum[m] = TERM_ZERO;
             largest = 0u;
         }
+        vec3 terms[3];
+        pixel_terms(px, open_p, terms);
         for (int j = 0; j < 3; ++j) {
             for (int c = 0; c < 3; ++c) {
+#ifdef ACCUM_FIXED_POINT
                 largest = max(largest, fixed_point_magnitude(terms[j][c]));
                 sum[3 * j + c] = fixed_point_add(sum[3 * j + c],
                                                  fixed_point_words(terms[j][c], scale));
+#else
+                sum[3 * j + c] += terms[j][c];
+#endif
             }
         }
     }
-    if (open_t >= 0) flush(open_group, open_idx, sum, largest);
+    if (open_t >= 0) flush(open_b, open_idx, sum, largest);
 }
 #else
 void main() {
     uint i = gl_GlobalInvocationID.x;
     if (i >= n_pixels) return;
-    int t;
-    uint b, idx[3];
+    Pixel px;
+    uint idx[3];
+    vec4 p[3];
     vec3 terms[3];
-    bool live = pixel_terms(i, t, b, idx, terms);
+    bool live = pixel_at(i, pixel_position(first_pixel + i), px);
+    if (live) {
+        corners(px.t, px.b, idx, p);
+        pixel_terms(px, p, terms);
+    }
     for (int j = 0; j < 3; ++j) {
 #ifdef ACCUM_PER_PIXEL
         contrib[3u * i + uint(j)] = live ? vec4(terms[j].xy, 0.0, terms[j].z) : vec4(0.0);
 #else
-        if (live) add(idx[j], terms[j]);
+        if (live) add(idx[j], px.b, terms[j]);
 #endif
     }
 }

@@ -99,7 +99,8 @@ def test_interpolate_sum_within_the_stated_bound_of_the_exact_sum(ctx, interp_sc
 def test_interpolate_bit_identical_for_shuffled_pixels_and_chunks(ctx, interp_scene,
                                                                   monkeypatch):
     """grad_attr sums the same terms whatever the pixel order: the pixels of rast and
-    grad_out shuffled (one permutation), and the dispatch cut into chunks."""
+    grad_out shuffled (one permutation), the dispatch cut into chunks, and every term
+    added on its own (no local sums over runs of pixels)."""
     attr, rast, tri, go = interp_scene
     _, _, saved = forward(attr, rast, tri, ctx=ctx)
     want = ip.backward(saved, go, deterministic=True)[0]
@@ -112,6 +113,9 @@ def test_interpolate_bit_identical_for_shuffled_pixels_and_chunks(ctx, interp_sc
     monkeypatch.setattr(compute, "MAX_CHUNK_BYTES", 64 * 200)
     chunked = ip.backward(saved, go, deterministic=True)[0]
     assert np.array_equal(bits(want), bits(chunked))
+    monkeypatch.setattr(compute, "RUN_PIXELS", 1)
+    single = ip.backward(saved, go, deterministic=True)[0]
+    assert np.array_equal(bits(want), bits(single)), "every term added on its own"
 
 
 def test_rasterize_bit_identical_for_swapped_images_chunks_and_history(ctx, monkeypatch):
@@ -130,10 +134,10 @@ def test_rasterize_bit_identical_for_swapped_images_chunks_and_history(ctx, monk
     gpu_backward(pos, tri, rasts, gs * np.float32(2.0 ** 40), ctx=ctx, deterministic=True)
     after = gpu_backward(pos, tri, rasts, gs, ctx=ctx, deterministic=True)
     assert np.array_equal(bits(want), bits(after)), "the exponent depends on the call only"
-    monkeypatch.setattr(compute, "FIXED_POINT_RUN", 1)
+    monkeypatch.setattr(compute, "RUN_PIXELS", 1)
     single = gpu_backward(pos, tri, rasts, gs, ctx=ctx, deterministic=True)
     assert np.array_equal(bits(want), bits(single))
-    monkeypatch.setattr(compute, "FIXED_POINT_RUN", 5)
+    monkeypatch.setattr(compute, "RUN_PIXELS", 5)
     monkeypatch.setattr(compute, "MAX_CHUNK_BYTES", 16 * 640)
     chunked = gpu_backward(pos, tri, rasts, gs, ctx=ctx, deterministic=True)
     assert np.array_equal(bits(want), bits(chunked))

@@ -371,14 +371,18 @@ def test_gpu_pixel_terms_within_running_error_bound(ctx, name, space):
     assert not empty.any(), "empty pixels must contribute nothing"
 
 
+@pytest.mark.parametrize("run", [1, compute.RUN_PIXELS])
 @pytest.mark.parametrize("accumulate", compute.FIXED_POINT_ACCUMULATIONS)
 @pytest.mark.parametrize("name", ["grid_perspective_jitter", "icosphere", "slivers"])
-def test_gpu_vertex_gradients_within_bound(ctx, name, accumulate):
+def test_gpu_vertex_gradients_within_bound(ctx, name, accumulate, run, monkeypatch):
     """Per vertex: |gpu - float64| <= sum of its pixels' K u m + the summation bound
-    ((n - 1) u sum |c| for float32 atomics; n 2^-(k+1) for the fixed-point sums, k from
-    an upper bound on the largest term, 3 terms per pixel) + u |sum|."""
+    ((n - 1) u sum |c| for float32 sums in any order and grouping: atomics, and local sums
+    over runs of pixels added by atomics; n 2^-(k+1) for the fixed-point sums, k from an
+    upper bound on the largest term, 3 terms per pixel) + u |sum|; every term added on its
+    own (run 1) and with local sums."""
     if accumulate == "atomic_float" and not compute.has_atomic_float(ctx):
         pytest.skip("the driver has no GL_NV_shader_atomic_float")
+    monkeypatch.setattr(compute, "RUN_PIXELS", run)
     pos, tri, res = _scene(name)
     rast = gpu_rast(ctx, pos, tri, res)
     rng = np.random.default_rng(6)
