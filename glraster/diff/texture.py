@@ -97,23 +97,47 @@ def _storage_limit(ctx: Context, nbytes: int, what: str) -> None:
                          "texture, fewer channels or max_mip_level")
 
 
-# context -> (mark, buffer): the levels its buffer "texture.levels" holds (_upload_levels)
+# context -> (mark, buffer, sources): the levels its buffer "texture.levels" holds
+# (_upload_levels)
 _HELD: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _sources(ctx: Context, args: TextureArgs):
+    """What the levels are made of, when a front end declared every array they come from
+    (:mod:`glraster.gpu.uploads`: equal keys, equal bytes): the geometry, whether the
+    pyramid is built here, and each array's (key, owner reference); else None."""
+    arrays = (args.tex, *((args.mip or ()) if args.levels > 1 else ()))
+    entries = [ctx.uploads.lookup(np.ascontiguousarray(a, np.float32)) for a in arrays]
+    if any(e is None for e in entries):
+        return None
+    return (args.tex.shape, args.shapes, args.mip is None), tuple(entries)
+
+
+def _same_sources(held, sources) -> bool:
+    """``held`` and ``sources`` (:func:`_sources`) are the same arrays, all still alive."""
+    return (held is not None and sources is not None and held[0] == sources[0]
+            and all(h[0] == s[0] and h[1]() is not None
+                    for h, s in zip(held[1], sources[1], strict=True)))
 
 
 def _upload_levels(ctx: Context, args: TextureArgs, mark=None):
     """Every level in the context's storage buffer "texture.levels" (base uploaded; mips
-    uploaded or built on the GPU), unless it still holds those of ``mark`` (a mark this
-    function returned, for the same ``args``: no texture call has filled the buffer since).
-    Inside ``with ctx``. Returns (buffer, info, firsts, total texels, images, mark)."""
+    uploaded or built on the GPU), unless it still holds them: those of ``mark`` (a mark
+    this function returned, for the same ``args``: no texture call has filled the buffer
+    since), or those of the same declared arrays (a constant texture and its pyramid are
+    neither uploaded nor built again). Inside ``with ctx``. Returns (buffer, info, firsts,
+    total texels, images, mark)."""
     info, firsts, total, images = _geometry(args)
     channels = args.channels
     _storage_limit(ctx, total * channels * 4, "the texture and its mip levels")
     buffer = ctx.scratch_buffer("texture.levels", total * channels * 4)
-    if mark is not None and _HELD.get(ctx) == (mark, buffer):
-        return buffer, info, firsts, total, images, mark
+    held = _HELD.get(ctx)
+    sources = _sources(ctx, args)
+    if held is not None and held[1] is buffer and (
+            (mark is not None and held[0] is mark) or _same_sources(held[2], sources)):
+        return buffer, info, firsts, total, images, held[0]
     mark = object()
-    _HELD[ctx] = (mark, buffer)
+    _HELD[ctx] = (mark, buffer, sources)
     buffer.write(np.ascontiguousarray(args.tex, np.float32), offset=0)  # no bytes copy
     if args.levels > 1 and args.mip is not None:
         for k in range(1, args.levels):

@@ -108,3 +108,33 @@ def test_bad_max_mip_level_still_names_the_argument():
         dr.texture(tex, uv, da, bias, filter_mode=MODE, max_mip_level=[1])
     with pytest.raises(ValueError, match="max_mip_level"):
         dr.texture(tex, uv, da, bias, filter_mode=MODE, max_mip_level=-2)
+
+
+def test_levels_of_an_unchanged_texture_stay_on_the_gpu(ctx, monkeypatch):
+    """A texture requiring grad, unchanged between calls: the second call neither uploads
+    it nor builds its pyramid again (its levels are still in the levels buffer, known by
+    the bridge's upload keys); after an in-place change they are, and the results are
+    bit for bit those of a fresh tensor."""
+    texture_core = importlib.import_module("glraster.diff.texture")
+    builds = []
+    passes = texture_core._pyramid_passes
+
+    def counted(ctx_, buffer, args, firsts, images, backward, top=None):
+        builds.append(backward)
+        return passes(ctx_, buffer, args, firsts, images, backward, top)
+
+    monkeypatch.setattr(texture_core, "_pyramid_passes", counted)
+    glctx = dr.RasterizeGLContext(context=ctx)
+    tex, uv, da, bias = inputs(torch.float32)
+    tex.requires_grad_()
+    first = run(glctx, tex, uv, da, bias, "wrap") + [tex.grad.clone()]
+    tex.grad = None
+    second = run(glctx, tex, uv, da, bias, "wrap") + [tex.grad.clone()]
+    assert same(first, second) and builds.count(False) == 1, builds
+    with torch.no_grad():
+        tex.mul_(0.5)
+    tex.grad = None
+    changed = run(glctx, tex, uv, da, bias, "wrap")
+    assert builds.count(False) == 2
+    fresh = run(glctx, tex.detach().clone().requires_grad_(), uv, da, bias, "wrap")
+    assert same(changed, fresh) and not torch.equal(changed[0], first[0])
