@@ -102,15 +102,30 @@ def _storage_limit(ctx: Context, nbytes: int, what: str) -> None:
 _HELD: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
+# levels this small are known by their bytes (front ends key only larger arrays)
+_BY_BYTES = 4096
+
+
 def _sources(ctx: Context, args: TextureArgs):
     """What the levels are made of, when a front end declared every array they come from
-    (:mod:`glraster.gpu.uploads`: equal keys, equal bytes): the geometry, whether the
-    pyramid is built here, and each array's (key, owner reference); else None."""
+    (:mod:`glraster.gpu.uploads`: equal keys, equal bytes) or it is at most _BY_BYTES long:
+    the geometry, whether the pyramid is built here, and each array's (key, owner
+    reference) (a small one's: its bytes, no owner); else None."""
     arrays = (args.tex, *((args.mip or ()) if args.levels > 1 else ()))
-    entries = [ctx.uploads.lookup(np.ascontiguousarray(a, np.float32)) for a in arrays]
-    if any(e is None for e in entries):
-        return None
+    entries = []
+    for a in arrays:
+        a = np.ascontiguousarray(a, np.float32)
+        entry = ctx.uploads.lookup(a)
+        if entry is None and a.nbytes <= _BY_BYTES:
+            entry = (a.tobytes(), _ALIVE)
+        if entry is None:
+            return None
+        entries.append(entry)
     return (args.tex.shape, args.shapes, args.mip is None), tuple(entries)
+
+
+def _ALIVE():  # the owner of bytes held by value: never collected
+    return True
 
 
 def _same_sources(held, sources) -> bool:
