@@ -4,7 +4,7 @@ Every GPU backward (and interpolate's forward) runs over the pixels of the flatt
 (B, H, W) grid (one invocation per pixel; :data:`RUN_PIXELS` consecutive pixels per
 invocation in the rasterize and interpolate backward), in chunks whose per-pixel buffers
 stay under :data:`MAX_CHUNK_BYTES`. Per-pixel outputs are written in place; per-vertex
-gradients are sums over the pixels of each vertex's triangles, formed by one of three
+gradients are sums over the pixels of each vertex's triangles, formed by one of these
 accumulations (the rasterize and interpolate backward first sum the terms of an
 invocation's run of pixels on one triangle locally, then add each sum with one atomic):
 
@@ -22,9 +22,9 @@ invocation's run of pixels on one triangle locally, then add each sum with one a
     addition is associative, so the same inputs give bit-identical results on every run,
     whatever the order in which the invocations add (or the chunking of the pixels).
 ``"per_pixel"`` (``deterministic=True`` for texture)
-    Each pixel writes its contributions to a per-pixel buffer; the host sums them per
-    texel in pixel order, in float64 (``np.bincount``, :func:`reduce_rows`), and rounds
-    once. Bit-identical run to run, no float32 accumulation error, slower.
+    Texture's name for the same fixed-point sum (its accumulate argument keeps the name
+    it had when the terms were summed on the host): shaders/diff/texture.comp adds the
+    words with the shared ``fixed_point.glsl``.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ from glraster.gpu.context import Context
 __all__ = [
     "ACCUMULATIONS", "DEFINES", "FIXED_POINT_ACCUMULATIONS", "FixedPointSum", "LOCAL_SIZE",
     "RUN_PIXELS", "MAX_CHUNK_BYTES", "accumulation", "chunks", "corner_vertices", "fixed_point_exponent",
-    "has_atomic_float", "read", "reduce_rows", "run", "set_uniform", "zeroed",
+    "has_atomic_float", "read", "run", "set_uniform", "zeroed",
 ]
 
 # the accumulations texture offers, and those rasterize, interpolate and antialias offer
@@ -140,15 +140,6 @@ def corner_vertices(rast_chunk_ids: np.ndarray, first: int, tri: np.ndarray,
         image = (first + np.flatnonzero(live)) // pixels_per_image
         rows += (image * vertex_stride)[:, None]
     return live, rows
-
-
-def reduce_rows(total: np.ndarray, rows: np.ndarray, contrib: np.ndarray, channels) -> None:
-    """total[v, c] += sum of contrib[n, j, c] over the (n, j) with rows[n, j] == v, in pixel
-    order, in float64 (np.bincount)."""
-    keys = rows.ravel()
-    for c in channels:
-        total[:, c] += np.bincount(keys, weights=contrib[:, :, c].ravel(),
-                                   minlength=total.shape[0])
 
 
 # --------------------------------------------------------------------------- fixed point

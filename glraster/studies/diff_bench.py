@@ -229,9 +229,8 @@ PHASES = {
                                                   ("moderngl/__init__.py", "read")],
     "host setup records": [("glraster/diff/rasterize.py", "setup_records")],
     "host culling": [("glraster/gpu/cull.py", "cull")],
-    "host reduction (ids, bincount; fixed-point decode)": [
+    "host reduction (ids; fixed-point decode)": [
         ("glraster/diff/compute.py", "corner_vertices"),
-        ("glraster/diff/compute.py", "reduce_rows"),
         ("glraster/diff/compute.py", "_decode")],
 }
 
