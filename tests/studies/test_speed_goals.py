@@ -32,7 +32,9 @@ def test_the_short_form_prints_and_writes_every_goal(gl_backend, tmp_path, capsy
         "16², 18 triangles: rasterize atomic backward / forward",
         "16², 18 triangles: rasterize det. / atomic backward",
         "16², 18 triangles: interpolate det. / atomic backward",
-        "8² linear: glraster / PyTorch", "8² linear-mipmap-linear: glraster / PyTorch"]
+        "8² linear: glraster / PyTorch", "8² linear: det. / atomic backward",
+        "8² linear-mipmap-linear: glraster / PyTorch",
+        "8² linear-mipmap-linear: det. / atomic backward"]
     for g in goals:
         op, target = g["goal"].split()
         value, target = g["value"], float(target)
