@@ -19,7 +19,8 @@ Three compute passes (shaders/diff/antialias_pairs.comp, antialias_blend.comp,
 antialias_backward.comp) over lists the host makes (the candidate pairs, their pixels):
 the pair records (one invocation per candidate pair), the blend (one per listed pixel, a
 gather over its four incident pairs: deterministic), and the
-backward (colour gradients by gather, position gradients summed per vertex by float
+backward, which reuses the forward's lists, records and scales (read back into its saved
+state: 36 bytes a pixel) instead of running the first two again (colour gradients by gather, position gradients summed per vertex by float
 atomics, a compare-and-swap loop, or with ``deterministic=True`` in 64-bit fixed point, as
 :mod:`glraster.diff.compute`).
 
@@ -29,6 +30,8 @@ image; tri (T, 3).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -135,6 +138,33 @@ class _Passes:
         return out, scale
 
 
+# bytes per pixel of a chunk's buffers, plus 12 per colour channel: the forward chunks the
+# images as the backward needs, so that the backward runs over the forward's chunks
+_CHUNK_BYTES = 48
+
+
+@dataclass(frozen=True, eq=False)
+class _Chunk:
+    """What the forward found for images first .. first + count - 1 and the backward uses
+    again instead of recomputing it: the lists (:meth:`_Passes.lists`), pass 1's records
+    (count H W 2, 4) uint32 (zero where no pair is listed) and pass 2's scales (count H W,)
+    float32 (defined at the listed pixels only)."""
+
+    first: int
+    count: int
+    codes: np.ndarray
+    pixels: np.ndarray
+    records: np.ndarray
+    scale: np.ndarray
+
+    @classmethod
+    def read(cls, first, count, codes, pixels, records, scale, hw: int) -> "_Chunk":
+        """Read a chunk's records and scales back from their buffers."""
+        n = count * hw
+        return cls(first, count, codes, pixels, _gpu.read(records, n * 8, np.uint32),
+                   _gpu.read(scale, n))
+
+
 def forward(color, rast, pos, *, tri, topology_hash, pos_gradient_boost=1.0, convex=True,
             ctx: Context | None = None):
     """Antialias ``color`` across the silhouette edges of the mesh, on the GPU, on float32
@@ -161,15 +191,17 @@ def forward(color, rast, pos, *, tri, topology_hash, pos_gradient_boost=1.0, con
     passes = _Passes(ctx, color, rast, pos, tri, topology_hash, ids)
     out = color.copy()
     flat_out = out.reshape(-1, passes.channels)
+    kept = []
     with ctx:
-        for first, count in passes.chunks(48 + 8 * passes.channels):
+        for first, count in passes.chunks(_CHUNK_BYTES + 12 * passes.channels):
             codes, pixels = passes.lists(first, count)
             records = passes.run_pairs(first, count, codes)
-            values, _ = passes.run_blend(first, count, records, pixels, convex, True)
+            values, scale = passes.run_blend(first, count, records, pixels, convex, True)
             flat_out[first * passes.hw + pixels.astype(np.int64)] = _gpu.read(
                 values, len(pixels) * passes.channels).reshape(len(pixels), passes.channels)
+            kept.append(_Chunk.read(first, count, codes, pixels, records, scale, passes.hw))
     saved = AntialiasSaved(color, rast, pos, tri, topology_hash, float(pos_gradient_boost),
-                           bool(convex), ids, ctx=ctx)
+                           bool(convex), ids, pairs=tuple(kept), ctx=ctx)
     return (out,), saved
 
 
@@ -274,17 +306,16 @@ def backward(saved: AntialiasSaved, grad_out, *, needs=None, deterministic: bool
         program = ctx.compute_program(shader_path(BACKWARD), defines)
         sums = _PositionGradients(ctx, mode, passes) if want_pos else None
         for _ in (sums.passes(program) if want_pos else [None]):
-            for first, count in passes.chunks(48 + 12 * channels):
-                codes, pixels = passes.lists(first, count)
-                if len(pixels) == 0:
+            for chunk in saved.pairs:
+                if len(chunk.pixels) == 0:
                     continue
-                out_gc = _backward_pass(passes, saved, program, first, count, codes,
-                                        pixels, flat_g[first * hw:(first + count) * hw],
-                                        sums)
+                first, count = chunk.first, chunk.count
+                out_gc = _backward_pass(passes, saved, program, chunk,
+                                        flat_g[first * hw:(first + count) * hw], sums)
                 if want_color:
-                    grad_color.reshape(-1, channels)[first * hw + pixels.astype(np.int64)] = \
-                        _gpu.read(out_gc, len(pixels) * channels).reshape(len(pixels),
-                                                                          channels)
+                    grad_color.reshape(-1, channels)[first * hw + chunk.pixels.astype(
+                        np.int64)] = _gpu.read(out_gc, len(chunk.pixels) * channels).reshape(
+                            len(chunk.pixels), channels)
         total = sums.result() if want_pos else None
     grad_pos = None
     if want_pos:
@@ -293,16 +324,17 @@ def backward(saved: AntialiasSaved, grad_out, *, needs=None, deterministic: bool
     return grad_color, None, grad_pos
 
 
-def _backward_pass(passes: _Passes, saved: AntialiasSaved, program, first, count, codes,
-                   pixels, grad_out, sums: _PositionGradients | None):
-    """Passes 1 to 3 over one chunk of images: the pair records, the blend's scales, then
-    the backward ``program`` over the listed pixels (colour gradients by gather into the
-    returned buffer, position gradients into the sums bound at 6)."""
-    ctx, channels = passes.ctx, passes.channels
-    records = passes.run_pairs(first, count, codes)
-    _, scale = passes.run_blend(first, count, records, pixels, saved.convex, False)
-    # run_blend bound the chunk's colour at 0, the records at 1
-    scale.bind_to_storage_buffer(2)
+def _backward_pass(passes: _Passes, saved: AntialiasSaved, program, chunk: _Chunk, grad_out,
+                   sums: _PositionGradients | None):
+    """Pass 3, the backward ``program``, over the listed pixels of one chunk of images, on
+    the forward's records and scales (colour gradients by gather into the returned
+    buffer, position gradients into the sums bound at 6)."""
+    ctx, channels, pixels = passes.ctx, passes.channels, chunk.pixels
+    color = passes.color.reshape(-1, channels)[chunk.first * passes.hw:
+                                               (chunk.first + chunk.count) * passes.hw]
+    ctx.storage_buffer("antialias.color", color).bind_to_storage_buffer(0)
+    ctx.storage_buffer("antialias.records", chunk.records).bind_to_storage_buffer(1)
+    ctx.storage_buffer("antialias.scale", chunk.scale).bind_to_storage_buffer(2)
     ctx.storage_buffer("antialias.grad_out", grad_out).bind_to_storage_buffer(3)
     out_gc = ctx.scratch_buffer("antialias.grad_color", len(pixels) * channels * 4)
     out_gc.bind_to_storage_buffer(4)
