@@ -19,8 +19,9 @@ Three compute passes (shaders/diff/antialias_pairs.comp, antialias_blend.comp,
 antialias_backward.comp) over lists the host makes (the candidate pairs, their pixels):
 the pair records (one invocation per candidate pair), the blend (one per listed pixel, a
 gather over its four incident pairs: deterministic), and the
-backward, which reuses the forward's lists, records and scales (read back into its saved
-state: 36 bytes a pixel) instead of running the first two again (colour gradients by gather, position gradients summed per vertex by float
+backward, on the blend's compact outputs (per listed pixel its four incident pair records
+and its scale, read back into the forward's saved state), so that it runs neither of the
+first two again (colour gradients by gather, position gradients summed per vertex by float
 atomics, a compare-and-swap loop, or with ``deterministic=True`` in 64-bit fixed point, as
 :mod:`glraster.diff.compute`).
 
@@ -110,58 +111,47 @@ class _Passes:
             _gpu.run(ctx, program, len(codes))
         return records
 
-    def run_blend(self, first: int, count: int, records, pixels: np.ndarray, convex: bool,
-                  write_out: bool):
-        """Pass 2 over the listed pixels: binds the chunk's colour (0) and the records (1);
-        returns the compact out buffer and the (full-size) scales."""
+    def run_blend(self, first: int, count: int, records, pixels: np.ndarray, convex: bool):
+        """Pass 2 over the listed pixels: the compact buffers of their blended colours,
+        scales and incident records."""
         ctx = self.ctx
-        defines = {}
-        if convex:
-            defines["CONVEX"] = None
-        if write_out:
-            defines["WRITE_OUT"] = None
-        program = ctx.compute_program(shader_path(BLEND), defines)
-        n = count * self.hw
+        program = ctx.compute_program(shader_path(BLEND), {"CONVEX": None} if convex else {})
         color = self.color.reshape(-1, self.channels)[first * self.hw:(first + count) * self.hw]
         ctx.storage_buffer("antialias.color", color).bind_to_storage_buffer(0)
         records.bind_to_storage_buffer(1)
         out = ctx.scratch_buffer("antialias.out", len(pixels) * self.channels * 4)
         out.bind_to_storage_buffer(2)
-        scale = ctx.scratch_buffer("antialias.scale", n * 4)
+        scale = ctx.scratch_buffer("antialias.scale", len(pixels) * 4)
         scale.bind_to_storage_buffer(3)
         ctx.storage_buffer("antialias.pixel_list", pixels).bind_to_storage_buffer(4)
+        incident = ctx.scratch_buffer("antialias.incident", len(pixels) * 64)
+        incident.bind_to_storage_buffer(5)
         _gpu.set_uniform(program, "n_list", len(pixels))
         _gpu.set_uniform(program, "size", (self.width, self.height))
         _gpu.set_uniform(program, "n_channels", self.channels)
         if len(pixels):
             _gpu.run(ctx, program, len(pixels))
-        return out, scale
-
-
-# bytes per pixel of a chunk's buffers, plus 12 per colour channel: the forward chunks the
-# images as the backward needs, so that the backward runs over the forward's chunks
-_CHUNK_BYTES = 48
+        return out, scale, incident
 
 
 @dataclass(frozen=True, eq=False)
 class _Chunk:
     """What the forward found for images first .. first + count - 1 and the backward uses
-    again instead of recomputing it: the lists (:meth:`_Passes.lists`), pass 1's records
-    (count H W 2, 4) uint32 (zero where no pair is listed) and pass 2's scales (count H W,)
-    float32 (defined at the listed pixels only)."""
+    again instead of recomputing it: the listed pixels (L,) uint32 (sorted,
+    :meth:`_Passes.lists`) and pass 2's compact outputs, per listed pixel its four incident
+    pair records (L, 4, 4) uint32 and its scale (L,) float32."""
 
     first: int
     count: int
-    codes: np.ndarray
     pixels: np.ndarray
-    records: np.ndarray
+    incident: np.ndarray
     scale: np.ndarray
 
     @classmethod
-    def read(cls, first, count, codes, pixels, records, scale, hw: int) -> "_Chunk":
-        """Read a chunk's records and scales back from their buffers."""
-        n = count * hw
-        return cls(first, count, codes, pixels, _gpu.read(records, n * 8, np.uint32),
+    def read(cls, first, count, pixels, incident, scale) -> "_Chunk":
+        """Read a chunk's incident records and scales back from their buffers."""
+        n = len(pixels)
+        return cls(first, count, pixels, _gpu.read(incident, n * 16, np.uint32),
                    _gpu.read(scale, n))
 
 
@@ -193,13 +183,13 @@ def forward(color, rast, pos, *, tri, topology_hash, pos_gradient_boost=1.0, con
     flat_out = out.reshape(-1, passes.channels)
     kept = []
     with ctx:
-        for first, count in passes.chunks(_CHUNK_BYTES + 12 * passes.channels):
+        for first, count in passes.chunks(48 + 8 * passes.channels):
             codes, pixels = passes.lists(first, count)
             records = passes.run_pairs(first, count, codes)
-            values, scale = passes.run_blend(first, count, records, pixels, convex, True)
+            values, scale, incident = passes.run_blend(first, count, records, pixels, convex)
             flat_out[first * passes.hw + pixels.astype(np.int64)] = _gpu.read(
                 values, len(pixels) * passes.channels).reshape(len(pixels), passes.channels)
-            kept.append(_Chunk.read(first, count, codes, pixels, records, scale, passes.hw))
+            kept.append(_Chunk.read(first, count, pixels, incident, scale))
     saved = AntialiasSaved(color, rast, pos, tri, topology_hash, float(pos_gradient_boost),
                            bool(convex), ids, pairs=tuple(kept), ctx=ctx)
     return (out,), saved
@@ -333,7 +323,7 @@ def _backward_pass(passes: _Passes, saved: AntialiasSaved, program, chunk: _Chun
     color = passes.color.reshape(-1, channels)[chunk.first * passes.hw:
                                                (chunk.first + chunk.count) * passes.hw]
     ctx.storage_buffer("antialias.color", color).bind_to_storage_buffer(0)
-    ctx.storage_buffer("antialias.records", chunk.records).bind_to_storage_buffer(1)
+    ctx.storage_buffer("antialias.incident", chunk.incident).bind_to_storage_buffer(1)
     ctx.storage_buffer("antialias.scale", chunk.scale).bind_to_storage_buffer(2)
     ctx.storage_buffer("antialias.grad_out", grad_out).bind_to_storage_buffer(3)
     out_gc = ctx.scratch_buffer("antialias.grad_color", len(pixels) * channels * 4)
