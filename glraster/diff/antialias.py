@@ -19,7 +19,9 @@ Three compute passes (shaders/diff/antialias_pairs.comp, antialias_blend.comp,
 antialias_backward.comp) over lists the host makes (the candidate pairs, their pixels):
 the pair records (one invocation per candidate pair), the blend (one per listed pixel, a
 gather over its four incident pairs: deterministic), and the
-backward (colour gradients by gather, position gradients summed per vertex by float
+backward, on the blend's compact outputs (per listed pixel its four incident pair records
+and its scale, read back into the forward's saved state), so that it runs neither of the
+first two again (colour gradients by gather, position gradients summed per vertex by float
 atomics, a compare-and-swap loop, or with ``deterministic=True`` in 64-bit fixed point, as
 :mod:`glraster.diff.compute`).
 
@@ -29,6 +31,8 @@ image; tri (T, 3).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -107,32 +111,48 @@ class _Passes:
             _gpu.run(ctx, program, len(codes))
         return records
 
-    def run_blend(self, first: int, count: int, records, pixels: np.ndarray, convex: bool,
-                  write_out: bool):
-        """Pass 2 over the listed pixels: binds the chunk's colour (0) and the records (1);
-        returns the compact out buffer and the (full-size) scales."""
+    def run_blend(self, first: int, count: int, records, pixels: np.ndarray, convex: bool):
+        """Pass 2 over the listed pixels: the compact buffers of their blended colours,
+        scales and incident records."""
         ctx = self.ctx
-        defines = {}
-        if convex:
-            defines["CONVEX"] = None
-        if write_out:
-            defines["WRITE_OUT"] = None
-        program = ctx.compute_program(shader_path(BLEND), defines)
-        n = count * self.hw
+        program = ctx.compute_program(shader_path(BLEND), {"CONVEX": None} if convex else {})
         color = self.color.reshape(-1, self.channels)[first * self.hw:(first + count) * self.hw]
         ctx.storage_buffer("antialias.color", color).bind_to_storage_buffer(0)
         records.bind_to_storage_buffer(1)
         out = ctx.scratch_buffer("antialias.out", len(pixels) * self.channels * 4)
         out.bind_to_storage_buffer(2)
-        scale = ctx.scratch_buffer("antialias.scale", n * 4)
+        scale = ctx.scratch_buffer("antialias.scale", len(pixels) * 4)
         scale.bind_to_storage_buffer(3)
         ctx.storage_buffer("antialias.pixel_list", pixels).bind_to_storage_buffer(4)
+        incident = ctx.scratch_buffer("antialias.incident", len(pixels) * 64)
+        incident.bind_to_storage_buffer(5)
         _gpu.set_uniform(program, "n_list", len(pixels))
         _gpu.set_uniform(program, "size", (self.width, self.height))
         _gpu.set_uniform(program, "n_channels", self.channels)
         if len(pixels):
             _gpu.run(ctx, program, len(pixels))
-        return out, scale
+        return out, scale, incident
+
+
+@dataclass(frozen=True, eq=False)
+class _Chunk:
+    """What the forward found for images first .. first + count - 1 and the backward uses
+    again instead of recomputing it: the listed pixels (L,) uint32 (sorted,
+    :meth:`_Passes.lists`) and pass 2's compact outputs, per listed pixel its four incident
+    pair records (L, 4, 4) uint32 and its scale (L,) float32."""
+
+    first: int
+    count: int
+    pixels: np.ndarray
+    incident: np.ndarray
+    scale: np.ndarray
+
+    @classmethod
+    def read(cls, first, count, pixels, incident, scale) -> "_Chunk":
+        """Read a chunk's incident records and scales back from their buffers."""
+        n = len(pixels)
+        return cls(first, count, pixels, _gpu.read(incident, n * 16, np.uint32),
+                   _gpu.read(scale, n))
 
 
 def forward(color, rast, pos, *, tri, topology_hash, pos_gradient_boost=1.0, convex=True,
@@ -161,15 +181,17 @@ def forward(color, rast, pos, *, tri, topology_hash, pos_gradient_boost=1.0, con
     passes = _Passes(ctx, color, rast, pos, tri, topology_hash, ids)
     out = color.copy()
     flat_out = out.reshape(-1, passes.channels)
+    kept = []
     with ctx:
         for first, count in passes.chunks(48 + 8 * passes.channels):
             codes, pixels = passes.lists(first, count)
             records = passes.run_pairs(first, count, codes)
-            values, _ = passes.run_blend(first, count, records, pixels, convex, True)
+            values, scale, incident = passes.run_blend(first, count, records, pixels, convex)
             flat_out[first * passes.hw + pixels.astype(np.int64)] = _gpu.read(
                 values, len(pixels) * passes.channels).reshape(len(pixels), passes.channels)
+            kept.append(_Chunk.read(first, count, pixels, incident, scale))
     saved = AntialiasSaved(color, rast, pos, tri, topology_hash, float(pos_gradient_boost),
-                           bool(convex), ids, ctx=ctx)
+                           bool(convex), ids, pairs=tuple(kept), ctx=ctx)
     return (out,), saved
 
 
@@ -274,17 +296,16 @@ def backward(saved: AntialiasSaved, grad_out, *, needs=None, deterministic: bool
         program = ctx.compute_program(shader_path(BACKWARD), defines)
         sums = _PositionGradients(ctx, mode, passes) if want_pos else None
         for _ in (sums.passes(program) if want_pos else [None]):
-            for first, count in passes.chunks(48 + 12 * channels):
-                codes, pixels = passes.lists(first, count)
-                if len(pixels) == 0:
+            for chunk in saved.pairs:
+                if len(chunk.pixels) == 0:
                     continue
-                out_gc = _backward_pass(passes, saved, program, first, count, codes,
-                                        pixels, flat_g[first * hw:(first + count) * hw],
-                                        sums)
+                first, count = chunk.first, chunk.count
+                out_gc = _backward_pass(passes, saved, program, chunk,
+                                        flat_g[first * hw:(first + count) * hw], sums)
                 if want_color:
-                    grad_color.reshape(-1, channels)[first * hw + pixels.astype(np.int64)] = \
-                        _gpu.read(out_gc, len(pixels) * channels).reshape(len(pixels),
-                                                                          channels)
+                    grad_color.reshape(-1, channels)[first * hw + chunk.pixels.astype(
+                        np.int64)] = _gpu.read(out_gc, len(chunk.pixels) * channels).reshape(
+                            len(chunk.pixels), channels)
         total = sums.result() if want_pos else None
     grad_pos = None
     if want_pos:
@@ -293,16 +314,17 @@ def backward(saved: AntialiasSaved, grad_out, *, needs=None, deterministic: bool
     return grad_color, None, grad_pos
 
 
-def _backward_pass(passes: _Passes, saved: AntialiasSaved, program, first, count, codes,
-                   pixels, grad_out, sums: _PositionGradients | None):
-    """Passes 1 to 3 over one chunk of images: the pair records, the blend's scales, then
-    the backward ``program`` over the listed pixels (colour gradients by gather into the
-    returned buffer, position gradients into the sums bound at 6)."""
-    ctx, channels = passes.ctx, passes.channels
-    records = passes.run_pairs(first, count, codes)
-    _, scale = passes.run_blend(first, count, records, pixels, saved.convex, False)
-    # run_blend bound the chunk's colour at 0, the records at 1
-    scale.bind_to_storage_buffer(2)
+def _backward_pass(passes: _Passes, saved: AntialiasSaved, program, chunk: _Chunk, grad_out,
+                   sums: _PositionGradients | None):
+    """Pass 3, the backward ``program``, over the listed pixels of one chunk of images, on
+    the forward's records and scales (colour gradients by gather into the returned
+    buffer, position gradients into the sums bound at 6)."""
+    ctx, channels, pixels = passes.ctx, passes.channels, chunk.pixels
+    color = passes.color.reshape(-1, channels)[chunk.first * passes.hw:
+                                               (chunk.first + chunk.count) * passes.hw]
+    ctx.storage_buffer("antialias.color", color).bind_to_storage_buffer(0)
+    ctx.storage_buffer("antialias.incident", chunk.incident).bind_to_storage_buffer(1)
+    ctx.storage_buffer("antialias.scale", chunk.scale).bind_to_storage_buffer(2)
     ctx.storage_buffer("antialias.grad_out", grad_out).bind_to_storage_buffer(3)
     out_gc = ctx.scratch_buffer("antialias.grad_color", len(pixels) * channels * 4)
     out_gc.bind_to_storage_buffer(4)

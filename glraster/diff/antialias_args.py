@@ -26,9 +26,11 @@ __all__ = ["AntialiasSaved", "check", "wanted"]
 class AntialiasSaved:
     """What an antialias core's ``backward`` needs from its ``forward``, the same record
     from both cores: the checked arrays (one float dtype), the parameters, the decoded
-    triangle ids (B, H, W) int64 (-1 empty); ``pairs``: the float64 reference's blended
-    pairs (:class:`glraster.diff.antialias_reference.Pairs`; None on the GPU, which finds
-    them again); ``ctx``: the GL context the GPU core ran on (None for the reference)."""
+    triangle ids (B, H, W) int64 (-1 empty); ``pairs``: the blended pairs the forward
+    found, the float64 reference's :class:`glraster.diff.antialias_reference.Pairs`, or
+    the GPU core's lists, pair records and scales per image chunk (a tuple of
+    ``glraster.diff.antialias._Chunk``); ``ctx``: the GL context the GPU core ran on
+    (None for the reference)."""
 
     color: np.ndarray
     rast: np.ndarray

@@ -14,7 +14,9 @@ rule through ``rast_db = (du/dx, du/dy, dv/dx, dv/dy)``::
     dA/dx = (a0 - a2) du/dx + (a1 - a2) dv/dx,   dA/dy = (a0 - a2) du/dy + (a1 - a2) dv/dy
 
 Both passes are compute shaders (shaders/diff/interpolate.comp,
-shaders/diff/backward_interpolate.comp), one invocation per pixel, dispatched in chunks by
+shaders/diff/backward_interpolate.comp), :data:`glraster.diff.compute.RUN_PIXELS`
+consecutive pixels per invocation (a triangle's corners read once per stretch of its pixels)
+and the attribute count a compile-time constant, dispatched in chunks by
 :mod:`glraster.diff.compute`; dL/d attr is summed per vertex by one of its accumulations.
 """
 
@@ -60,7 +62,6 @@ class _Pass:
         compute.set_uniform(program, "pixels_per_image", self.height * self.width)
         compute.set_uniform(program, "vertex_stride", self.stride)
         compute.set_uniform(program, "n_tri", len(self.tri))
-        compute.set_uniform(program, "n_attr", self.num_attr)
 
     def image(self, flat: np.ndarray) -> np.ndarray:
         return flat.reshape(self.batch, self.height, self.width, -1)
@@ -107,8 +108,10 @@ def _forward(job: _Pass, rast_db, diff_index: tuple):
     out_da = np.empty((job.pixels, 2 * n_diff), np.float32)
     flat_rast = job.rast.reshape(-1, 4)
     flat_db = rast_db.reshape(-1, 4) if n_diff else None
+    run = compute.RUN_PIXELS
     with ctx:
-        program = ctx.compute_program(shader_path(FORWARD), {"N_DIFF": n_diff})
+        program = ctx.compute_program(shader_path(FORWARD), {"N_DIFF": n_diff,
+                                                             "N_ATTR": num_attr, "RUN": run})
         job.bind(program)
         if n_diff:
             ctx.storage_buffer("interpolate.diff_index",
@@ -124,7 +127,7 @@ def _forward(job: _Pass, rast_db, diff_index: tuple):
                 derivs.bind_to_storage_buffer(6)
             compute.set_uniform(program, "n_pixels", count)
             compute.set_uniform(program, "first_pixel", first)
-            compute.run(ctx, program, count)
+            compute.run(ctx, program, -(-count // run))
             # straight into the outputs' rows (one copy, not bytes then array)
             values.read_into(out[part], size=count * num_attr * 4)
             if n_diff:

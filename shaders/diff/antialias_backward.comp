@@ -1,7 +1,8 @@
 #version 450
-// Antialias, pass 3: the backward. One invocation per listed pixel P (pixel_list, as pass
-// 2; every other pixel's dL/dc is g), after passes 1 and 2 (the records and the listed
-// pixels' scales s). With g = dL/d out:
+// Antialias, pass 3: the backward. One invocation per listed pixel P (pixel_list, sorted, as
+// pass 2; every other pixel's dL/dc is g), on pass 2's compact outputs of the forward: P's
+// four incident records incident[4 li + k] and its scale s = scale_in[li] (a neighbour's
+// place in the list found by binary search). With g = dL/d out:
 //   dL/dc_P = g_P (1 - s_P sum_k alpha_k) + sum over the pixels N taking colour from P of
 //             s_N alpha g_N                                         (deterministic gather)
 //   per pair k that P blends: D_k = g_P . (c_k - c_P), dL/dalpha_k = s_P (D_k - [convex and
@@ -19,7 +20,7 @@
 layout(local_size_x = 64) in;
 
 layout(std430, binding = 0) readonly buffer Color { float color[]; };
-layout(std430, binding = 1) readonly buffer Records { uvec4 records[]; };
+layout(std430, binding = 1) readonly buffer Incident { uvec4 incident[]; };
 layout(std430, binding = 2) readonly buffer Scale { float scale_in[]; };
 layout(std430, binding = 3) readonly buffer GradOut { float grad_out[]; };
 layout(std430, binding = 4) writeonly buffer GradColor { float grad_color[]; };
@@ -56,7 +57,7 @@ void add(uint row, vec3 g) {
 
 #include "include/frame.glsl"
 
-// dL/dtau of the pair whose record is records[2 owner + axis] (owner: its pixel A), to
+// dL/dtau of the pair (owner, axis) whose record is rec (owner: its pixel A), to
 // the edge's two vertices.
 void edge_gradient(uint owner, int axis, uvec4 rec, float dl_dtau) {
     uint W = uint(size.x), hw = W * uint(size.y);
@@ -79,18 +80,26 @@ void edge_gradient(uint owner, int axis, uvec4 rec, float dl_dtau) {
     }
 }
 
+// The place of pixel i in the sorted pixel_list (i is listed).
+uint place(uint i) {
+    uint lo = 0u, hi = n_list - 1u;
+    while (lo < hi) {
+        uint mid = (lo + hi) / 2u;
+        if (pixel_list[mid] < i) lo = mid + 1u; else hi = mid;
+    }
+    return lo;
+}
+
 void main() {
     uint li = gl_GlobalInvocationID.x;
     if (li >= n_list) return;
     uint i = pixel_list[li];
-    uint W = uint(size.x), hw = W * uint(size.y);
-    uint pix = i % hw, y = pix / W, x = pix % W;
+    uint W = uint(size.x);
     uint C = uint(n_channels);
-    // the four incident records: (owner pixel A, axis, the pixel on P's other side)
+    // the four incident records (zero where the neighbour is outside the image): (owner pixel A, axis, the pixel on P's other side)
     uint owner[4] = uint[4](i, i - 1u, i, i - W);
     int axes[4] = int[4](0, 0, 1, 1);
     uint other[4] = uint[4](i + 1u, i - 1u, i + W, i - W);
-    bool exists[4] = bool[4](x + 1u < W, x > 0u, y + 1u < uint(size.y), y > 0u);
     uint own_code[4] = uint[4](1u, 2u, 1u, 2u);   // code with which P itself blends
     uvec4 rec[4];
     float alpha[4];      // P's own weights (P blends)
@@ -103,8 +112,7 @@ void main() {
         alpha_in[k] = 0.0;
         mine[k] = false;
         theirs[k] = false;
-        if (!exists[k]) continue;
-        rec[k] = records[2u * owner[k] + uint(axes[k])];
+        rec[k] = incident[4u * li + uint(k)];
         uint code = rec[k].x & 3u;
         if (code == 0u) continue;
         float tau = uintBitsToFloat(rec[k].w);
@@ -114,7 +122,9 @@ void main() {
         if (mine[k]) alpha[k] = a; else alpha_in[k] = a;
     }
     float total = (alpha[0] + alpha[1]) + (alpha[2] + alpha[3]);
-    float s = scale_in[i];
+    float s = scale_in[li];
+    float s_in[4];       // the scale of the neighbour taking P's colour
+    for (int k = 0; k < 4; ++k) s_in[k] = theirs[k] ? scale_in[place(other[k])] : 0.0;
     float sum_w = s * total;
     float D[4] = float[4](0.0, 0.0, 0.0, 0.0);
     for (uint c = 0u; c < C; ++c) {
@@ -123,7 +133,7 @@ void main() {
         float gc = g * (1.0 - sum_w);
         for (int k = 0; k < 4; ++k) {
             if (theirs[k])
-                gc += scale_in[other[k]] * alpha_in[k] * grad_out[other[k] * C + c];
+                gc += s_in[k] * alpha_in[k] * grad_out[other[k] * C + c];
             if (mine[k]) D[k] += g * (color[other[k] * C + c] - own);
         }
         grad_color[li * C + c] = gc;
