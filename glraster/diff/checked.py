@@ -1,4 +1,7 @@
-"""Checks not repeated on a raster a core made: the id decoding of an unchanged ``rast``.
+"""Checks not repeated on arrays known unchanged: the id decoding of a ``rast`` a core made,
+and the finiteness test of an array that passed it before (a constant texture and its
+mip pyramid, checked on every texture call otherwise: 6 x 512^2 x 3 texels cost about
+5 ms a call).
 
 ``Op.check`` of interpolate and antialias decodes every id of ``rast`` (each an encoded
 index of one of tri's T triangles, or 0): O(pixels) per call, 2 ms for 4 x 256^2. When
@@ -6,8 +9,9 @@ index of one of tri's T triangles, or 0): O(pixels) per call, 2 ms for 4 x 256^2
 ids (of the triangles it drew). A front end that can tell an array is unchanged
 (glraster.torch: the keys of :mod:`glraster.gpu.uploads`, with torch's version counter)
 records each raster made (:func:`made`) and declares the inputs of a check
-(:func:`declared`); :func:`vouched` then says the decoding can be skipped. Without
-declarations (glraster.jax, NumPy callers) every check runs.
+(:func:`declared`); :func:`vouched` then says the decoding can be skipped, and
+:func:`finite_array` skips the finiteness test of a declared array that passed it under
+the same key. Without declarations (glraster.jax, NumPy callers) every check runs.
 
 Entries are ``(region, key, owner)`` as in :mod:`glraster.gpu.uploads`: the owner is
 held weakly, so a raster whose tensor was collected is never vouched for.
@@ -20,10 +24,14 @@ from contextlib import contextmanager
 
 import numpy as np
 
-__all__ = ["declared", "made", "vouched"]
+from glraster import validate
+
+__all__ = ["declared", "finite_array", "made", "vouched"]
 
 # key -> (owner ref, T): rasters made from T triangles; at most LIMIT live ones
 _made: dict = {}
+# key -> owner ref: declared arrays that passed validate.finite_array; at most LIMIT live
+_finite: dict = {}
 LIMIT = 64
 _local = threading.local()
 
@@ -32,17 +40,22 @@ def made(entry, triangles: int) -> None:
     """``entry``'s array is a raster whose ids index ``triangles`` triangles (as made)."""
     if entry is None:
         return
-    if len(_made) >= LIMIT:
-        for key in [k for k, (owner, _) in _made.items() if owner() is None] or list(_made):
-            del _made[key]
+    _make_room(_made, lambda value: value[0])
     _made[entry[1]] = (entry[2], int(triangles))
+
+
+def _make_room(table: dict, owner_of) -> None:
+    """Drop the entries whose owner was collected (all of them if none was) once full."""
+    if len(table) >= LIMIT:
+        for key in [k for k, v in table.items() if owner_of(v)() is None] or list(table):
+            del table[key]
 
 
 @contextmanager
 def declared(entries):
     """Within the block (this thread), the arrays of ``entries`` are known by their key."""
     previous = getattr(_local, "regions", None)
-    _local.regions = {e[0]: e[1] for e in entries if e is not None}
+    _local.regions = {e[0]: (e[1], e[2]) for e in entries if e is not None}
     try:
         yield
     finally:
@@ -55,5 +68,26 @@ def vouched(rast: np.ndarray, triangles: int) -> bool:
     regions = getattr(_local, "regions", None)
     if not regions or not rast.flags.c_contiguous:
         return False
-    got = _made.get(regions.get((rast.ctypes.data, rast.nbytes)))
+    key, _ = regions.get((rast.ctypes.data, rast.nbytes), (None, None))
+    got = _made.get(key)
     return got is not None and got[0]() is not None and got[1] <= triangles
+
+
+def finite_array(name: str, value, dtype) -> np.ndarray:
+    """:func:`glraster.validate.finite_array`, its finiteness test skipped when ``value`` is
+    a declared C-contiguous ``dtype`` array that passed it under the same key (unchanged
+    since, by the front end's version counter)."""
+    regions = getattr(_local, "regions", None)
+    declared_as = None
+    if (regions and isinstance(value, np.ndarray) and value.dtype == dtype
+            and value.flags.c_contiguous):
+        declared_as = regions.get((value.ctypes.data, value.nbytes))
+        if declared_as is not None:
+            owner = _finite.get(declared_as[0])
+            if owner is not None and owner() is not None:
+                return value
+    arr = validate.finite_array(name, value, dtype)
+    if declared_as is not None:
+        _make_room(_finite, lambda owner: owner)
+        _finite[declared_as[0]] = declared_as[1]
+    return arr

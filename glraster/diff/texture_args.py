@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from glraster import validate
+from glraster.diff import checked
 from glraster.errors import ArgumentError
 
 __all__ = ["BOUNDARY_MODES", "FILTER_MODES", "MIP_MODES", "TextureArgs", "TextureSaved",
@@ -150,7 +151,7 @@ def _mode(name: str, value, modes) -> str:
 
 
 def _tex(tex, dtype, cube: bool) -> np.ndarray:
-    arr = validate.finite_array("tex", tex, dtype)
+    arr = checked.finite_array("tex", tex, dtype)     # (skipped for an unchanged one)
     if cube:
         if arr.ndim != 5 or arr.shape[1] != 6 or arr.shape[2] != arr.shape[3]:
             raise ArgumentError("tex", "tex must have shape (B, 6, N, N, C) (a cube map of "
@@ -187,7 +188,7 @@ def _mips(mip, tex: np.ndarray, dtype) -> tuple:
     levels = []
     for k, value in enumerate(mip):
         name = f"mip[{k}]"
-        level = validate.finite_array(name, value, dtype)
+        level = checked.finite_array(name, value, dtype)
         h, w = full[k + 1]
         want = tex.shape[:-3] + (h, w, tex.shape[-1])
         if level.shape != want:
