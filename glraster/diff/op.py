@@ -31,6 +31,7 @@ outputs' shapes from the checked inputs without running anything, which a tracin
 
 from __future__ import annotations
 
+import functools
 import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -96,6 +97,7 @@ def dtype_of(inputs) -> np.dtype:
     raise ValueError("an op needs at least one array input")
 
 
+@functools.cache  # (every call of a core looks it up)
 def _load(path: str):
     module, _, attribute = path.partition(":")
     loaded = importlib.import_module(module)

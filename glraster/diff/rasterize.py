@@ -58,7 +58,7 @@ from glraster.diff.saved import RasterizeSaved
 from glraster.gpu import cull as _cull
 from glraster.gpu import homogeneous_kernel
 from glraster.gpu import pipeline
-from glraster.gpu.context import Context, default_context
+from glraster.gpu.context import FRAMEBUFFER_SLOTS, SLOT_PIXELS, Context, default_context
 from glraster.gpu.shaders import shader_path
 
 __all__ = ["DepthPeeler", "RasterizeSaved", "backward", "backward_pixels", "forward",
@@ -162,13 +162,26 @@ class _Forward:
         rast_db = np.empty(shape if self.grad_db else shape[:-1] + (0,), np.float32)
         return rast, rast_db
 
-    def draw(self, b, rast, rast_db, prev_depth=None):
-        spec, pos, tri = self.spec(b, prev_depth)
+    def _out(self, b, rast, rast_db) -> dict:
         out = {"rast": rast[b]}
         if self.grad_db:
             out["rast_db"] = rast_db[b]
-        pipeline.draw(self.ctx, spec, pos, tri, (self.height, self.width), out=out,
-                      during="rasterizing (glraster.diff)")
+        return out
+
+    def draw(self, b, rast, rast_db, prev_depth=None):
+        spec, pos, tri = self.spec(b, prev_depth)
+        pipeline.draw(self.ctx, spec, pos, tri, (self.height, self.width),
+                      out=self._out(b, rast, rast_db), during="rasterizing (glraster.diff)")
+
+    def draw_all(self, rast, rast_db):
+        """Every item into ``rast``, ``rast_db``: small images a few at a time, each group
+        drawn before it is read back (:func:`glraster.gpu.pipeline.draw_many`)."""
+        group = max(1, min(FRAMEBUFFER_SLOTS, SLOT_PIXELS // (self.height * self.width)))
+        for first in range(0, self.batch, group):
+            draws = [(*self.spec(b), self._out(b, rast, rast_db))
+                     for b in range(first, min(first + group, self.batch))]
+            pipeline.draw_many(self.ctx, draws, (self.height, self.width),
+                               during="rasterizing (glraster.diff)")
 
     def saved(self, rast) -> RasterizeSaved:
         return RasterizeSaved(self.pos, self.tri, (self.height, self.width), self.ranges,
@@ -208,8 +221,7 @@ def forward(pos, *, tri, resolution, ranges=None, grad_db: bool = True, space: s
     """
     job = _Forward(pos, tri, resolution, ranges, grad_db, space, ctx)
     rast, rast_db = job.new_outputs()
-    for b in range(job.batch):
-        job.draw(b, rast, rast_db)
+    job.draw_all(rast, rast_db)
     return (rast, rast_db), job.saved(rast)
 
 
@@ -374,8 +386,7 @@ class DepthPeeler:
         job = self._job
         rast, rast_db = job.new_outputs()
         if self.layer == 0:
-            for b in range(job.batch):
-                job.draw(b, rast, rast_db)
+            job.draw_all(rast, rast_db)
         else:
             texture = self._depth_texture()
             for b in range(job.batch):

@@ -25,8 +25,13 @@ from glraster.gpu.backends.current import MIN_GL, version_text
 from glraster.gpu.shaders import compile_compute, compile_program
 from glraster.gpu.uploads import UploadCache
 
-# Framebuffers kept alive: enough for a test suite that alternates a few sizes.
-FRAMEBUFFER_CACHE_SIZE = 4
+# Framebuffers of one size and format drawn before any is read back (pipeline.draw_many),
+# and at most as many pixels in all (larger ones go one at a time: no memory to gain).
+FRAMEBUFFER_SLOTS = 4
+SLOT_PIXELS = 1 << 16
+# Framebuffers kept alive: enough for a test suite that alternates a few sizes, and for
+# the slots of one draw_many.
+FRAMEBUFFER_CACHE_SIZE = 4 + FRAMEBUFFER_SLOTS
 
 # GL versions (major * 10 + minor): shader storage buffers (and their limits) exist from
 # 4.3; glraster's storage-buffer and compute shaders are GLSL 4.50.
@@ -261,13 +266,14 @@ class Context:
         return program
 
     def targets(self, resolution: tuple[int, int], color_formats: dict, depth_texture: bool,
-                samples: int = 1):
+                samples: int = 1, slot: int = 0):
         """Framebuffer of ``resolution`` (H, W) with one color attachment per entry of
         ``color_formats`` (name -> (components, dtype)) and a float32 depth attachment
         (a texture when it is read back, else a renderbuffer; always a texture when
         ``samples`` > 1, multisample textures then). Least recently used first out.
+        ``slot`` < FRAMEBUFFER_SLOTS: distinct slots are distinct framebuffers.
         """
-        key = (resolution, tuple(color_formats.items()), depth_texture, samples)
+        key = (resolution, tuple(color_formats.items()), depth_texture, samples, slot)
         targets = self._framebuffers.pop(key, None)
         if targets is None:
             targets = self._new_targets(resolution, color_formats, depth_texture, samples)

@@ -90,53 +90,79 @@ def draw(ctx, spec: Draw, pos: np.ndarray, tri: np.ndarray, resolution, *,
     Arrays given in ``out`` (same names, shapes and dtypes) are filled instead of new ones.
     Raises :class:`GLError` if the driver reports an error.
     """
-    height, width = resolution
-    out = out or {}
-    values = {}
     with ctx:
-        mgl = ctx.mgl
-        program = spec.program
-        for name, value in spec.uniforms.items():
-            program[name].value = value
-        targets = ctx.targets((height, width), spec.colors, depth_texture=spec.read_depth,
-                              samples=spec.samples)
-        targets.fbo.use()
-        targets.fbo.clear(0.0, 0.0, 0.0, 0.0, depth=spec.depth_clear)
-        for unit, (name, texture) in enumerate(spec.textures.items()):
-            texture.use(location=unit)
-            program[name].value = unit
-        if len(tri):
-            _draw_batches(ctx, spec, pos, tri)
+        targets = _render(ctx, spec, pos, tri, resolution, 0)
         if spec.samples > 1:
-            values = _read_samples(ctx, spec, targets, (height, width))
-            error = mgl.error
-            if error != "GL_NO_ERROR":
-                raise GLError(error, during)
-            return values
-        for name, (components, dtype) in spec.colors.items():
-            shape = (height, width, components) if components > 1 else (height, width)
-            array = out.get(name)
-            if array is None:
-                array = np.empty(shape, NUMPY_DTYPES[dtype])
-            targets.fbo.read_into(array, components=components,
-                                  attachment=targets.color[name], dtype=dtype)
-            values[name] = array
-        if spec.read_depth:
-            depth = out.get("depth")
-            if depth is None:
-                depth = np.empty((height, width), np.float32)
-            targets.fbo.read_into(depth, components=1, attachment=-1, dtype="f4")
-            values["depth"] = depth
-        error = mgl.error
+            values = _read_samples(ctx, spec, targets, resolution)
+        else:
+            values = _read(spec, targets, resolution, out or {})
+        error = ctx.mgl.error
     if error != "GL_NO_ERROR":
         raise GLError(error, during)
     return values
 
 
-def _draw_batches(ctx, spec: Draw, pos, tri) -> None:
+def draw_many(ctx, draws, resolution, *, during: str = "rasterizing") -> list[dict]:
+    """:func:`draw` of each ``(spec, pos, tri, out)`` of ``draws`` (single-sample specs),
+    every one into its own framebuffer and buffers, and only then all read back: the
+    driver may render a framebuffer's draws while the next ones are set up, where a read
+    after each draw waits for it (llvmpipe queues a framebuffer's binned scene when another
+    is bound). The same draws, so the same pixels as :func:`draw`. At most
+    :data:`glraster.gpu.context.FRAMEBUFFER_SLOTS` draws. Returns :func:`draw`'s dicts."""
+    with ctx:
+        targets = [_render(ctx, spec, pos, tri, resolution, slot)
+                   for slot, (spec, pos, tri, _) in enumerate(draws)]
+        values = [_read(spec, target, resolution, out or {})
+                  for (spec, _, _, out), target in zip(draws, targets)]
+        error = ctx.mgl.error
+    if error != "GL_NO_ERROR":
+        raise GLError(error, during)
+    return values
+
+
+def _render(ctx, spec: Draw, pos, tri, resolution, slot: int):
+    """Clear the targets of framebuffer ``slot`` and draw into them; returns them."""
+    program = spec.program
+    for name, value in spec.uniforms.items():
+        program[name].value = value
+    targets = ctx.targets(resolution, spec.colors, depth_texture=spec.read_depth,
+                          samples=spec.samples, slot=slot)
+    targets.fbo.use()
+    targets.fbo.clear(0.0, 0.0, 0.0, 0.0, depth=spec.depth_clear)
+    for unit, (name, texture) in enumerate(spec.textures.items()):
+        texture.use(location=unit)
+        program[name].value = unit
+    if len(tri):
+        _draw_batches(ctx, spec, pos, tri, f"@{slot}" if slot else "")
+    return targets
+
+
+def _read(spec: Draw, targets, resolution, out: dict) -> dict:
+    """The single-sample targets of ``spec`` read back (into ``out``'s arrays if given)."""
+    height, width = resolution
+    values = {}
+    for name, (components, dtype) in spec.colors.items():
+        shape = (height, width, components) if components > 1 else (height, width)
+        array = out.get(name)
+        if array is None:
+            array = np.empty(shape, NUMPY_DTYPES[dtype])
+        targets.fbo.read_into(array, components=components,
+                              attachment=targets.color[name], dtype=dtype)
+        values[name] = array
+    if spec.read_depth:
+        depth = out.get("depth")
+        if depth is None:
+            depth = np.empty((height, width), np.float32)
+        targets.fbo.read_into(depth, components=1, attachment=-1, dtype="f4")
+        values["depth"] = depth
+    return values
+
+
+def _draw_batches(ctx, spec: Draw, pos, tri, tag: str = "") -> None:
     """The draw calls: triangles go in batches whose index and per-triangle arrays each fit
     one storage block (vertex input: of VERTEX_BATCH_TRIANGLES); ``tri_base`` keeps the
-    ids written by the shader global."""
+    ids written by the shader global. ``tag`` ends the buffers' names (a framebuffer
+    slot's own buffers)."""
     mgl = ctx.mgl
     if spec.vertex_input:
         if spec.per_triangle:
@@ -144,7 +170,7 @@ def _draw_batches(ctx, spec: Draw, pos, tri) -> None:
                              "(OpenGL 4.5), not vertex_input")
         batch = VERTEX_BATCH_TRIANGLES
     else:
-        ctx.storage_buffer("positions", pos).bind_to_storage_buffer(0)
+        ctx.storage_buffer("positions" + tag, pos).bind_to_storage_buffer(0)
         batch = ctx.max_storage_block_size // (3 * tri.itemsize)
         for array in spec.per_triangle.values():
             batch = min(batch, ctx.max_storage_block_size // max(array[0].nbytes, 1))
@@ -159,7 +185,7 @@ def _draw_batches(ctx, spec: Draw, pos, tri) -> None:
             # One buffer per batch: llvmpipe shades fragments when the binned draw is
             # flushed, after a later batch would have overwritten a shared buffer that the
             # fragment shader reads (measured).
-            suffix = f"/{number}" if number else ""
+            suffix = (f"/{number}" if number else "") + tag
             part = tri[base:base + batch]
             if spec.vertex_input:
                 corners = pos[part.reshape(-1)]  # (3 t, 4): corner k of triangle j at 3 j + k

@@ -126,11 +126,11 @@ class Call:
     def __call__(self, forward=None) -> tuple[torch.Tensor, ...]:
         """The outputs; ``forward()`` gives ``(outputs, saved)`` (default: the core's)."""
         core = self.op.core(self.dtype)
+        entries = self.entries if forward is None else [  # (a peeler's layers: their own)
+            *map(upload_entry, (*self.inputs, *self.kept))]
         if forward is None:
             forward = functools.partial(core.forward, *self.arrays, **self.params)
         gl = self.params["ctx"] if self.dtype == np.float32 else None
-        entries = self.entries if forward is None else [  # (later layers: their own)
-            *map(upload_entry, (*self.inputs, *self.kept))]
         how = (core, self.dtype, self.frozen, gl, len(self.inputs), entries)
         outputs = _Function.apply(how, forward, *self.inputs, *self.kept)
         if self.op is RASTERIZE:  # its rast: ids of tri, not decoded again while unchanged

@@ -11,7 +11,7 @@ import glraster as gr
 from glraster.gpu import backends
 from glraster.geometry import synthetic
 from glraster.gpu.backends import osmesa
-from glraster.gpu.context import default_context
+from glraster.gpu.context import FRAMEBUFFER_CACHE_SIZE, default_context
 from glraster.gpu.shaders import compile_program
 
 
@@ -85,7 +85,7 @@ def test_framebuffer_cache_is_bounded(ctx):
     pos, tri = synthetic.random_soup(3, seed=1)
     for size in range(8, 40):
         gr.rasterize(pos, tri, (size, size), ctx=ctx)
-    assert len(ctx._framebuffers) <= 4
+    assert len(ctx._framebuffers) <= FRAMEBUFFER_CACHE_SIZE
 
 
 def test_compile_error_names_the_file_and_line(ctx, tmp_path):
