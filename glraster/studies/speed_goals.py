@@ -133,24 +133,6 @@ def texture(*, sizes, repeat: int, modes):
 # --------------------------------------------------------------------------- tables
 
 
-def bench_table(result: dict) -> str:
-    lines = ["| frame | triangles | rasterize fwd (db) ms | bwd atomic / det. ms | "
-             "atomic / fwd | det. / fwd | det. / atomic, rasterize | "
-             "det. / atomic, interpolate |", "|" + "---|" * 8]
-    for c in result["cells"]:
-        t, r = c["times"], c["ratios"]
-        lines.append(
-            f"| {c['resolution'][0]}² | {c['triangles']} "
-            f"| {t['rasterize_forward_db']['median_ms']:.1f} "
-            f"| {t['rasterize_backward_atomic']['median_ms']:.1f} / "
-            f"{t['rasterize_backward_deterministic']['median_ms']:.1f} "
-            f"| {r['backward_atomic_over_forward']['median']:.2f} "
-            f"| {r['backward_deterministic_over_forward']['median']:.2f} "
-            f"| {r['rasterize_deterministic_over_atomic']['median']:.2f} "
-            f"| {r['interpolate_deterministic_over_atomic']['median']:.2f} |")
-    return "\n".join(lines)
-
-
 def texture_table(rows: list) -> str:
     lines = ["| image and texture | filter_mode | glraster.torch ms | plain PyTorch ms | "
              "glraster / PyTorch | det. / atomic backward |", "|---|---|---|---|---|---|"]
@@ -259,10 +241,12 @@ def main(argv=None) -> int:
                             envmap_env_size=args.envmap_env_size),
                  fit_iterations_ab.table)
     if "bench" in args.parts:
+        from glraster.studies import diff_bench
+
         part("bench", "Backward against forward, deterministic against atomic (bench-diff "
              "cells)", lambda: bench(args.backend, resolutions=args.bench_resolutions,
                                      counts=args.bench_counts, repeats=args.bench_repeats),
-             bench_table)
+             diff_bench.table)
     if "texture" in args.parts:
         from glraster.studies import torch_texture_baseline as baseline
 
