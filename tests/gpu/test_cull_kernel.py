@@ -9,7 +9,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from glraster.geometry.window import window_xy_float32
 from glraster.gpu.cull import BACKFACE_MARGIN_PX2, cull, window_fixed
 from tests.gpu.test_cull import RESOLUTIONS, _boundary_slivers, _fixed_slivers
 
