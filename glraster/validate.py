@@ -154,6 +154,13 @@ def image(name: str, value, shape=None, dtype=np.float64, channels: int | None =
 
     shape : the exact expected shape, or None for any (B, H, W, ``channels``)
     """
+    arr = image_shape(name, value, shape, channels)
+    return finite(name, arr, _converted(arr, dtype))
+
+
+def image_shape(name: str, value, shape=None, channels: int | None = 4) -> np.ndarray:
+    """``value`` as an array of real numbers with :func:`image`'s shape checks, neither
+    converted nor tested for finiteness (for an array known finite)."""
     arr = real_array(name, value)
     if shape is not None:
         if arr.shape != tuple(shape):
@@ -161,7 +168,7 @@ def image(name: str, value, shape=None, dtype=np.float64, channels: int | None =
     elif arr.ndim != 4 or (channels is not None and arr.shape[-1] != channels):
         c = "C" if channels is None else channels
         raise ArgumentError(name, f"{name} must have shape (B, H, W, {c}), got {arr.shape}")
-    return finite(name, arr, _converted(arr, dtype))
+    return arr
 
 
 def triangle_ids(name: str, ids: np.ndarray, num_triangles: int) -> np.ndarray:

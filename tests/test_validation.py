@@ -165,6 +165,8 @@ BAD_INPUTS = [
     ("image", lambda: V.image("rast_db", np.full((1, 1, 1, 4), np.nan)), "rast_db",
      "rast_db must be finite, got NaN or Inf at index (0, 0, 0, 0)"),
     ("image", lambda: V.image("rast", np.zeros((1, 1, 1, 4), bool)), "rast", "real numbers"),
+    ("image_shape", lambda: V.image_shape("rast", np.zeros((1, 4, 4, 3))), "rast",
+     "rast must have shape (B, H, W, 4), got (1, 4, 4, 3)"),
     ("triangle_ids", lambda: V.triangle_ids("rast", np.array([-1, 0, 5]), 2), "rast",
      "rast holds triangle id 6 (index 5), beyond tri's 2 triangles"),
     ("attributes", lambda: V.attributes(np.zeros(3), 1), "attr",

@@ -39,7 +39,6 @@ import numpy as np
 from glraster.diff import compute as _gpu
 from glraster import validate
 from glraster.diff.edge_lists import pair_lists
-from glraster.diff.ids import decode_ids
 from glraster.diff.antialias_args import AntialiasSaved, check, wanted
 from glraster.diff.antialias_reference import MAX_WALK
 from glraster.diff.topology_hash import TopologyHash, antialias_construct_topology_hash
@@ -65,9 +64,9 @@ class _Passes:
     the passes run over those lists only (every other pixel keeps its colour, and its
     colour gradient is g)."""
 
-    def __init__(self, ctx: Context, color, rast, pos, tri, th: TopologyHash, ids):
+    def __init__(self, ctx: Context, color, rast, pos, tri, th: TopologyHash):
         self.ctx = ctx
-        self.color, self.rast, self.tri, self.th, self.ids = color, rast, tri, th, ids
+        self.color, self.rast, self.tri, self.th = color, rast, tri, th
         self.batch, self.height, self.width, self.channels = color.shape
         self.hw = self.height * self.width
         self.pos3 = pos if pos.ndim == 3 else pos[None]
@@ -80,8 +79,10 @@ class _Passes:
 
     def lists(self, first: int, count: int):
         """(pair codes 2 A + axis, sorted; listed pixels, sorted) of a chunk, local, uint32
-        (:func:`glraster.diff.edge_lists.pair_lists`)."""
-        return pair_lists(self.ids[first:first + count])
+        (:func:`glraster.diff.edge_lists.pair_lists`), from rast's id channel as it is: the
+        encoding is one-to-one (glraster.diff.ids) and the values checked, so ids differ
+        exactly where their floats do (0.0 and -0.0, both empty, compare equal)."""
+        return pair_lists(self.rast[first:first + count, :, :, 3])
 
     def run_pairs(self, first: int, count: int, codes: np.ndarray):
         """Pass 1 over images first .. first + count - 1; returns the records buffer."""
@@ -177,8 +178,7 @@ def forward(color, rast, pos, *, tri, topology_hash, pos_gradient_boost=1.0, con
         :class:`~glraster.diff.antialias_args.AntialiasSaved`.
     """
     ctx = ctx or default_context()
-    ids = decode_ids(rast[..., 3], "rast channel 3 (triangle id)")
-    passes = _Passes(ctx, color, rast, pos, tri, topology_hash, ids)
+    passes = _Passes(ctx, color, rast, pos, tri, topology_hash)
     out = color.copy()
     flat_out = out.reshape(-1, passes.channels)
     kept = []
@@ -191,7 +191,7 @@ def forward(color, rast, pos, *, tri, topology_hash, pos_gradient_boost=1.0, con
                 values, len(pixels) * passes.channels).reshape(len(pixels), passes.channels)
             kept.append(_Chunk.read(first, count, pixels, incident, scale))
     saved = AntialiasSaved(color, rast, pos, tri, topology_hash, float(pos_gradient_boost),
-                           bool(convex), ids, pairs=tuple(kept), ctx=ctx)
+                           bool(convex), pairs=tuple(kept), ctx=ctx)
     return (out,), saved
 
 
@@ -202,8 +202,7 @@ def pair_records(color, rast, pos, tri, topology_hash=None, *, ctx: Context | No
     ctx = ctx or default_context()
     color, rast, pos, tri, th, _, _ = check(color, rast, pos, tri, topology_hash,
                                             dtype=np.float32)
-    ids = decode_ids(rast[..., 3])
-    passes = _Passes(ctx, color, rast, pos, tri, th, ids)
+    passes = _Passes(ctx, color, rast, pos, tri, th)
     out = np.empty((passes.batch * passes.hw, 2, 4), np.uint32)
     with ctx:
         for first, count in passes.chunks(48):
@@ -282,8 +281,7 @@ def backward(saved: AntialiasSaved, grad_out, *, needs=None, deterministic: bool
     mode = _gpu.accumulation(ctx, deterministic, accumulate, _gpu.FIXED_POINT_ACCUMULATIONS)
     if not (want_color or want_pos):
         return None, None, None
-    passes = _Passes(ctx, color, saved.rast, saved.pos, saved.tri, saved.topology_hash,
-                     saved.ids)
+    passes = _Passes(ctx, color, saved.rast, saved.pos, saved.tri, saved.topology_hash)
     hw, channels = passes.hw, passes.channels
     grad_color = grad_out.copy() if want_color else None
     flat_g = grad_out.reshape(-1, channels)

@@ -25,8 +25,8 @@ __all__ = ["AntialiasSaved", "check", "wanted"]
 @dataclass(frozen=True, eq=False)
 class AntialiasSaved:
     """What an antialias core's ``backward`` needs from its ``forward``, the same record
-    from both cores: the checked arrays (one float dtype), the parameters, the decoded
-    triangle ids (B, H, W) int64 (-1 empty); ``pairs``: the blended pairs the forward
+    from both cores: the checked arrays (one float dtype), the parameters; ``pairs``:
+    the blended pairs the forward
     found, the float64 reference's :class:`glraster.diff.antialias_reference.Pairs`, or
     the GPU core's lists, pair records and scales per image chunk (a tuple of
     ``glraster.diff.antialias._Chunk``); ``ctx``: the GL context the GPU core ran on
@@ -39,7 +39,6 @@ class AntialiasSaved:
     topology_hash: TopologyHash
     pos_gradient_boost: float
     convex: bool
-    ids: np.ndarray
     pairs: Any = None
     ctx: Any = None
 
@@ -49,7 +48,7 @@ def check(color, rast, pos, tri, topology_hash=None, pos_gradient_boost=1.0, con
     """The checked arguments of antialias (an ArgumentError naming the one that is wrong):
     (color, rast, pos, tri, topology_hash, pos_gradient_boost, convex), arrays of
     ``dtype``; the topology hash is built from ``tri`` when None."""
-    rast = validate.image("rast", rast, dtype=dtype)
+    rast = checked.raster(rast, dtype)      # (rasterize's own, unchanged: finite)
     batch_n, height, width, _ = rast.shape
     color = validate.image("color", color, dtype=dtype, channels=None)
     if color.shape[:3] != rast.shape[:3] or color.shape[3] < 1:

@@ -389,9 +389,8 @@ def forward(color, rast, pos, *, tri, topology_hash, pos_gradient_boost=1.0, con
     for c in range(channels):
         out[:, c] += np.bincount(mod, weights=w * (flat[par, c] - flat[mod, c]),
                                  minlength=pixels)
-    ids = decode_ids(rast[..., 3])
     saved = AntialiasSaved(color, rast, pos, tri, topology_hash, float(pos_gradient_boost),
-                           bool(convex), ids, pairs=p)
+                           bool(convex), pairs=p)
     return (out.reshape(color.shape),), saved
 
 

@@ -17,9 +17,10 @@ __all__ = ["pair_lists"]
 
 
 def pair_lists(ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(codes, pixels) of the images ``ids`` (B, H, W) int (any value; only equality
-    matters), both sorted uint32: codes 2 A + axis of the pairs, pixels the indices of
-    every pixel in some pair."""
+    """(codes, pixels) of the images ``ids`` (B, H, W), any real dtype and strides (only
+    equality matters: decoded ids, or rast's encoded id channel ``rast[..., 3]`` as it
+    is), both sorted uint32: codes 2 A + axis of the pairs, pixels the indices of every
+    pixel in some pair."""
     if ids.ndim != 3:
         raise ValueError(f"ids must have shape (B, H, W), got {ids.shape}")
     n = ids.size

@@ -226,10 +226,11 @@ class _Backward:
             for first, count in compute.chunks(job.pixels, per_pixel):
                 part = slice(first, first + count)
                 out_rast, out_db = self._chunk(program, flat, first, count, n_diff, run)
+                # straight into the outputs' rows (one copy, not bytes then array)
                 if grad_rast is not None:
-                    grad_rast[part] = compute.read(out_rast, count * 4).reshape(count, 4)
+                    out_rast.read_into(grad_rast[part], size=count * 16)
                 if grad_db is not None:
-                    grad_db[part] = compute.read(out_db, count * 4).reshape(count, 4)
+                    out_db.read_into(grad_db[part], size=count * 16)
 
         total = None
         with ctx:

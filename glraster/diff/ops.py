@@ -70,7 +70,7 @@ RASTERIZE = Op("rasterize", ("pos",), ("rast", "rast_db"), _rasterize_check, _ra
 
 def _interpolate_check(attr, rast, rast_db=None, *, tri, diff_attrs=None, ctx=None):
     dtype = float_dtype(attr)
-    rast = validate.image("rast", rast, dtype=dtype)
+    rast = checked.raster(rast, dtype)      # (rasterize's own, unchanged: finite)
     attr = validate.attributes(attr, rast.shape[0], dtype=dtype)
     tri = validate.triangles(tri, attr.shape[-2], "attr")
     diff = validate.diff_attrs(diff_attrs, attr.shape[-1])

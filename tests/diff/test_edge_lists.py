@@ -68,3 +68,21 @@ def test_int32_and_sliced_ids():
     assert np.array_equal(codes, want_codes) and np.array_equal(pixels, want_pixels)
     with pytest.raises(ValueError, match="shape"):
         pair_lists(ids[0])
+
+
+def test_the_encoded_id_channel_gives_the_lists_of_the_decoded_ids():
+    """antialias lists rast[..., 3] as it is (a strided float view): the encoding is one to
+    one, so the lists are those of the decoded ids, large ids and -0.0 (empty) included."""
+    from glraster.diff.ids import MAX_ID, decode_ids, encode_ids
+
+    rng = np.random.default_rng(2)
+    tri_id = rng.choice(np.array([-1, 0, 1, 5, (1 << 24) - 1, 1 << 24, MAX_ID - 1]),
+                        (3, 17, 13))
+    rast = np.zeros(tri_id.shape + (4,), np.float32)
+    rast[..., 3] = encode_ids(tri_id)
+    rast[..., 3][rast[..., 3] == 0] = rng.choice(np.float32([0.0, -0.0]),
+                                                 int((tri_id < 0).sum()))
+    got = pair_lists(rast[..., 3])
+    want = pair_lists(decode_ids(rast[..., 3]))
+    assert all(np.array_equal(a, b) for a, b in zip(got, want))
+    assert np.array_equal(got[0], _numpy_lists(tri_id)[0])
