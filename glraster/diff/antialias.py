@@ -85,7 +85,9 @@ class _Passes:
         return pair_lists(self.rast[first:first + count, :, :, 3])
 
     def run_pairs(self, first: int, count: int, codes: np.ndarray):
-        """Pass 1 over images first .. first + count - 1; returns the records buffer."""
+        """Pass 1 over images first .. first + count - 1; returns the records buffer (the
+        records of the listed pairs: the others are not cleared) and the chunk's rast
+        buffer."""
         ctx = self.ctx
         program = ctx.compute_program(shader_path(PAIRS), {"MAX_WALK": MAX_WALK})
         table = self.th.table()
@@ -98,8 +100,9 @@ class _Passes:
         ctx.storage_buffer("antialias.canon", canon).bind_to_storage_buffer(5)
         n = count * self.hw
         rast = self.rast.reshape(-1, 4)[first * self.hw:(first + count) * self.hw]
-        ctx.storage_buffer("antialias.rast", rast).bind_to_storage_buffer(2)
-        records = _gpu.zeroed(ctx, "antialias.records", n * 32)
+        rast_buffer = ctx.storage_buffer("antialias.rast", rast)
+        rast_buffer.bind_to_storage_buffer(2)
+        records = ctx.scratch_buffer("antialias.records", n * 32)
         records.bind_to_storage_buffer(6)
         ctx.storage_buffer("antialias.pair_list", codes).bind_to_storage_buffer(7)
         _gpu.set_uniform(program, "n_pairs", len(codes))
@@ -110,16 +113,24 @@ class _Passes:
         _gpu.set_uniform(program, "table_mask", len(table) - 1)
         if len(codes):
             _gpu.run(ctx, program, len(codes))
-        return records
+        return records, rast_buffer
 
-    def run_blend(self, first: int, count: int, records, pixels: np.ndarray, convex: bool):
-        """Pass 2 over the listed pixels: the compact buffers of their blended colours,
-        scales and incident records."""
+    def listed(self, first: int, pixels: np.ndarray, values: np.ndarray) -> np.ndarray:
+        """(L, C) the rows of ``values`` (B, H, W, C) at a chunk's listed pixels: what the
+        blend and the backward read of the colour and of its gradient (every other pixel
+        keeps its value)."""
+        flat = values.reshape(-1, self.channels)
+        return flat[first * self.hw + pixels.astype(np.int64)]
+
+    def run_blend(self, records, rast_buffer, pixels: np.ndarray, color: np.ndarray,
+                  convex: bool):
+        """Pass 2 over the listed pixels, their colours ``color`` (L, C): the compact
+        buffers of their blended colours, scales and incident records."""
         ctx = self.ctx
         program = ctx.compute_program(shader_path(BLEND), {"CONVEX": None} if convex else {})
-        color = self.color.reshape(-1, self.channels)[first * self.hw:(first + count) * self.hw]
-        ctx.storage_buffer("antialias.color", color).bind_to_storage_buffer(0)
+        ctx.storage_buffer("antialias.color", color.reshape(-1)).bind_to_storage_buffer(0)
         records.bind_to_storage_buffer(1)
+        rast_buffer.bind_to_storage_buffer(6)
         out = ctx.scratch_buffer("antialias.out", len(pixels) * self.channels * 4)
         out.bind_to_storage_buffer(2)
         scale = ctx.scratch_buffer("antialias.scale", len(pixels) * 4)
@@ -139,20 +150,21 @@ class _Passes:
 class _Chunk:
     """What the forward found for images first .. first + count - 1 and the backward uses
     again instead of recomputing it: the listed pixels (L,) uint32 (sorted,
-    :meth:`_Passes.lists`) and pass 2's compact outputs, per listed pixel its four incident
-    pair records (L, 4, 4) uint32 and its scale (L,) float32."""
+    :meth:`_Passes.lists`), their colours (L, C) and pass 2's compact outputs, per listed
+    pixel its four incident pair records (L, 4, 4) uint32 and its scale (L,) float32."""
 
     first: int
     count: int
     pixels: np.ndarray
+    color: np.ndarray
     incident: np.ndarray
     scale: np.ndarray
 
     @classmethod
-    def read(cls, first, count, pixels, incident, scale) -> "_Chunk":
+    def read(cls, first, count, pixels, color, incident, scale) -> "_Chunk":
         """Read a chunk's incident records and scales back from their buffers."""
         n = len(pixels)
-        return cls(first, count, pixels, _gpu.read(incident, n * 16, np.uint32),
+        return cls(first, count, pixels, color, _gpu.read(incident, n * 16, np.uint32),
                    _gpu.read(scale, n))
 
 
@@ -185,11 +197,13 @@ def forward(color, rast, pos, *, tri, topology_hash, pos_gradient_boost=1.0, con
     with ctx:
         for first, count in passes.chunks(48 + 8 * passes.channels):
             codes, pixels = passes.lists(first, count)
-            records = passes.run_pairs(first, count, codes)
-            values, scale, incident = passes.run_blend(first, count, records, pixels, convex)
+            records, rast_buffer = passes.run_pairs(first, count, codes)
+            listed = passes.listed(first, pixels, color)
+            values, scale, incident = passes.run_blend(records, rast_buffer, pixels, listed,
+                                                       convex)
             flat_out[first * passes.hw + pixels.astype(np.int64)] = _gpu.read(
                 values, len(pixels) * passes.channels).reshape(len(pixels), passes.channels)
-            kept.append(_Chunk.read(first, count, pixels, incident, scale))
+            kept.append(_Chunk.read(first, count, pixels, listed, incident, scale))
     saved = AntialiasSaved(color, rast, pos, tri, topology_hash, float(pos_gradient_boost),
                            bool(convex), pairs=tuple(kept), ctx=ctx)
     return (out,), saved
@@ -203,14 +217,14 @@ def pair_records(color, rast, pos, tri, topology_hash=None, *, ctx: Context | No
     color, rast, pos, tri, th, _, _ = check(color, rast, pos, tri, topology_hash,
                                             dtype=np.float32)
     passes = _Passes(ctx, color, rast, pos, tri, th)
-    out = np.empty((passes.batch * passes.hw, 2, 4), np.uint32)
+    out = np.zeros((passes.batch * passes.hw, 2, 4), np.uint32)   # (unlisted: no pair)
     with ctx:
         for first, count in passes.chunks(48):
             codes, _ = passes.lists(first, count)
-            records = passes.run_pairs(first, count, codes)
+            records, _ = passes.run_pairs(first, count, codes)
             n = count * passes.hw
-            out[first * passes.hw:first * passes.hw + n] = _gpu.read(
-                records, n * 8, np.uint32).reshape(n, 2, 4)
+            got = _gpu.read(records, n * 8, np.uint32).reshape(2 * n, 4)
+            out.reshape(-1, 4)[2 * first * passes.hw + codes.astype(np.int64)] = got[codes]
     out[..., 0] &= 3
     return out.reshape(passes.batch, passes.height, passes.width, 2, 4)
 
@@ -284,7 +298,7 @@ def backward(saved: AntialiasSaved, grad_out, *, needs=None, deterministic: bool
     passes = _Passes(ctx, color, saved.rast, saved.pos, saved.tri, saved.topology_hash)
     hw, channels = passes.hw, passes.channels
     grad_color = grad_out.copy() if want_color else None
-    flat_g = grad_out.reshape(-1, channels)
+    listed = [passes.listed(chunk.first, chunk.pixels, grad_out) for chunk in saved.pairs]
     defines = {_gpu.DEFINES[mode]: None}
     if saved.convex:
         defines["CONVEX"] = None
@@ -294,12 +308,11 @@ def backward(saved: AntialiasSaved, grad_out, *, needs=None, deterministic: bool
         program = ctx.compute_program(shader_path(BACKWARD), defines)
         sums = _PositionGradients(ctx, mode, passes) if want_pos else None
         for _ in (sums.passes(program) if want_pos else [None]):
-            for chunk in saved.pairs:
+            for chunk, chunk_grad in zip(saved.pairs, listed):
                 if len(chunk.pixels) == 0:
                     continue
-                first, count = chunk.first, chunk.count
-                out_gc = _backward_pass(passes, saved, program, chunk,
-                                        flat_g[first * hw:(first + count) * hw], sums)
+                first = chunk.first
+                out_gc = _backward_pass(passes, saved, program, chunk, chunk_grad, sums)
                 if want_color:
                     grad_color.reshape(-1, channels)[first * hw + chunk.pixels.astype(
                         np.int64)] = _gpu.read(out_gc, len(chunk.pixels) * channels).reshape(
@@ -315,12 +328,11 @@ def backward(saved: AntialiasSaved, grad_out, *, needs=None, deterministic: bool
 def _backward_pass(passes: _Passes, saved: AntialiasSaved, program, chunk: _Chunk, grad_out,
                    sums: _PositionGradients | None):
     """Pass 3, the backward ``program``, over the listed pixels of one chunk of images, on
-    the forward's records and scales (colour gradients by gather into the returned
-    buffer, position gradients into the sums bound at 6)."""
+    the forward's records, scales and listed colours and ``grad_out`` (L, C) of the listed
+    pixels (colour gradients by gather into the returned buffer, position gradients into
+    the sums bound at 6)."""
     ctx, channels, pixels = passes.ctx, passes.channels, chunk.pixels
-    color = passes.color.reshape(-1, channels)[chunk.first * passes.hw:
-                                               (chunk.first + chunk.count) * passes.hw]
-    ctx.storage_buffer("antialias.color", color).bind_to_storage_buffer(0)
+    ctx.storage_buffer("antialias.color", chunk.color).bind_to_storage_buffer(0)
     ctx.storage_buffer("antialias.incident", chunk.incident).bind_to_storage_buffer(1)
     ctx.storage_buffer("antialias.scale", chunk.scale).bind_to_storage_buffer(2)
     ctx.storage_buffer("antialias.grad_out", grad_out).bind_to_storage_buffer(3)

@@ -11,6 +11,7 @@
 //   tau = -r_w / r_d, r = v'_a x v'_b in the frame of the pair's A: dtau/dr = -C / r_d,
 //             C = (tau d, 1); G = dL/dr, dL/dv'_a = v'_b x G, dL/dv'_b = G x v'_a; clip:
 //             dL/dx = (W/2) G_X, dL/dy = (H/2) G_Y, dL/dw = G_w - n_x dL/dx - n_y dL/dy.
+// Colours and dL/d out are those of the listed pixels only, color[li], grad_out[li].
 // Defines: CONVEX; ACCUM_ATOMIC_FLOAT | ACCUM_CAS | ACCUM_FIXED_POINT (as
 // backward_rasterize.comp); NO_GRAD_POS: the position gradients are not wanted (no atomics).
 #ifdef ACCUM_ATOMIC_FLOAT
@@ -124,17 +125,19 @@ void main() {
     float total = (alpha[0] + alpha[1]) + (alpha[2] + alpha[3]);
     float s = scale_in[li];
     float s_in[4];       // the scale of the neighbour taking P's colour
-    for (int k = 0; k < 4; ++k) s_in[k] = theirs[k] ? scale_in[place(other[k])] : 0.0;
+    uint other_li[4];    // the neighbours' places in the list (listed: pair k blends)
+    for (int k = 0; k < 4; ++k) other_li[k] = theirs[k] || mine[k] ? place(other[k]) : li;
+    for (int k = 0; k < 4; ++k) s_in[k] = theirs[k] ? scale_in[other_li[k]] : 0.0;
     float sum_w = s * total;
     float D[4] = float[4](0.0, 0.0, 0.0, 0.0);
     for (uint c = 0u; c < C; ++c) {
-        float g = grad_out[i * C + c];
-        float own = color[i * C + c];
+        float g = grad_out[li * C + c];
+        float own = color[li * C + c];
         float gc = g * (1.0 - sum_w);
         for (int k = 0; k < 4; ++k) {
             if (theirs[k])
-                gc += s_in[k] * alpha_in[k] * grad_out[other[k] * C + c];
-            if (mine[k]) D[k] += g * (color[other[k] * C + c] - own);
+                gc += s_in[k] * alpha_in[k] * grad_out[other_li[k] * C + c];
+            if (mine[k]) D[k] += g * (color[other_li[k] * C + c] - own);
         }
         grad_color[li * C + c] = gc;
     }

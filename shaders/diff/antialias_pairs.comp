@@ -2,7 +2,7 @@
 // Antialias, pass 1: the blended pixel pairs. One invocation per listed candidate pair
 // (pair_list[i] = 2 A + axis, A = (b, y, x) flat in the chunk, B = A + (1, 0) or (0, 1):
 // the pairs whose triangle ids differ, listed by the host); it writes the pair's record
-// records[2 A + axis] = (code + 4 i, row_a, row_b, bits of tau) (the host clears the rest):
+// records[2 A + axis] = (code + 4 i, row_a, row_b, bits of tau) (nobody clears the rest):
 //   code 0: no blend; 1: A takes alpha = 1/2 - tau of B's colour; 2: B takes tau - 1/2 of A's;
 //   i: the pair's place in the list
 //   row_a, row_b: the pos rows (batch offset included) of the crossing edge's vertices

@@ -248,3 +248,24 @@ def test_gpu_bad_input(ctx):
         antialias_backward(saved, col[:, 1:])
     with pytest.raises(ValueError, match="accumulate must be one of"):
         antialias_backward(saved, col, accumulate="sum")
+
+
+@pytest.mark.parametrize("name", ["icosphere", "soup"])
+def test_records_the_pairs_pass_leaves_unwritten_are_never_read(ctx, name):
+    """Pass 1 writes the records of the listed pairs only and nobody clears the rest: the
+    output and both gradients are the same bits whether the records buffer held zeros or
+    garbage (random codes, rows and taus) before the call."""
+    pos, tri, colors = SCENES[name]
+    rast, col = render(ctx, pos, tri, colors)
+    g = np.random.default_rng(3).standard_normal(col.shape).astype(np.float32)
+    results = []
+    for fill in ("zeros", "garbage"):
+        with ctx:
+            records = ctx.scratch_buffer("antialias.records", rast[..., 0].size * 32)
+            garbage = np.random.default_rng(1).integers(0, 2 ** 32, records.size // 4,
+                                                        dtype=np.uint32)
+            records.write((garbage if fill == "garbage" else 0 * garbage).tobytes())
+        out, saved = gpu_antialias(col, rast, pos, tri, ctx=ctx)
+        results.append((out, *antialias_backward(saved, g, deterministic=True)))
+    for zeros, garbage in zip(*results):
+        assert zeros.tobytes() == garbage.tobytes()
