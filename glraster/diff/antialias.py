@@ -38,7 +38,7 @@ import numpy as np
 
 from glraster.diff import compute as _gpu
 from glraster import validate
-from glraster.diff.edge_lists import pair_lists
+from glraster.diff.edge_lists import pair_lists, put_rows, take_rows
 from glraster.diff.antialias_args import AntialiasSaved, check, wanted
 from glraster.diff.antialias_reference import MAX_WALK
 from glraster.diff.topology_hash import TopologyHash, antialias_construct_topology_hash
@@ -119,8 +119,7 @@ class _Passes:
         """(L, C) the rows of ``values`` (B, H, W, C) at a chunk's listed pixels: what the
         blend and the backward read of the colour and of its gradient (every other pixel
         keeps its value)."""
-        flat = values.reshape(-1, self.channels)
-        return flat[first * self.hw + pixels.astype(np.int64)]
+        return take_rows(values.reshape(-1, self.channels), first * self.hw, pixels)
 
     def run_blend(self, records, rast_buffer, pixels: np.ndarray, color: np.ndarray,
                   convex: bool):
@@ -201,8 +200,8 @@ def forward(color, rast, pos, *, tri, topology_hash, pos_gradient_boost=1.0, con
             listed = passes.listed(first, pixels, color)
             values, scale, incident = passes.run_blend(records, rast_buffer, pixels, listed,
                                                        convex)
-            flat_out[first * passes.hw + pixels.astype(np.int64)] = _gpu.read(
-                values, len(pixels) * passes.channels).reshape(len(pixels), passes.channels)
+            put_rows(flat_out, first * passes.hw, pixels, _gpu.read(
+                values, len(pixels) * passes.channels).reshape(len(pixels), passes.channels))
             kept.append(_Chunk.read(first, count, pixels, listed, incident, scale))
     saved = AntialiasSaved(color, rast, pos, tri, topology_hash, float(pos_gradient_boost),
                            bool(convex), pairs=tuple(kept), ctx=ctx)
@@ -314,9 +313,9 @@ def backward(saved: AntialiasSaved, grad_out, *, needs=None, deterministic: bool
                 first = chunk.first
                 out_gc = _backward_pass(passes, saved, program, chunk, chunk_grad, sums)
                 if want_color:
-                    grad_color.reshape(-1, channels)[first * hw + chunk.pixels.astype(
-                        np.int64)] = _gpu.read(out_gc, len(chunk.pixels) * channels).reshape(
-                            len(chunk.pixels), channels)
+                    put_rows(grad_color.reshape(-1, channels), first * hw, chunk.pixels,
+                             _gpu.read(out_gc, len(chunk.pixels) * channels).reshape(
+                                 len(chunk.pixels), channels))
         total = sums.result() if want_pos else None
     grad_pos = None
     if want_pos:

@@ -1,5 +1,5 @@
 """The antialias passes' work lists: neighbouring pixels whose triangle ids differ, and the
-pixels of those pairs, in one compiled pass over the ids (numba; NumPy only otherwise).
+pixels of those pairs, in two compiled passes over the ids (numba; NumPy only otherwise).
 
 Over B images of H x W pixels, row-major (pixel index p = (b H + y) W + x), a pair is a
 pixel A and its right neighbour (axis 0, code 2 A) or the neighbour above (axis 1, code
@@ -13,7 +13,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["pair_lists"]
+__all__ = ["pair_lists", "put_rows", "take_rows"]
 
 
 def pair_lists(ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -23,40 +23,87 @@ def pair_lists(ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     pixel in some pair."""
     if ids.ndim != 3:
         raise ValueError(f"ids must have shape (B, H, W), got {ids.shape}")
+    ids = np.ascontiguousarray(ids)     # (rows the compares below vectorise over)
     n = ids.size
+    padded = -(-n // 8) * 8             # whole 8-byte words for the scan
+    pairs = np.zeros(padded, np.uint8)
+    listed = np.zeros(padded, np.uint8)
+    _marks(ids, pairs[:n].reshape(ids.shape), listed[:n].reshape(ids.shape))
     codes = np.empty(2 * n, np.uint32)
     pixels = np.empty(n, np.uint32)
-    n_codes, n_pixels = _lists(ids, codes, pixels)
+    n_codes, n_pixels = _lists(pairs, listed, codes, pixels)
     return codes[:n_codes], pixels[:n_pixels]
 
 
-@numba.njit(cache=True, nogil=True)
-def _lists(ids, codes, pixels):
-    """Fill codes and pixels; returns how many of each. A pixel is listed when it is the A
-    of a pair (right or above) or the B of the pair of its left or lower neighbour."""
+def take_rows(values: np.ndarray, first: int, pixels: np.ndarray) -> np.ndarray:
+    """(L, C) the rows of ``values`` (N, C) at pixels ``first + pixels`` (L,) uint32: a
+    chunk's listed pixels (np.take: about 6 times faster than fancy indexing here)."""
+    return np.take(values[first:], pixels, axis=0)
+
+
+def put_rows(values: np.ndarray, first: int, pixels: np.ndarray, rows: np.ndarray) -> None:
+    """``values[first + pixels[i]] = rows[i]``: (N, C) ``values`` written in place at a
+    chunk's listed pixels (L,) uint32 from ``rows`` (L, C) (compiled: fancy assignment
+    costs about 8 times as much)."""
+    _put_rows(values[first:], pixels, rows)
+
+
+_compiled = numba.njit(cache=True, nogil=True)
+
+
+@_compiled
+def _put_rows(values, pixels, rows):
+    for i in range(pixels.shape[0]):
+        for c in range(rows.shape[1]):
+            values[pixels[i], c] = rows[i, c]
+
+
+@_compiled
+def _marks(ids, pairs, listed):
+    """Per pixel, pairs: bit 0 set when its right neighbour's id differs, bit 1 when the
+    one above's does; listed: nonzero when the pixel is in some pair (its own, or the left
+    neighbour's bit 0, or the lower neighbour's bit 1). Loops over whole rows without
+    branches, so that they vectorise."""
     batch, height, width = ids.shape
-    n_codes = 0
-    n_pixels = 0
-    p = 0
     for b in range(batch):
         for y in range(height):
-            for x in range(width):
-                t = ids[b, y, x]
-                listed = False
-                if x + 1 < width and ids[b, y, x + 1] != t:
+            row, marks = ids[b, y], pairs[b, y]
+            for x in range(width - 1):
+                marks[x] = np.uint8(row[x] != row[x + 1])
+            if y + 1 < height:
+                up = ids[b, y + 1]
+                for x in range(width):
+                    marks[x] |= np.uint8(row[x] != up[x]) << 1
+        for y in range(height):
+            marks, out = pairs[b, y], listed[b, y]
+            out[0] = marks[0]
+            for x in range(1, width):
+                out[x] = marks[x] | (marks[x - 1] & 1)
+            if y > 0:
+                below = pairs[b, y - 1]
+                for x in range(width):
+                    out[x] |= below[x] & 2
+
+
+@_compiled
+def _lists(pairs, listed, codes, pixels):
+    """Fill codes and pixels from the marks (flat, a whole number of 8-byte words: words
+    without a mark, most of an image, are skipped whole); returns how many of each."""
+    n_codes = 0
+    n_pixels = 0
+    pair_words, listed_words = pairs.view(np.uint64), listed.view(np.uint64)
+    for k in range(pair_words.shape[0]):
+        if pair_words[k] != 0:
+            for p in range(8 * k, 8 * k + 8):
+                if pairs[p] & 1:
                     codes[n_codes] = 2 * p
                     n_codes += 1
-                    listed = True
-                if y + 1 < height and ids[b, y + 1, x] != t:
+                if pairs[p] & 2:
                     codes[n_codes] = 2 * p + 1
                     n_codes += 1
-                    listed = True
-                if not listed and x > 0 and ids[b, y, x - 1] != t:
-                    listed = True
-                if not listed and y > 0 and ids[b, y - 1, x] != t:
-                    listed = True
-                if listed:
+        if listed_words[k] != 0:
+            for p in range(8 * k, 8 * k + 8):
+                if listed[p]:
                     pixels[n_pixels] = p
                     n_pixels += 1
-                p += 1
     return n_codes, n_pixels

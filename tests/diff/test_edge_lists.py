@@ -86,3 +86,19 @@ def test_the_encoded_id_channel_gives_the_lists_of_the_decoded_ids():
     want = pair_lists(decode_ids(rast[..., 3]))
     assert all(np.array_equal(a, b) for a, b in zip(got, want))
     assert np.array_equal(got[0], _numpy_lists(tri_id)[0])
+
+
+def test_rows_taken_and_put_at_the_listed_pixels_of_a_chunk():
+    from glraster.diff.edge_lists import put_rows, take_rows
+
+    rng = np.random.default_rng(4)
+    values = rng.standard_normal((40, 3)).astype(np.float32)
+    pixels = np.sort(rng.choice(30, 7, replace=False)).astype(np.uint32)
+    assert np.array_equal(take_rows(values, 10, pixels), values[10 + pixels.astype(int)])
+    rows = rng.standard_normal((7, 3)).astype(np.float32)
+    want = values.copy()
+    want[10 + pixels.astype(int)] = rows
+    put_rows(values, 10, pixels, rows)
+    assert np.array_equal(values, want)
+    put_rows(values, 0, pixels[:0], rows[:0])          # none listed: nothing written
+    assert take_rows(values, 0, pixels[:0]).shape == (0, 3)
