@@ -7,7 +7,9 @@ call; float64: the float64 reference) in one autograd Function, whose backward r
 ``core.backward(saved, *grads, needs=...)`` (None grads: zero; ``needs``: the inputs that
 require grad). Inputs, ``tri``, ``ranges`` and outputs are saved for backward, so that an
 in-place change of one after the forward makes the backward raise (the cores keep views
-of them). No double backward. Tensors are known by :func:`upload_entry`: an unchanged one
+of them). A call that can have no gradient (grad mode off, or no input requiring one)
+runs the core without an autograd Function: nothing is saved for a backward. No double
+backward. Tensors are known by :func:`upload_entry`: an unchanged one
 is not uploaded again (:mod:`glraster.gpu.uploads`), nor rasterize's rast decoded again
 (:mod:`glraster.diff.checked`).
 """
@@ -131,8 +133,12 @@ class Call:
         if forward is None:
             forward = functools.partial(core.forward, *self.arrays, **self.params)
         gl = self.params["ctx"] if self.dtype == np.float32 else None
-        how = (core, self.dtype, self.frozen, gl, len(self.inputs), entries)
-        outputs = _Function.apply(how, forward, *self.inputs, *self.kept)
+        if torch.is_grad_enabled() and any(t is not None and t.requires_grad
+                                           for t in self.inputs):
+            how = (core, self.dtype, self.frozen, gl, len(self.inputs), entries)
+            outputs = _Function.apply(how, forward, *self.inputs, *self.kept)
+        else:  # nothing to differentiate: no autograd node, nothing kept for a backward
+            outputs = tuple(to_torch(out, self.dtype) for out in _run(gl, entries, forward)[0])
         if self.op is RASTERIZE:  # its rast: ids of tri, not decoded again while unchanged
             checked.made(upload_entry(outputs[0]), len(self.params["tri"]))
         return outputs
