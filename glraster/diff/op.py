@@ -52,9 +52,10 @@ class Core(Protocol):
     def backward(self, saved, *grads, needs: tuple[bool, ...] | None = None) -> tuple: ...
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Op:
-    """A differentiable op.
+    """A differentiable op (equal only to itself: the records are module constants, and
+    front ends key their per-op caches by them, so the hash is the identity's).
 
     name          : the public name ("rasterize", "interpolate", "texture", "antialias")
     inputs        : names of the differentiable array inputs, in order (a trailing "*mip"
