@@ -41,8 +41,6 @@ import numpy as np
 
 from glraster.errors import ArgumentError
 
-FLOAT_DTYPES = (np.dtype(np.float32), np.dtype(np.float64))
-
 
 class Core(Protocol):
     """What a GPU core and a reference core both provide (module or object)."""
@@ -79,10 +77,12 @@ class Op:
     def core(self, dtype) -> Core:
         """The core for inputs of ``dtype``: float64 -> reference, float32 -> GPU."""
         dtype = np.dtype(dtype)
-        if dtype not in FLOAT_DTYPES:
-            raise ArgumentError(self.inputs[0], f"{self.name} runs on float32 (GPU) or "
-                                                f"float64 (reference) inputs, got {dtype}")
-        return _load(self.reference if dtype == np.float64 else self.gpu)
+        if dtype == np.float32:
+            return _load(self.gpu)
+        if dtype == np.float64:
+            return _load(self.reference)
+        raise ArgumentError(self.inputs[0], f"{self.name} runs on float32 (GPU) or "
+                                            f"float64 (reference) inputs, got {dtype}")
 
     def forward(self, *inputs, **params):
         """Check, then run the core the dtype selects: ``(outputs, saved)``."""

@@ -16,6 +16,7 @@ decoded again (:mod:`glraster.diff.checked`).
 from __future__ import annotations
 
 import functools
+import importlib
 import inspect
 import weakref
 
@@ -120,17 +121,16 @@ class Call:
         with checked.declared(self.entries):
             self.arrays, self.params = op.check(*views, **params, ctx=None)
         self.dtype = dtype_of(self.arrays)
-        if self.dtype == np.float32:  # (imported here: float64 needs no OpenGL)
-            from glraster.gpu.context import default_context
-            self.params["ctx"] = default_context() if glctx is None else glctx.context
+        if self.dtype == np.float32:  # (glraster.gpu imported here: float64 needs no OpenGL)
+            self.params["ctx"] = glctx.context if glctx is not None else \
+                importlib.import_module("glraster.gpu.context").default_context()
 
     def __call__(self, forward=None) -> tuple[torch.Tensor, ...]:
         """The outputs; ``forward()`` gives ``(outputs, saved)`` (default: the core's)."""
         core = self.op.core(self.dtype)
         entries = self.entries if forward is None else [  # (a peeler's layers: their own)
             *map(upload_entry, (*self.inputs, *self.kept))]
-        if forward is None:
-            forward = functools.partial(core.forward, *self.arrays, **self.params)
+        forward = forward or functools.partial(core.forward, *self.arrays, **self.params)
         gl = self.params["ctx"] if self.dtype == np.float32 else None
         how = (core, self.dtype, self.frozen, gl, len(self.inputs), entries)
         if torch.is_grad_enabled() and any(t is not None and t.requires_grad for t in self.inputs):
