@@ -62,8 +62,7 @@ RUN_PIXELS = 16
 
 def has_atomic_float(ctx: Context) -> bool:
     """The driver offers atomicAdd on floats in storage buffers (GL_NV_shader_atomic_float)."""
-    with ctx:
-        return "GL_NV_shader_atomic_float" in ctx.mgl.extensions
+    return "GL_NV_shader_atomic_float" in ctx.extensions
 
 
 def accumulation(ctx: Context, deterministic: bool = False, accumulate: str | None = None,

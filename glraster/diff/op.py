@@ -41,8 +41,6 @@ import numpy as np
 
 from glraster.errors import ArgumentError
 
-FLOAT_DTYPES = (np.dtype(np.float32), np.dtype(np.float64))
-
 
 class Core(Protocol):
     """What a GPU core and a reference core both provide (module or object)."""
@@ -52,9 +50,10 @@ class Core(Protocol):
     def backward(self, saved, *grads, needs: tuple[bool, ...] | None = None) -> tuple: ...
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Op:
-    """A differentiable op.
+    """A differentiable op (equal only to itself: the records are module constants, and
+    front ends key their per-op caches by them, so the hash is the identity's).
 
     name          : the public name ("rasterize", "interpolate", "texture", "antialias")
     inputs        : names of the differentiable array inputs, in order (a trailing "*mip"
@@ -78,10 +77,12 @@ class Op:
     def core(self, dtype) -> Core:
         """The core for inputs of ``dtype``: float64 -> reference, float32 -> GPU."""
         dtype = np.dtype(dtype)
-        if dtype not in FLOAT_DTYPES:
-            raise ArgumentError(self.inputs[0], f"{self.name} runs on float32 (GPU) or "
-                                                f"float64 (reference) inputs, got {dtype}")
-        return _load(self.reference if dtype == np.float64 else self.gpu)
+        if dtype == np.float32:
+            return _load(self.gpu)
+        if dtype == np.float64:
+            return _load(self.reference)
+        raise ArgumentError(self.inputs[0], f"{self.name} runs on float32 (GPU) or "
+                                            f"float64 (reference) inputs, got {dtype}")
 
     def forward(self, *inputs, **params):
         """Check, then run the core the dtype selects: ``(outputs, saved)``."""

@@ -140,10 +140,12 @@ class Context:
         self._compute: dict = {}
         self._framebuffers: OrderedDict = OrderedDict()
         self._buffers: dict = {}
+        self._buffer_sizes: dict = {}   # name -> bytes of self._buffers[name]
         self.uploads = UploadCache()    # which declared array each buffer holds
         self._attribute_arrays: dict = {}  # (program glo, name) -> (buffers..., vao)
         self._gl_functions: dict = {}
         self._sample_counts: tuple | None = None
+        self._extensions: frozenset | None = None
         with self:
             info = self.mgl.info
             self.renderer = info["GL_RENDERER"]
@@ -214,6 +216,14 @@ class Context:
                 k *= 2
             self._sample_counts = tuple(counts)
         return self._sample_counts
+
+    @property
+    def extensions(self) -> frozenset[str]:
+        """The driver's GL extension names (asked once: every accumulating backward asks)."""
+        if self._extensions is None:
+            with self:
+                self._extensions = frozenset(self.mgl.extensions)
+        return self._extensions
 
     @property
     def is_llvmpipe(self) -> bool:
@@ -341,16 +351,20 @@ class Context:
         between calls under ``name``; grows by doubling when needed. Data a front end
         declared (:mod:`glraster.gpu.uploads`) that a buffer of this context holds already
         is not written again: that buffer is returned (it may be another name's)."""
-        entry = self.uploads.lookup(data) if isinstance(data, np.ndarray) else None
-        if entry is not None:
-            held = self.uploads.held(entry)
-            if held is not None:
-                return self._buffers[held]
-        view = memoryview(data).cast("B")
-        buffer = self._buffer(name, view.nbytes)
-        if view.nbytes:
-            buffer.write(view)
-        self.uploads.wrote(name, entry)
+        uploads = self.uploads
+        if isinstance(data, np.ndarray):
+            entry, nbytes = uploads.lookup(data), data.nbytes
+            if entry is not None:
+                held = uploads.held(entry)
+                if held is not None:
+                    return self._buffers[held]
+        else:
+            entry, data = None, memoryview(data).cast("B")
+            nbytes = data.nbytes
+        buffer = self._buffer(name, nbytes)
+        if nbytes:
+            buffer.write(data)
+        uploads.wrote(name, entry)
         return buffer
 
     def scratch_buffer(self, name: str, nbytes: int):
@@ -360,13 +374,13 @@ class Context:
         return self._buffer(name, nbytes)
 
     def _buffer(self, name: str, nbytes: int):
-        nbytes = max(int(nbytes), 16)
         buffer = self._buffers.get(name)
-        if buffer is None or buffer.size < nbytes:
+        if buffer is None or self._buffer_sizes[name] < nbytes:
             if buffer is not None:
                 buffer.release()
-            size = 1 << (nbytes - 1).bit_length()
+            size = 1 << (max(int(nbytes), 16) - 1).bit_length()
             buffer = self._buffers[name] = self.mgl.buffer(reserve=size, dynamic=True)
+            self._buffer_sizes[name] = size
         return buffer
 
     def attribute_array(self, program, name: str, corners):
@@ -435,6 +449,7 @@ class Context:
         self._attribute_arrays.clear()
         self._framebuffers.clear()
         self._buffers.clear()
+        self._buffer_sizes.clear()
         self.uploads.clear()
         self.mgl.release()
         self._backend.release()

@@ -6,15 +6,17 @@ runs the core the dtype selects (float32: OpenGL, its context current for the wh
 call; float64: the float64 reference) in one autograd Function, whose backward runs
 ``core.backward(saved, *grads, needs=...)`` (None grads: zero; ``needs``: the inputs that
 require grad). Inputs, ``tri``, ``ranges`` and outputs are saved for backward, so that an
-in-place change of one after the forward makes the backward raise (the cores keep views
-of them). No double backward. Tensors are known by :func:`upload_entry`: an unchanged one
-is not uploaded again (:mod:`glraster.gpu.uploads`), nor rasterize's rast decoded again
-(:mod:`glraster.diff.checked`).
+in-place change of one after the forward makes the backward raise (the cores keep views of
+them); a call that can have no gradient (no grad mode, no input requiring one) runs
+without the Function. No double backward. Tensors are known by :func:`upload_entry`: an
+unchanged one is not uploaded again (:mod:`glraster.gpu.uploads`), nor rasterize's rast
+decoded again (:mod:`glraster.diff.checked`).
 """
 
 from __future__ import annotations
 
 import functools
+import importlib
 import inspect
 import weakref
 
@@ -44,8 +46,8 @@ def tensor(name: str, value, dtypes=FLOATS) -> np.ndarray:
         problem = f"be a dense (strided) tensor, got layout {value.layout}"
     elif value.dtype not in dtypes:
         problem = f"have dtype {' or '.join(map(str, dtypes))}, got {value.dtype}"
-    else:
-        return value.detach().numpy()
+    else:  # (detach only what autograd tracks: a tensor of no grad is its own view)
+        return (value.detach() if value.requires_grad else value).numpy()
     raise ArgumentError(name, f"{name} must {problem}")
 
 
@@ -104,7 +106,7 @@ class Call:
             if value is not None and not isinstance(value, np.ndarray):  # (arrays: checked)
                 params[name] = integers(name, value)
                 kept.append(value)
-        names, optional = _names(op, len(inputs)), _optional(op)
+        names, optional = _signature(op, len(inputs))
         dtype = getattr(inputs[0], "dtype", None)  # the first input is never optional
         views = [None if value is None and name in optional else tensor(name, value)
                  for name, value in zip(names, inputs)]
@@ -119,35 +121,33 @@ class Call:
         with checked.declared(self.entries):
             self.arrays, self.params = op.check(*views, **params, ctx=None)
         self.dtype = dtype_of(self.arrays)
-        if self.dtype == np.float32:  # (imported here: float64 needs no OpenGL)
-            from glraster.gpu.context import default_context
-            self.params["ctx"] = default_context() if glctx is None else glctx.context
+        if self.dtype == np.float32:  # (glraster.gpu imported here: float64 needs no OpenGL)
+            self.params["ctx"] = glctx.context if glctx is not None else \
+                importlib.import_module("glraster.gpu.context").default_context()
 
     def __call__(self, forward=None) -> tuple[torch.Tensor, ...]:
         """The outputs; ``forward()`` gives ``(outputs, saved)`` (default: the core's)."""
         core = self.op.core(self.dtype)
         entries = self.entries if forward is None else [  # (a peeler's layers: their own)
             *map(upload_entry, (*self.inputs, *self.kept))]
-        if forward is None:
-            forward = functools.partial(core.forward, *self.arrays, **self.params)
+        forward = forward or functools.partial(core.forward, *self.arrays, **self.params)
         gl = self.params["ctx"] if self.dtype == np.float32 else None
         how = (core, self.dtype, self.frozen, gl, len(self.inputs), entries)
-        outputs = _Function.apply(how, forward, *self.inputs, *self.kept)
+        if torch.is_grad_enabled() and any(t is not None and t.requires_grad for t in self.inputs):
+            outputs = _Function.apply(how, forward, *self.inputs, *self.kept)
+        else:  # no gradient possible: no autograd node, nothing saved
+            outputs = tuple(to_torch(out, self.dtype) for out in _run(gl, entries, forward)[0])
         if self.op is RASTERIZE:  # its rast: ids of tri, not decoded again while unchanged
             checked.made(upload_entry(outputs[0]), len(self.params["tri"]))
         return outputs
 
 
 @functools.cache
-def _names(op, count: int) -> tuple[str, ...]:  # the inputs' names, a variadic tail numbered
+def _signature(op, count: int):  # the inputs' names (a variadic tail numbered), the optional
     names = [n for n in op.inputs if not n.startswith("*")]
-    return tuple(names + [f"{op.inputs[-1][1:]}[{k}]" for k in range(count - len(names))])
-
-
-@functools.cache
-def _optional(op) -> frozenset[str]:  # the inputs op.check lets be None
-    return frozenset(p.name for p in inspect.signature(op.check).parameters.values()
-                     if p.default is None)
+    names += [f"{op.inputs[-1][1:]}[{k}]" for k in range(count - len(names))]
+    return tuple(names), frozenset(p.name for p in inspect.signature(op.check).parameters
+                                   .values() if p.default is None)
 
 
 def _run(gl, entries, work):

@@ -117,6 +117,19 @@ class EGLLoader(CurrentContextLoader):
         self._own = api.snapshot()     # called while the new context is current
         self._mesa_own = mesa_current_context(refresh=True)
 
+    def __enter__(self):
+        # nothing current on the thread (the usual case): the general path's record, with
+        # one query of each kind instead of its repeats
+        lib = self._api.lib
+        if lib.eglGetCurrentContext() or mesa_current_context() is not None:
+            return super().__enter__()
+        bound, own = lib.eglQueryAPI(), self._own
+        if bound != own.api:
+            lib.eglBindAPI(own.api)
+        lib.eglMakeCurrent(own.display, own.draw, own.read, own.context)
+        self._stack().append((EGLCurrent(bound, None, None, None, None), None))
+        return self
+
     def _save(self):
         api = self._api
         if api.context() == self._own.context and mesa_current_context() == self._mesa_own:
