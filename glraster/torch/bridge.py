@@ -9,7 +9,8 @@ require grad). Inputs, ``tri``, ``ranges`` and outputs are saved for backward, s
 in-place change of one after the forward makes the backward raise (the cores keep views
 of them). No double backward. Tensors are known by :func:`upload_entry`: an unchanged one
 is not uploaded again (:mod:`glraster.gpu.uploads`), nor rasterize's rast decoded again
-(:mod:`glraster.diff.checked`).
+(:mod:`glraster.diff.checked`), and a no-gradient call repeating one bit for bit not run
+again (:mod:`glraster.diff.memo`).
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import numpy as np
 import torch
 from torch.autograd.function import once_differentiable
 
-from glraster.diff import checked
+from glraster.diff import checked, memo
 from glraster.diff.op import dtype_of
 from glraster.diff.ops import RASTERIZE
 from glraster.errors import ArgumentError
@@ -115,6 +116,7 @@ class Call:
                                           "float32 runs on the GPU, float64 through the "
                                           "float64 reference, and one op does not mix them")
         self.op, self.inputs, self.frozen, self.kept = op, tuple(inputs), tuple(frozen), kept
+        self.views = views
         self.entries = [*map(upload_entry, (*inputs, *kept))]  # (for the check, the forward)
         with checked.declared(self.entries):
             self.arrays, self.params = op.check(*views, **params, ctx=None)
@@ -125,14 +127,21 @@ class Call:
 
     def __call__(self, forward=None) -> tuple[torch.Tensor, ...]:
         """The outputs; ``forward()`` gives ``(outputs, saved)`` (default: the core's)."""
-        core = self.op.core(self.dtype)
-        entries = self.entries if forward is None else [  # (a peeler's layers: their own)
-            *map(upload_entry, (*self.inputs, *self.kept))]
-        if forward is None:
-            forward = functools.partial(core.forward, *self.arrays, **self.params)
+        core, held = self.op.core(self.dtype), (*self.inputs, *self.kept)
         gl = self.params["ctx"] if self.dtype == np.float32 else None
-        how = (core, self.dtype, self.frozen, gl, len(self.inputs), entries)
-        outputs = _Function.apply(how, forward, *self.inputs, *self.kept)
+        remember = gl is not None and forward is None and not (torch.is_grad_enabled() and any(
+            t is not None and t.requires_grad for t in self.inputs))  # no gradient flows
+        entries = self.entries if forward is None else [*map(upload_entry, held)]  # (layers)
+        forward = forward or functools.partial(core.forward, *self.arrays, **self.params)
+        outputs = remember and memo.lookup(gl, self.op, self.params, self.views)
+        if outputs:
+            outputs = tuple(map(torch.from_numpy, outputs))
+        else:
+            how = (core, self.dtype, self.frozen, gl, len(self.inputs), entries)
+            outputs = _Function.apply(how, forward, *held)
+            if remember:
+                memo.remember(gl, self.op, self.params, self.views, [t.numpy() for t in outputs],
+                              lambda ts=held + outputs: [t._version for t in ts if t is not None])
         if self.op is RASTERIZE:  # its rast: ids of tri, not decoded again while unchanged
             checked.made(upload_entry(outputs[0]), len(self.params["tri"]))
         return outputs
