@@ -15,7 +15,8 @@ in place since is never used (torch bumps a tensor's version on every in-place c
 writes that bypass it, through a NumPy view or ``.data``, are not seen, as for the upload
 cache). An entry holds the call's arrays themselves, not copies; it matches a new call of
 the same op with equal keyword arguments (arrays among them by content) whose inputs are
-bitwise equal to its own (so -0.0 differs from 0.0). At most :data:`ENTRIES` calls per
+bitwise equal to its own (so -0.0 differs from 0.0): views of the memory it holds are,
+others are compared. At most :data:`ENTRIES` calls per
 context are held, the least recently used dropped first, each of at most
 :data:`MAX_BYTES` (inputs and outputs), which bounds the memory held; :func:`forget`
 drops them.
@@ -58,10 +59,15 @@ def _same(a, b) -> bool:
     if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
         return (isinstance(a, np.ndarray) and isinstance(b, np.ndarray)
                 and a.shape == b.shape and a.dtype == b.dtype
-                and (a is b or np.array_equal(_bits(a), _bits(b))))
+                and (_same_memory(a, b) or np.array_equal(_bits(a), _bits(b))))
     if isinstance(a, (str, int, float, bool, tuple, type(None))):
         return type(a) is type(b) and a == b
     return a is b
+
+
+def _same_memory(a: np.ndarray, b: np.ndarray) -> bool:
+    # a view of the memory the entry holds (alive, unchanged by its stamp): the same bits
+    return a.ctypes.data == b.ctypes.data and a.strides == b.strides
 
 
 def _bits(a: np.ndarray) -> np.ndarray:
