@@ -7,10 +7,10 @@ call; float64: the float64 reference) in one autograd Function, whose backward r
 ``core.backward(saved, *grads, needs=...)`` (None grads: zero; ``needs``: the inputs that
 require grad). Inputs, ``tri``, ``ranges`` and outputs are saved for backward, so that an
 in-place change of one after the forward makes the backward raise (the cores keep views of
-them); a call that can have no gradient (no grad mode, no input requiring one) runs
-without the Function. No double backward. Tensors are known by :func:`upload_entry`: an
-unchanged one is not uploaded again (:mod:`glraster.gpu.uploads`), nor rasterize's rast
-decoded again (:mod:`glraster.diff.checked`).
+them); a call that can have no gradient (no grad mode, no input requiring one) runs without
+the Function, and one repeating such a call bit for bit not at all (:mod:`glraster.diff.memo`).
+No double backward. Tensors are known by :func:`upload_entry`: an unchanged one is not
+uploaded again (:mod:`glraster.gpu.uploads`), nor rast decoded again (:mod:`glraster.diff.checked`).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ import numpy as np
 import torch
 from torch.autograd.function import once_differentiable
 
-from glraster.diff import checked
+from glraster.diff import checked, memo
 from glraster.diff.op import dtype_of
 from glraster.diff.ops import RASTERIZE
 from glraster.errors import ArgumentError
@@ -108,8 +108,8 @@ class Call:
                 kept.append(value)
         names, optional = _signature(op, len(inputs))
         dtype = getattr(inputs[0], "dtype", None)  # the first input is never optional
-        views = [None if value is None and name in optional else tensor(name, value)
-                 for name, value in zip(names, inputs)]
+        self.views = views = [None if value is None and name in optional else
+                              tensor(name, value) for name, value in zip(names, inputs)]
         for name, value in zip(names, inputs):
             if value is not None and value.dtype != dtype:
                 raise ArgumentError(name, f"{name} must have the dtype of {names[0]} "
@@ -127,16 +127,21 @@ class Call:
 
     def __call__(self, forward=None) -> tuple[torch.Tensor, ...]:
         """The outputs; ``forward()`` gives ``(outputs, saved)`` (default: the core's)."""
-        core = self.op.core(self.dtype)
-        entries = self.entries if forward is None else [  # (a peeler's layers: their own)
-            *map(upload_entry, (*self.inputs, *self.kept))]
-        forward = forward or functools.partial(core.forward, *self.arrays, **self.params)
+        core, held = self.op.core(self.dtype), (*self.inputs, *self.kept)
+        entries = self.entries if forward is None else [*map(upload_entry, held)]  # (layers)
         gl = self.params["ctx"] if self.dtype == np.float32 else None
+        repeatable = gl is not None and forward is None  # (a peeler's layers are not)
+        forward = forward or functools.partial(core.forward, *self.arrays, **self.params)
         how = (core, self.dtype, self.frozen, gl, len(self.inputs), entries)
         if torch.is_grad_enabled() and any(t is not None and t.requires_grad for t in self.inputs):
-            outputs = _Function.apply(how, forward, *self.inputs, *self.kept)
+            outputs = _Function.apply(how, forward, *held)
+        elif repeatable and (found := memo.lookup(gl, self.op, self.params, self.views)):
+            outputs = tuple(map(torch.from_numpy, found))
         else:  # no gradient possible: no autograd node, nothing saved
             outputs = tuple(to_torch(out, self.dtype) for out in _run(gl, entries, forward)[0])
+            if repeatable:
+                memo.remember(gl, self.op, self.params, self.views, [t.numpy() for t in outputs],
+                              lambda ts=held + outputs: [t._version for t in ts if t is not None])
         if self.op is RASTERIZE:  # its rast: ids of tri, not decoded again while unchanged
             checked.made(upload_entry(outputs[0]), len(self.params["tri"]))
         return outputs

@@ -1,0 +1,119 @@
+"""Calls no gradient flows through, remembered per OpenGL context with their outputs: a
+later such call whose inputs are bit for bit the same gets copies of those outputs and
+runs no GL work.
+
+The case it serves is the fitting loop that renders its target under ``torch.no_grad()``
+and then the same views again with the parameters being fitted, where those parameters
+enter only after the GL ops (a material, a light): the second render's rasterize,
+interpolate and texture calls repeat the first's exactly. The ops are deterministic
+functions of their inputs and keyword arguments, so a remembered result is the result.
+
+A front end (:mod:`glraster.torch.bridge`) decides which calls no gradient flows through
+and hands them here with a ``stamp``: a callable giving the version counters of the
+arrays' owners (inputs and outputs), so that an entry whose input or output was changed
+in place since is never used (torch bumps a tensor's version on every in-place change;
+writes that bypass it, through a NumPy view or ``.data``, are not seen, as for the upload
+cache). An entry holds the call's arrays themselves, not copies; it matches a new call of
+the same op with equal keyword arguments (arrays among them by content) whose inputs are
+bitwise equal to its own (so -0.0 differs from 0.0): views of the memory it holds are,
+others are compared. At most :data:`ENTRIES` calls per
+context are held, the least recently used dropped first, each of at most
+:data:`MAX_BYTES` (inputs and outputs), which bounds the memory held; :func:`forget`
+drops them.
+"""
+
+from __future__ import annotations
+
+import threading
+import weakref
+
+import numpy as np
+
+__all__ = ["ENTRIES", "MAX_BYTES", "forget", "lookup", "remember"]
+
+ENTRIES = 8              # remembered calls per context
+MAX_BYTES = 64 << 20     # inputs + outputs of a remembered call, bytes
+
+_lock = threading.Lock()
+_by_context: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # ctx -> [_Entry]
+
+
+class _Entry:
+    __slots__ = ("signature", "params", "inputs", "outputs", "stamp", "stamped")
+
+    def __init__(self, signature, params, inputs, outputs, stamp):
+        self.signature, self.params, self.inputs, self.outputs = (signature, params, inputs,
+                                                                  outputs)
+        self.stamp, self.stamped = stamp, stamp()
+
+    def matches(self, params: dict, inputs) -> bool:
+        return (self.stamp() == self.stamped   # nothing held changed in place since
+                and params.keys() == self.params.keys()
+                and all(_same(params[k], self.params[k]) for k in params)
+                and all(_same(new, old) for new, old in zip(inputs, self.inputs)))
+
+
+def _same(a, b) -> bool:
+    """Arrays: the same bits; plain values: equal; other objects (a topology hash): the
+    same object."""
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return (isinstance(a, np.ndarray) and isinstance(b, np.ndarray)
+                and a.shape == b.shape and a.dtype == b.dtype
+                and (_same_memory(a, b) or np.array_equal(_bits(a), _bits(b))))
+    if isinstance(a, (str, int, float, bool, tuple, type(None))):
+        return type(a) is type(b) and a == b
+    return a is b
+
+
+def _same_memory(a: np.ndarray, b: np.ndarray) -> bool:
+    # a view of the memory the entry holds (alive, unchanged by its stamp): the same bits
+    return a.ctypes.data == b.ctypes.data and a.strides == b.strides
+
+
+def _bits(a: np.ndarray) -> np.ndarray:
+    return a.view(f"u{a.itemsize}") if a.dtype.kind == "f" else a
+
+
+def _signature(op, inputs) -> tuple:
+    return (op, tuple(None if a is None else (a.shape, a.dtype) for a in inputs))
+
+
+def _without_context(params: dict) -> dict:
+    # the context is the table's weak key: an entry holding it would keep it alive
+    return {k: v for k, v in params.items() if k != "ctx"}
+
+
+def lookup(ctx, op, params: dict, inputs) -> list[np.ndarray] | None:
+    """Copies of the outputs of a remembered call of ``op`` on ``ctx`` with these
+    ``params`` (the checked keyword arguments) and ``inputs`` (arrays or None, in the
+    op's order), or None."""
+    signature, params = _signature(op, inputs), _without_context(params)
+    with _lock:
+        entries = _by_context.get(ctx, [])
+        for k, entry in enumerate(entries):
+            if entry.signature == signature and entry.matches(params, inputs):
+                entries.append(entries.pop(k))  # the most recently used last
+                return [np.array(out) for out in entry.outputs]
+    return None
+
+
+def remember(ctx, op, params: dict, inputs, outputs, stamp) -> None:
+    """Hold the call (when at most MAX_BYTES) as ``ctx``'s most recently used one;
+    ``stamp()``: the version counters of its arrays' owners, now and at every lookup."""
+    if sum(a.nbytes for a in (*inputs, *outputs) if a is not None) > MAX_BYTES:
+        return
+    entry = _Entry(_signature(op, inputs), _without_context(params), tuple(inputs),
+                   tuple(outputs), stamp)
+    with _lock:
+        entries = _by_context.setdefault(ctx, [])
+        entries.append(entry)
+        del entries[:-ENTRIES]
+
+
+def forget(ctx=None) -> None:
+    """Drop the calls held for ``ctx`` (every context's when None)."""
+    with _lock:
+        if ctx is None:
+            _by_context.clear()
+        else:
+            _by_context.pop(ctx, None)

@@ -1,0 +1,160 @@
+"""Remembered no-gradient calls (glraster.diff.memo, through glraster.torch): a call that repeats an earlier one
+bit for bit returns copies of its outputs without running the core; any difference (a
+bit of an input, an in-place change of an input or output, a keyword argument, an input
+requiring a gradient) runs the core, whose result is then the fresh one. Outputs are
+compared exactly: a remembered result is the core's result, not an approximation."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+import glraster.torch as dr
+from glraster.diff import memo
+from glraster.torch import bridge
+
+
+@pytest.fixture
+def glctx(ctx):
+    memo.forget()
+    yield dr.RasterizeGLContext(context=ctx)
+    memo.forget()
+
+
+@pytest.fixture
+def core_runs(monkeypatch):
+    """The number of core forwards run since the test began (a list of op names)."""
+    runs = []
+    original = bridge._Function.forward
+
+    def counted(fctx, how, forward, *tensors):
+        runs.append(how[0])
+        return original(fctx, how, forward, *tensors)
+
+    monkeypatch.setattr(bridge._Function, "forward", staticmethod(counted))
+    return runs
+
+
+def _pos(z=0.25):
+    return torch.tensor([[[-0.8, -0.7, z, 1.0], [0.9, -0.6, 0.1, 1.0], [0.1, 0.8, 0.3, 1.2]],
+                         [[-0.5, -0.9, 0.2, 1.0], [0.7, 0.2, z, 1.1], [-0.2, 0.9, 0.0, 1.0]]])
+
+
+TRI = torch.tensor([[0, 1, 2]], dtype=torch.int32)
+
+
+def _render(glctx, pos, tex):
+    """rasterize -> interpolate (with derivatives) -> two texture lookups, as a target
+    render does: each output."""
+    rast, db = dr.rasterize(glctx, pos, TRI, (16, 12))
+    uv, uv_da = dr.interpolate(pos[..., :2].contiguous(), rast, TRI, rast_db=db,
+                               diff_attrs="all", glctx=glctx)
+    near = dr.texture(tex, uv, filter_mode="nearest", glctx=glctx)
+    trilinear = dr.texture(tex, uv, uv_da, filter_mode="linear-mipmap-linear", glctx=glctx)
+    return rast, db, uv, uv_da, near, trilinear
+
+
+def _equal_bits(got, want):
+    for g, w in zip(got, want):
+        assert torch.equal(g.view(torch.int32), w.view(torch.int32))
+
+
+def test_a_repeated_no_grad_render_runs_no_core_and_returns_the_same_bits(glctx, core_runs):
+    tex = torch.rand(1, 8, 8, 3, generator=torch.Generator().manual_seed(0))
+    with torch.no_grad():
+        first = _render(glctx, _pos(), tex)
+        ran = len(core_runs)
+        again = _render(glctx, _pos(), tex.clone())  # equal inputs, other tensors
+    assert ran == 4 and len(core_runs) == ran
+    _equal_bits(again, first)
+    assert all(a.data_ptr() != f.data_ptr() for a, f in zip(again, first))  # copies
+
+
+def test_inputs_requiring_no_gradient_are_remembered_with_grad_mode_on(glctx, core_runs):
+    pos = _pos()
+    dr.rasterize(glctx, pos, TRI, (16, 12))
+    dr.rasterize(glctx, pos.clone(), TRI, (16, 12))
+    assert len(core_runs) == 1
+
+
+def test_a_call_a_gradient_flows_through_always_runs(glctx, core_runs):
+    pos = _pos().requires_grad_()
+    first, _ = dr.rasterize(glctx, pos, TRI, (16, 12))
+    again, _ = dr.rasterize(glctx, pos, TRI, (16, 12))
+    assert len(core_runs) == 2 and again.grad_fn is not None
+
+
+@pytest.mark.parametrize("change", ["other bits", "negative zero", "in place", "resolution",
+                                    "tri"])
+def test_any_difference_runs_the_core(glctx, core_runs, change):
+    pos, tri, resolution = _pos(z=0.0), TRI, (16, 12)
+    with torch.no_grad():
+        dr.rasterize(glctx, pos, tri, resolution)
+        if change == "other bits":
+            pos = pos.clone()
+            pos[1, 1, 0] = torch.nextafter(pos[1, 1, 0], torch.tensor(2.0))
+        elif change == "negative zero":
+            pos = pos.clone()
+            pos[0, 0, 2] = -0.0
+        elif change == "in place":
+            pos[0, 2, 1] -= 0.5  # the remembered input itself: its version moves on
+        elif change == "resolution":
+            resolution = (12, 16)
+        else:
+            tri = TRI[:, [1, 2, 0]].contiguous()
+        got = dr.rasterize(glctx, pos, tri, resolution)
+    assert len(core_runs) == 2
+    memo.forget()
+    with torch.no_grad():
+        want = dr.rasterize(glctx, pos, tri, resolution)
+    _equal_bits(got, want)
+
+
+def test_an_output_changed_in_place_is_not_handed_out_again(glctx, core_runs):
+    with torch.no_grad():
+        rast, _ = dr.rasterize(glctx, _pos(), TRI, (16, 12))
+        want = rast.clone()
+        rast.zero_()
+        again, _ = dr.rasterize(glctx, _pos(), TRI, (16, 12))
+    assert len(core_runs) == 2
+    _equal_bits([again], [want])
+
+
+def test_copies_handed_out_are_independent(glctx, core_runs):
+    with torch.no_grad():
+        want, _ = dr.rasterize(glctx, _pos(), TRI, (16, 12))
+        want = want.clone()
+        second, _ = dr.rasterize(glctx, _pos(), TRI, (16, 12))
+        second.fill_(7.0)
+        third, _ = dr.rasterize(glctx, _pos(), TRI, (16, 12))
+    assert len(core_runs) == 1
+    _equal_bits([third], [want])
+
+
+def test_contexts_do_not_share_calls_and_forget_drops_them(glctx, core_runs, ctx):
+    other = dr.RasterizeGLContext(context=ctx)  # the same GL context: the same table
+    with torch.no_grad():
+        dr.rasterize(glctx, _pos(), TRI, (16, 12))
+        dr.rasterize(other, _pos(), TRI, (16, 12))
+        assert len(core_runs) == 1
+        memo.forget(ctx)
+        dr.rasterize(glctx, _pos(), TRI, (16, 12))
+    assert len(core_runs) == 2
+
+
+def test_at_most_entries_calls_are_held_least_recently_used_dropped(glctx, core_runs):
+    with torch.no_grad():
+        for k in range(memo.ENTRIES + 1):
+            dr.rasterize(glctx, _pos(z=0.01 * k), TRI, (16, 12))
+        dr.rasterize(glctx, _pos(z=0.01 * memo.ENTRIES), TRI, (16, 12))  # held
+        assert len(core_runs) == memo.ENTRIES + 1
+        dr.rasterize(glctx, _pos(z=0.0), TRI, (16, 12))  # the first: dropped
+    assert len(core_runs) == memo.ENTRIES + 2
+
+
+def test_a_call_larger_than_max_bytes_is_not_held(glctx, core_runs, monkeypatch):
+    monkeypatch.setattr(memo, "MAX_BYTES", 1024)  # rast and rast_db: 2 x 2 x 16 x 12 x 16 B
+    with torch.no_grad():
+        dr.rasterize(glctx, _pos(), TRI, (16, 12))
+        dr.rasterize(glctx, _pos(), TRI, (16, 12))
+    assert len(core_runs) == 2
