@@ -23,15 +23,15 @@ def glctx(ctx):
 
 @pytest.fixture
 def core_runs(monkeypatch):
-    """The number of core forwards run since the test began (a list of op names)."""
+    """The core calls (forward or backward) run since the test began (a list)."""
     runs = []
-    original = bridge._Function.forward
+    original = bridge._run
 
-    def counted(fctx, how, forward, *tensors):
-        runs.append(how[0])
-        return original(fctx, how, forward, *tensors)
+    def counted(gl, entries, work):
+        runs.append(work)
+        return original(gl, entries, work)
 
-    monkeypatch.setattr(bridge._Function, "forward", staticmethod(counted))
+    monkeypatch.setattr(bridge, "_run", counted)
     return runs
 
 
