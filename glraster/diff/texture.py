@@ -89,6 +89,53 @@ def _cleared(ctx: Context, name: str, nbytes: int):
     return buffer
 
 
+# Every buffer the texture shader reads (the levels, the per-pixel inputs) is read through a
+# buffer texture over it (GL 4.6 section 8.9, texelFetch in texture.comp): llvmpipe's texel
+# fetches are several times faster than its storage-buffer loads, and return the same
+# floats. Formats by floats per fetch; units from _TEXEL_UNIT on (texels, uv, uv_da, bias,
+# dL/d out), which no other glraster pass samples from.
+_GL_TEXTURE_BUFFER, _GL_MAX_TEXTURE_BUFFER_SIZE = 0x8C2A, 0x8C2B
+_VIEW_FORMATS = {4: 0x8814, 3: 0x8815, 2: 0x8230, 1: 0x822E}  # GL_RGBA32F .. GL_R32F
+_TEXEL_UNIT = 8
+_UNIT_TEXELS, _UNIT_UV, _UNIT_UV_DA, _UNIT_BIAS, _UNIT_GRAD_OUT = range(5)
+# context -> ({unit: buffer texture name}, GL_MAX_TEXTURE_BUFFER_SIZE)
+_VIEWS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _texel_vec(channels: int) -> int:
+    """Floats per fetch of a texel (or of dL/d out): 4, 2 or 1, whichever divides
+    ``channels``."""
+    return 4 if channels % 4 == 0 else (2 if channels % 2 == 0 else 1)
+
+
+def _bind_view(ctx: Context, unit: int, buffer, nbytes: int, vec: int, what: str) -> None:
+    """Bind the first ``nbytes`` of ``buffer`` as a buffer texture of ``vec`` floats a
+    texel on unit _TEXEL_UNIT + ``unit`` (one texture object per context and unit, pointed
+    at the buffer on every call). Inside ``with ctx``."""
+    views = _VIEWS.get(ctx)
+    if views is None:
+        limit = ctypes.c_int(0)
+        ctx.gl_function("glGetIntegerv", None, ctypes.c_uint, ctypes.POINTER(ctypes.c_int))(
+            _GL_MAX_TEXTURE_BUFFER_SIZE, ctypes.byref(limit))
+        views = _VIEWS[ctx] = ({}, limit.value)
+    name = views[0].get(unit)
+    if name is None:
+        names = (ctypes.c_uint * 1)()
+        ctx.gl_function("glCreateTextures", None, ctypes.c_uint, ctypes.c_int,
+                        ctypes.POINTER(ctypes.c_uint))(_GL_TEXTURE_BUFFER, 1, names)
+        name = views[0][unit] = names[0]
+    texels = int(nbytes) // (4 * vec)
+    if texels > views[1]:
+        raise ValueError(f"{what} needs {texels} texels of {vec} floats in one buffer "
+                         f"texture, more than the {views[1]} {ctx.renderer} allows: use a "
+                         "smaller texture, fewer pixels or max_mip_level")
+    ctx.gl_function("glTextureBufferRange", None, ctypes.c_uint, ctypes.c_uint, ctypes.c_uint,
+                    ctypes.c_ssize_t, ctypes.c_ssize_t)(
+        name, _VIEW_FORMATS[vec], buffer.glo, 0, max(texels, 1) * 4 * vec)
+    ctx.gl_function("glBindTextureUnit", None, ctypes.c_uint, ctypes.c_uint)(
+        _TEXEL_UNIT + unit, name)
+
+
 def _storage_limit(ctx: Context, nbytes: int, what: str) -> None:
     limit = getattr(ctx, "max_storage_block_size", 0) or (1 << 27)
     if nbytes > limit:
@@ -188,7 +235,8 @@ def _pyramid_passes(ctx: Context, buffer, args: TextureArgs, firsts, images: int
 
 def _defines(args: TextureArgs) -> dict:
     defines = {"FILTER": FILTER_CODE[args.filter_mode],
-               "BOUNDARY": BOUNDARY_CODE[args.boundary_mode], "CHANNELS": args.channels}
+               "BOUNDARY": BOUNDARY_CODE[args.boundary_mode], "CHANNELS": args.channels,
+               "TEXEL_VEC": _texel_vec(args.channels), "TEXEL_UNIT": _TEXEL_UNIT}
     if args.mipmapped and args.uv_da is not None:
         defines["HAS_DA"] = None
     if args.mipmapped and args.bias is not None:
@@ -204,13 +252,19 @@ def _pixel_inputs(args: TextureArgs):
     return n, uv, da, bias
 
 
+def _bind_input(ctx, unit: int, name: str, values: np.ndarray, vec: int) -> None:
+    """Upload a chunk's per-pixel input ``values`` (count, k) float32 and bind it as a
+    buffer texture of ``vec`` floats a texel (:func:`_bind_view`)."""
+    _bind_view(ctx, unit, ctx.storage_buffer(name, values), values.nbytes, vec, name)
+
+
 def _bind_common(ctx, program, args, defines, part, uv, da, bias, info, count, first):
     ctx.storage_buffer("texture.info", info).bind_to_storage_buffer(1)
-    ctx.storage_buffer("texture.uv", uv[part]).bind_to_storage_buffer(2)
+    _bind_input(ctx, _UNIT_UV, "texture.uv", uv[part], uv.shape[1])
     if "HAS_DA" in defines:
-        ctx.storage_buffer("texture.uv_da", da[part]).bind_to_storage_buffer(3)
+        _bind_input(ctx, _UNIT_UV_DA, "texture.uv_da", da[part], 1)
     if "HAS_BIAS" in defines:
-        ctx.storage_buffer("texture.bias", bias[part]).bind_to_storage_buffer(4)
+        _bind_input(ctx, _UNIT_BIAS, "texture.bias", bias[part], 1)
     _set(program, "n_pixels", count)
     _set(program, "first_pixel", first)
     _set(program, "pixels_per_image", int(args.uv.shape[1] * args.uv.shape[2]))
@@ -250,8 +304,9 @@ def forward(tex, uv, uv_da=None, mip_level_bias=None, *mip, filter_mode="auto",
     coords = uv_f.shape[1]
     with ctx:
         program = ctx.compute_program(shader_path(_SHADER), defines)
-        levels, info, _, _, _, mark = _upload_levels(ctx, args)
-        levels.bind_to_storage_buffer(0)
+        levels, info, _, total, _, mark = _upload_levels(ctx, args)
+        _bind_view(ctx, _UNIT_TEXELS, levels, total * channels * 4, _texel_vec(channels),
+                   "the texture and its mip levels")
         for first, count in _chunks(n, 4 * (3 * coords + 1 + channels)):
             part = slice(first, first + count)
             _bind_common(ctx, program, args, defines, part, uv_f, da, bias, info, count, first)
@@ -419,13 +474,15 @@ def backward(saved: TextureSaved, grad_out, *, needs=None, deterministic: bool =
     with ctx:
         program = ctx.compute_program(shader_path(_SHADER), defines)
         levels, info, firsts, total, images, _ = _upload_levels(ctx, args, saved.uploaded)
-        levels.bind_to_storage_buffer(0)
+        _bind_view(ctx, _UNIT_TEXELS, levels, total * channels * 4, _texel_vec(channels),
+                   "the texture and its mip levels")
         sums = (_TexelGradients(ctx, mode, total, channels, program, g_flat,
                                 args.mipmapped) if texels else None)
         for first, count in _chunks(n, per_pixel):
             part = slice(first, first + count)
             _bind_common(ctx, program, args, defines, part, uv_f, da, bias, info, count, first)
-            ctx.storage_buffer("texture.grad_out", g_flat[part]).bind_to_storage_buffer(5)
+            _bind_input(ctx, _UNIT_GRAD_OUT, "texture.grad_out", g_flat[part],
+                        _texel_vec(channels))
             outs = (_bind_coordinate_outputs(ctx, defines, count, coords)
                     if "COORD_GRAD" in defines else ())
             _run(ctx, program, -(-count // BACKWARD_RUN))
