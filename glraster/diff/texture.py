@@ -96,6 +96,7 @@ def _cleared(ctx: Context, name: str, nbytes: int):
 # dL/d out), which no other glraster pass samples from.
 _GL_TEXTURE_BUFFER, _GL_MAX_TEXTURE_BUFFER_SIZE = 0x8C2A, 0x8C2B
 _VIEW_FORMATS = {4: 0x8814, 3: 0x8815, 2: 0x8230, 1: 0x822E}  # GL_RGBA32F .. GL_R32F
+_GL_RGBA32UI = 0x8D70
 _TEXEL_UNIT = 8
 _UNIT_TEXELS, _UNIT_UV, _UNIT_UV_DA, _UNIT_BIAS, _UNIT_GRAD_OUT = range(5)
 # context -> ({unit: buffer texture name}, GL_MAX_TEXTURE_BUFFER_SIZE)
@@ -108,10 +109,11 @@ def _texel_vec(channels: int) -> int:
     return 4 if channels % 4 == 0 else (2 if channels % 2 == 0 else 1)
 
 
-def _bind_view(ctx: Context, unit: int, buffer, nbytes: int, vec: int, what: str) -> None:
+def _bind_view(ctx: Context, unit: int, buffer, nbytes: int, vec: int, what: str,
+               words: bool = False) -> None:
     """Bind the first ``nbytes`` of ``buffer`` as a buffer texture of ``vec`` floats a
-    texel on unit _TEXEL_UNIT + ``unit`` (one texture object per context and unit, pointed
-    at the buffer on every call). Inside ``with ctx``."""
+    texel (``words``: of 4 uints, RGBA32UI) on unit _TEXEL_UNIT + ``unit`` (one texture
+    object per context and unit, pointed at the buffer on every call). Inside ``with ctx``."""
     views = _VIEWS.get(ctx)
     if views is None:
         limit = ctypes.c_int(0)
@@ -131,7 +133,8 @@ def _bind_view(ctx: Context, unit: int, buffer, nbytes: int, vec: int, what: str
                          "smaller texture, fewer pixels or max_mip_level")
     ctx.gl_function("glTextureBufferRange", None, ctypes.c_uint, ctypes.c_uint, ctypes.c_uint,
                     ctypes.c_ssize_t, ctypes.c_ssize_t)(
-        name, _VIEW_FORMATS[vec], buffer.glo, 0, max(texels, 1) * 4 * vec)
+        name, _GL_RGBA32UI if words else _VIEW_FORMATS[vec], buffer.glo, 0,
+        max(texels, 1) * 4 * vec)
     ctx.gl_function("glBindTextureUnit", None, ctypes.c_uint, ctypes.c_uint)(
         _TEXEL_UNIT + unit, name)
 
@@ -344,9 +347,10 @@ def fixed_point_values(ctx: Context, words, count: int, shift: int):
     -> ldexp -> float32 gives, with half the bytes to read back and the pyramid's pull-back
     run where the values are. Inside ``with ctx``."""
     quads = -(-count // 4)
-    program = ctx.compute_program(shader_path(_RESOLVE_SHADER), {})
+    program = ctx.compute_program(shader_path(_RESOLVE_SHADER), {"WORDS_UNIT": _TEXEL_UNIT})
     out = ctx.scratch_buffer("texture.grad_tex_float", max(quads, 1) * 16)
-    words.bind_to_storage_buffer(0)
+    _bind_view(ctx, _UNIT_TEXELS, words, max(quads, 1) * 32, 4, "the texel gradients",
+               words=True)
     out.bind_to_storage_buffer(1)
     _set(program, "unit", float(np.ldexp(1.0, -shift)))
     step = _MAX_GROUPS * LOCAL_SIZE
