@@ -93,12 +93,14 @@ def _cleared(ctx: Context, name: str, nbytes: int):
 # buffer texture over it (GL 4.6 section 8.9, texelFetch in texture.comp): llvmpipe's texel
 # fetches are several times faster than its storage-buffer loads, and return the same
 # floats. Formats by floats per fetch; units from _TEXEL_UNIT on (texels, uv, uv_da, bias,
-# dL/d out), which no other glraster pass samples from.
+# dL/d out, the level table, the pyramid passes' levels), which no other glraster pass
+# samples from.
 _GL_TEXTURE_BUFFER, _GL_MAX_TEXTURE_BUFFER_SIZE = 0x8C2A, 0x8C2B
 _VIEW_FORMATS = {4: 0x8814, 3: 0x8815, 2: 0x8230, 1: 0x822E}  # GL_RGBA32F .. GL_R32F
-_GL_RGBA32UI = 0x8D70
+_GL_RGBA32UI, _GL_RGBA32I = 0x8D70, 0x8D82
 _TEXEL_UNIT = 8
-_UNIT_TEXELS, _UNIT_UV, _UNIT_UV_DA, _UNIT_BIAS, _UNIT_GRAD_OUT = range(5)
+_UNIT_TEXELS, _UNIT_UV, _UNIT_UV_DA, _UNIT_BIAS, _UNIT_GRAD_OUT, _UNIT_INFO, _UNIT_LEVELS = \
+    range(7)
 # context -> ({unit: buffer texture name}, GL_MAX_TEXTURE_BUFFER_SIZE)
 _VIEWS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
@@ -110,9 +112,9 @@ def _texel_vec(channels: int) -> int:
 
 
 def _bind_view(ctx: Context, unit: int, buffer, nbytes: int, vec: int, what: str,
-               words: bool = False) -> None:
+               words: int = 0) -> None:
     """Bind the first ``nbytes`` of ``buffer`` as a buffer texture of ``vec`` floats a
-    texel (``words``: of 4 uints, RGBA32UI) on unit _TEXEL_UNIT + ``unit`` (one texture
+    texel (``words``: of 4 integers, _GL_RGBA32UI or _GL_RGBA32I) on unit _TEXEL_UNIT + ``unit`` (one texture
     object per context and unit, pointed at the buffer on every call). Inside ``with ctx``."""
     views = _VIEWS.get(ctx)
     if views is None:
@@ -133,7 +135,7 @@ def _bind_view(ctx: Context, unit: int, buffer, nbytes: int, vec: int, what: str
                          "smaller texture, fewer pixels or max_mip_level")
     ctx.gl_function("glTextureBufferRange", None, ctypes.c_uint, ctypes.c_uint, ctypes.c_uint,
                     ctypes.c_ssize_t, ctypes.c_ssize_t)(
-        name, _GL_RGBA32UI if words else _VIEW_FORMATS[vec], buffer.glo, 0,
+        name, words or _VIEW_FORMATS[vec], buffer.glo, 0,
         max(texels, 1) * 4 * vec)
     ctx.gl_function("glBindTextureUnit", None, ctypes.c_uint, ctypes.c_uint)(
         _TEXEL_UNIT + unit, name)
@@ -221,9 +223,11 @@ def _pyramid_passes(ctx: Context, buffer, args: TextureArgs, firsts, images: int
     through the transpose of the filter, coarsest first (a gather: one per fine texel),
     from level ``top`` down (None: the coarsest; the levels above it hold zeros)."""
     channels = args.channels
-    defines = {"CHANNELS": channels, **({"BACKWARD": None} if backward else {})}
+    defines = {"CHANNELS": channels, "LEVELS_UNIT": _TEXEL_UNIT + _UNIT_LEVELS,
+               **({"BACKWARD": None} if backward else {})}
     program = ctx.compute_program(shader_path(_MIP_SHADER), defines)
     buffer.bind_to_storage_buffer(0)
+    _bind_view(ctx, _UNIT_LEVELS, buffer, buffer.size, 1, "the mip levels")
     _set(program, "images", images)
     top = args.levels - 1 if top is None else min(top, args.levels - 1)
     steps = range(top, 0, -1) if backward else range(1, args.levels)
@@ -262,7 +266,8 @@ def _bind_input(ctx, unit: int, name: str, values: np.ndarray, vec: int) -> None
 
 
 def _bind_common(ctx, program, args, defines, part, uv, da, bias, info, count, first):
-    ctx.storage_buffer("texture.info", info).bind_to_storage_buffer(1)
+    _bind_view(ctx, _UNIT_INFO, ctx.storage_buffer("texture.info", info), info.nbytes, 4,
+               "the level table", words=_GL_RGBA32I)
     _bind_input(ctx, _UNIT_UV, "texture.uv", uv[part], uv.shape[1])
     if "HAS_DA" in defines:
         _bind_input(ctx, _UNIT_UV_DA, "texture.uv_da", da[part], 1)
@@ -350,7 +355,7 @@ def fixed_point_values(ctx: Context, words, count: int, shift: int):
     program = ctx.compute_program(shader_path(_RESOLVE_SHADER), {"WORDS_UNIT": _TEXEL_UNIT})
     out = ctx.scratch_buffer("texture.grad_tex_float", max(quads, 1) * 16)
     _bind_view(ctx, _UNIT_TEXELS, words, max(quads, 1) * 32, 4, "the texel gradients",
-               words=True)
+               words=_GL_RGBA32UI)
     out.bind_to_storage_buffer(1)
     _set(program, "unit", float(np.ldexp(1.0, -shift)))
     step = _MAX_GROUPS * LOCAL_SIZE

@@ -36,7 +36,9 @@ layout(local_size_x = 64) in;
 
 // texture unit TEXEL_UNIT (a define); GL 4.6 section 8.9 (buffer textures), texelFetch
 layout(binding = TEXEL_UNIT) uniform samplerBuffer texels;
-layout(std430, binding = 1) readonly buffer LevelInfo { ivec4 level_info[]; };  // first, H, W
+// per level (first texel, H, W, 0), an RGBA32I buffer texture
+layout(binding = TEXEL_UNIT + 5) uniform isamplerBuffer level_info_view;
+#define LEVEL_INFO(l) texelFetch(level_info_view, (l))
 // the per-pixel inputs too, through buffer textures on the next units (same reason):
 // uv NCOORD floats a fetch, uv_da and the bias one, dL/d out TEXEL_VEC
 layout(binding = TEXEL_UNIT + 1) uniform samplerBuffer uv;
@@ -131,7 +133,7 @@ int wrap_index(int i, int n) {
 struct Taps { ivec4 index; vec4 w; vec4 ds; vec4 dt; };
 
 Taps bilinear(int level, float s, float t, int image, int face) {
-    ivec4 info = level_info[level];
+    ivec4 info = LEVEL_INFO(level);
     int H = info.y, W = info.z;
     float x = s * float(W) - 0.5, y = t * float(H) - 0.5;
     float fx0 = floor(x), fy0 = floor(y);
@@ -178,7 +180,7 @@ Taps bilinear(int level, float s, float t, int image, int face) {
 }
 
 int nearest_texel(float s, float t, int image, int face) {
-    ivec4 info = level_info[0];
+    ivec4 info = LEVEL_INFO(0);
     int H = info.y, W = info.z;
     int i = int(floor(s * float(W))), j = int(floor(t * float(H)));
 #if BOUNDARY == 0
@@ -241,14 +243,14 @@ Pixel setup(uint i, int image) {
 #endif
 #if FILTER == 0
     p.nearest = nearest_texel(s, t, image, face);
-    if (p.nearest >= 0) p.nearest += level_info[0].x;
+    if (p.nearest >= 0) p.nearest += LEVEL_INFO(0).x;
 #elif FILTER == 1
     p.t0 = bilinear(0, s, t, image, face);
 #else
     float level = 0.0;
     int top = n_levels - 1;
 #ifdef HAS_DA
-    float h0 = float(level_info[0].y), w0 = float(level_info[0].z);
+    float h0 = float(LEVEL_INFO(0).y), w0 = float(LEVEL_INFO(0).z);
     float a, b, c, dd;
 #if BOUNDARY == 3
     float psx = float(sg.x) * UV_DA(6u * i + uint(2 * ax.x));
