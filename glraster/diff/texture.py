@@ -10,6 +10,10 @@ derivations in docs/differentiable.md, "Texture"), in compute shaders
 * the mip pyramid is built on the GPU (a box filter over each texel's footprint: 2 x 2 for
   even extents, 3 taps per axis with weights (m - j, m, j + 1)/(2m + 1) for an odd 2m + 1),
   down to 1 x 1, or taken from the caller (``mip``);
+* the shaders read their inputs (the levels, uv, uv_da, the bias, dL/d out, the level
+  table) through buffer textures over the storage buffers they are uploaded to
+  (:func:`_bind_view`): on llvmpipe several times faster than storage-buffer loads, the
+  same bits;
 * each pixel computes its level itself (seed 003: level = 0.5 log2 of the largest
   eigenvalue of J^T J, J the texel-space Jacobian from ``uv_da``, plus ``mip_level_bias``,
   clamped to the pyramid) and filters with texel fetches at texel centres (no GL sampler:
@@ -114,8 +118,9 @@ def _texel_vec(channels: int) -> int:
 def _bind_view(ctx: Context, unit: int, buffer, nbytes: int, vec: int, what: str,
                words: int = 0) -> None:
     """Bind the first ``nbytes`` of ``buffer`` as a buffer texture of ``vec`` floats a
-    texel (``words``: of 4 integers, _GL_RGBA32UI or _GL_RGBA32I) on unit _TEXEL_UNIT + ``unit`` (one texture
-    object per context and unit, pointed at the buffer on every call). Inside ``with ctx``."""
+    texel (``words``: of 4 integers, _GL_RGBA32UI or _GL_RGBA32I) on unit _TEXEL_UNIT +
+    ``unit`` (one texture object per context and unit, pointed at the buffer on every
+    call). Inside ``with ctx``."""
     views = _VIEWS.get(ctx)
     if views is None:
         limit = ctypes.c_int(0)
