@@ -10,6 +10,10 @@ derivations in docs/differentiable.md, "Texture"), in compute shaders
 * the mip pyramid is built on the GPU (a box filter over each texel's footprint: 2 x 2 for
   even extents, 3 taps per axis with weights (m - j, m, j + 1)/(2m + 1) for an odd 2m + 1),
   down to 1 x 1, or taken from the caller (``mip``);
+* the shaders read their inputs (the levels, uv, uv_da, the bias, dL/d out, the level
+  table) through buffer textures over the storage buffers they are uploaded to
+  (:func:`_bind_view`): on llvmpipe several times faster than storage-buffer loads, the
+  same bits;
 * each pixel computes its level itself (seed 003: level = 0.5 log2 of the largest
   eigenvalue of J^T J, J the texel-space Jacobian from ``uv_da``, plus ``mip_level_bias``,
   clamped to the pyramid) and filters with texel fetches at texel centres (no GL sampler:
@@ -87,6 +91,59 @@ def _cleared(ctx: Context, name: str, nbytes: int):
     clear(buffer.glo, _GL_R32UI, 0, max(int(nbytes), 4), _GL_RED_INTEGER, _GL_UNSIGNED_INT,
           None)
     return buffer
+
+
+# Every buffer the texture shader reads (the levels, the per-pixel inputs) is read through a
+# buffer texture over it (GL 4.6 section 8.9, texelFetch in texture.comp): llvmpipe's texel
+# fetches are several times faster than its storage-buffer loads, and return the same
+# floats. Formats by floats per fetch; units from _TEXEL_UNIT on (texels, uv, uv_da, bias,
+# dL/d out, the level table, the pyramid passes' levels), which no other glraster pass
+# samples from.
+_GL_TEXTURE_BUFFER, _GL_MAX_TEXTURE_BUFFER_SIZE = 0x8C2A, 0x8C2B
+_VIEW_FORMATS = {4: 0x8814, 3: 0x8815, 2: 0x8230, 1: 0x822E}  # GL_RGBA32F .. GL_R32F
+_GL_RGBA32UI, _GL_RGBA32I = 0x8D70, 0x8D82
+_TEXEL_UNIT = 8
+_UNIT_TEXELS, _UNIT_UV, _UNIT_UV_DA, _UNIT_BIAS, _UNIT_GRAD_OUT, _UNIT_INFO, _UNIT_LEVELS = \
+    range(7)
+# context -> ({unit: buffer texture name}, GL_MAX_TEXTURE_BUFFER_SIZE)
+_VIEWS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _texel_vec(channels: int) -> int:
+    """Floats per fetch of a texel (or of dL/d out): 4, 2 or 1, whichever divides
+    ``channels``."""
+    return 4 if channels % 4 == 0 else (2 if channels % 2 == 0 else 1)
+
+
+def _bind_view(ctx: Context, unit: int, buffer, nbytes: int, vec: int, what: str,
+               words: int = 0) -> None:
+    """Bind the first ``nbytes`` of ``buffer`` as a buffer texture of ``vec`` floats a
+    texel (``words``: of 4 integers, _GL_RGBA32UI or _GL_RGBA32I) on unit _TEXEL_UNIT +
+    ``unit`` (one texture object per context and unit, pointed at the buffer on every
+    call). Inside ``with ctx``."""
+    views = _VIEWS.get(ctx)
+    if views is None:
+        limit = ctypes.c_int(0)
+        ctx.gl_function("glGetIntegerv", None, ctypes.c_uint, ctypes.POINTER(ctypes.c_int))(
+            _GL_MAX_TEXTURE_BUFFER_SIZE, ctypes.byref(limit))
+        views = _VIEWS[ctx] = ({}, limit.value)
+    name = views[0].get(unit)
+    if name is None:
+        names = (ctypes.c_uint * 1)()
+        ctx.gl_function("glCreateTextures", None, ctypes.c_uint, ctypes.c_int,
+                        ctypes.POINTER(ctypes.c_uint))(_GL_TEXTURE_BUFFER, 1, names)
+        name = views[0][unit] = names[0]
+    texels = int(nbytes) // (4 * vec)
+    if texels > views[1]:
+        raise ValueError(f"{what} needs {texels} texels of {vec} floats in one buffer "
+                         f"texture, more than the {views[1]} {ctx.renderer} allows: use a "
+                         "smaller texture, fewer pixels or max_mip_level")
+    ctx.gl_function("glTextureBufferRange", None, ctypes.c_uint, ctypes.c_uint, ctypes.c_uint,
+                    ctypes.c_ssize_t, ctypes.c_ssize_t)(
+        name, words or _VIEW_FORMATS[vec], buffer.glo, 0,
+        max(texels, 1) * 4 * vec)
+    ctx.gl_function("glBindTextureUnit", None, ctypes.c_uint, ctypes.c_uint)(
+        _TEXEL_UNIT + unit, name)
 
 
 def _storage_limit(ctx: Context, nbytes: int, what: str) -> None:
@@ -171,9 +228,11 @@ def _pyramid_passes(ctx: Context, buffer, args: TextureArgs, firsts, images: int
     through the transpose of the filter, coarsest first (a gather: one per fine texel),
     from level ``top`` down (None: the coarsest; the levels above it hold zeros)."""
     channels = args.channels
-    defines = {"CHANNELS": channels, **({"BACKWARD": None} if backward else {})}
+    defines = {"CHANNELS": channels, "LEVELS_UNIT": _TEXEL_UNIT + _UNIT_LEVELS,
+               **({"BACKWARD": None} if backward else {})}
     program = ctx.compute_program(shader_path(_MIP_SHADER), defines)
     buffer.bind_to_storage_buffer(0)
+    _bind_view(ctx, _UNIT_LEVELS, buffer, buffer.size, 1, "the mip levels")
     _set(program, "images", images)
     top = args.levels - 1 if top is None else min(top, args.levels - 1)
     steps = range(top, 0, -1) if backward else range(1, args.levels)
@@ -188,7 +247,8 @@ def _pyramid_passes(ctx: Context, buffer, args: TextureArgs, firsts, images: int
 
 def _defines(args: TextureArgs) -> dict:
     defines = {"FILTER": FILTER_CODE[args.filter_mode],
-               "BOUNDARY": BOUNDARY_CODE[args.boundary_mode], "CHANNELS": args.channels}
+               "BOUNDARY": BOUNDARY_CODE[args.boundary_mode], "CHANNELS": args.channels,
+               "TEXEL_VEC": _texel_vec(args.channels), "TEXEL_UNIT": _TEXEL_UNIT}
     if args.mipmapped and args.uv_da is not None:
         defines["HAS_DA"] = None
     if args.mipmapped and args.bias is not None:
@@ -204,13 +264,20 @@ def _pixel_inputs(args: TextureArgs):
     return n, uv, da, bias
 
 
+def _bind_input(ctx, unit: int, name: str, values: np.ndarray, vec: int) -> None:
+    """Upload a chunk's per-pixel input ``values`` (count, k) float32 and bind it as a
+    buffer texture of ``vec`` floats a texel (:func:`_bind_view`)."""
+    _bind_view(ctx, unit, ctx.storage_buffer(name, values), values.nbytes, vec, name)
+
+
 def _bind_common(ctx, program, args, defines, part, uv, da, bias, info, count, first):
-    ctx.storage_buffer("texture.info", info).bind_to_storage_buffer(1)
-    ctx.storage_buffer("texture.uv", uv[part]).bind_to_storage_buffer(2)
+    _bind_view(ctx, _UNIT_INFO, ctx.storage_buffer("texture.info", info), info.nbytes, 4,
+               "the level table", words=_GL_RGBA32I)
+    _bind_input(ctx, _UNIT_UV, "texture.uv", uv[part], uv.shape[1])
     if "HAS_DA" in defines:
-        ctx.storage_buffer("texture.uv_da", da[part]).bind_to_storage_buffer(3)
+        _bind_input(ctx, _UNIT_UV_DA, "texture.uv_da", da[part], 1)
     if "HAS_BIAS" in defines:
-        ctx.storage_buffer("texture.bias", bias[part]).bind_to_storage_buffer(4)
+        _bind_input(ctx, _UNIT_BIAS, "texture.bias", bias[part], 1)
     _set(program, "n_pixels", count)
     _set(program, "first_pixel", first)
     _set(program, "pixels_per_image", int(args.uv.shape[1] * args.uv.shape[2]))
@@ -250,8 +317,9 @@ def forward(tex, uv, uv_da=None, mip_level_bias=None, *mip, filter_mode="auto",
     coords = uv_f.shape[1]
     with ctx:
         program = ctx.compute_program(shader_path(_SHADER), defines)
-        levels, info, _, _, _, mark = _upload_levels(ctx, args)
-        levels.bind_to_storage_buffer(0)
+        levels, info, _, total, _, mark = _upload_levels(ctx, args)
+        _bind_view(ctx, _UNIT_TEXELS, levels, total * channels * 4, _texel_vec(channels),
+                   "the texture and its mip levels")
         for first, count in _chunks(n, 4 * (3 * coords + 1 + channels)):
             part = slice(first, first + count)
             _bind_common(ctx, program, args, defines, part, uv_f, da, bias, info, count, first)
@@ -289,9 +357,10 @@ def fixed_point_values(ctx: Context, words, count: int, shift: int):
     -> ldexp -> float32 gives, with half the bytes to read back and the pyramid's pull-back
     run where the values are. Inside ``with ctx``."""
     quads = -(-count // 4)
-    program = ctx.compute_program(shader_path(_RESOLVE_SHADER), {})
+    program = ctx.compute_program(shader_path(_RESOLVE_SHADER), {"WORDS_UNIT": _TEXEL_UNIT})
     out = ctx.scratch_buffer("texture.grad_tex_float", max(quads, 1) * 16)
-    words.bind_to_storage_buffer(0)
+    _bind_view(ctx, _UNIT_TEXELS, words, max(quads, 1) * 32, 4, "the texel gradients",
+               words=_GL_RGBA32UI)
     out.bind_to_storage_buffer(1)
     _set(program, "unit", float(np.ldexp(1.0, -shift)))
     step = _MAX_GROUPS * LOCAL_SIZE
@@ -419,13 +488,15 @@ def backward(saved: TextureSaved, grad_out, *, needs=None, deterministic: bool =
     with ctx:
         program = ctx.compute_program(shader_path(_SHADER), defines)
         levels, info, firsts, total, images, _ = _upload_levels(ctx, args, saved.uploaded)
-        levels.bind_to_storage_buffer(0)
+        _bind_view(ctx, _UNIT_TEXELS, levels, total * channels * 4, _texel_vec(channels),
+                   "the texture and its mip levels")
         sums = (_TexelGradients(ctx, mode, total, channels, program, g_flat,
                                 args.mipmapped) if texels else None)
         for first, count in _chunks(n, per_pixel):
             part = slice(first, first + count)
             _bind_common(ctx, program, args, defines, part, uv_f, da, bias, info, count, first)
-            ctx.storage_buffer("texture.grad_out", g_flat[part]).bind_to_storage_buffer(5)
+            _bind_input(ctx, _UNIT_GRAD_OUT, "texture.grad_out", g_flat[part],
+                        _texel_vec(channels))
             outs = (_bind_coordinate_outputs(ctx, defines, count, coords)
                     if "COORD_GRAD" in defines else ())
             _run(ctx, program, -(-count // BACKWARD_RUN))

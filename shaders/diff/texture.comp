@@ -14,7 +14,10 @@
 // written).
 // Layouts (flattened pixels of this dispatch, i = 0 .. n_pixels - 1):
 //   texels  every level (base first), level l from texel level_info[l].x on, texel
-//           ((image * faces + face) * H + j) * W + i, `channels` floats per texel
+//           ((image * faces + face) * H + j) * W + i, `channels` floats per texel, read
+//           through a buffer texture over the levels' storage buffer (TEXEL_VEC floats per
+//           fetch, a define: 4, 2 or 1): llvmpipe's texel fetches are several times faster
+//           than its storage-buffer loads at scattered addresses, and return the same floats
 //   uv      NCOORD floats per pixel; uv_da 2 NCOORD; bias 1; out / grad_out `channels`
 #if defined(BACKWARD) && defined(ACCUM_ATOMIC_FLOAT)
 #extension GL_NV_shader_atomic_float : require
@@ -31,19 +34,25 @@ layout(local_size_x = 64) in;
 #endif
 #define MIP (FILTER >= 2)
 
-layout(std430, binding = 0) readonly buffer Texels { float texels[]; };
-layout(std430, binding = 1) readonly buffer LevelInfo { ivec4 level_info[]; };  // first, H, W
-layout(std430, binding = 2) readonly buffer Uv { float uv[]; };
+// texture unit TEXEL_UNIT (a define); GL 4.6 section 8.9 (buffer textures), texelFetch
+layout(binding = TEXEL_UNIT) uniform samplerBuffer texels;
+// per level (first texel, H, W, 0), an RGBA32I buffer texture
+layout(binding = TEXEL_UNIT + 5) uniform isamplerBuffer level_info_view;
+#define LEVEL_INFO(l) texelFetch(level_info_view, (l))
+// the per-pixel inputs too, through buffer textures on the next units (same reason):
+// uv NCOORD floats a fetch, uv_da and the bias one, dL/d out TEXEL_VEC
+layout(binding = TEXEL_UNIT + 1) uniform samplerBuffer uv;
 #ifdef HAS_DA
-layout(std430, binding = 3) readonly buffer UvDa { float uv_da[]; };
+layout(binding = TEXEL_UNIT + 2) uniform samplerBuffer uv_da_view;
+#define UV_DA(k) texelFetch(uv_da_view, int(k)).x
 #endif
 #ifdef HAS_BIAS
-layout(std430, binding = 4) readonly buffer Bias { float bias[]; };
+layout(binding = TEXEL_UNIT + 3) uniform samplerBuffer bias;
 #endif
 #ifndef BACKWARD
 layout(std430, binding = 5) writeonly buffer Out { float out_tex[]; };
 #else
-layout(std430, binding = 5) readonly buffer GradOut { float grad_out[]; };
+layout(binding = TEXEL_UNIT + 4) uniform samplerBuffer grad_out;
 layout(std430, binding = 6) writeonly buffer GradUv { float grad_uv[]; };
 #ifdef HAS_DA
 layout(std430, binding = 7) writeonly buffer GradDa { float grad_da[]; };
@@ -124,7 +133,7 @@ int wrap_index(int i, int n) {
 struct Taps { ivec4 index; vec4 w; vec4 ds; vec4 dt; };
 
 Taps bilinear(int level, float s, float t, int image, int face) {
-    ivec4 info = level_info[level];
+    ivec4 info = LEVEL_INFO(level);
     int H = info.y, W = info.z;
     float x = s * float(W) - 0.5, y = t * float(H) - 0.5;
     float fx0 = floor(x), fy0 = floor(y);
@@ -171,7 +180,7 @@ Taps bilinear(int level, float s, float t, int image, int face) {
 }
 
 int nearest_texel(float s, float t, int image, int face) {
-    ivec4 info = level_info[0];
+    ivec4 info = LEVEL_INFO(0);
     int H = info.y, W = info.z;
     int i = int(floor(s * float(W))), j = int(floor(t * float(H)));
 #if BOUNDARY == 0
@@ -212,7 +221,7 @@ Pixel setup(uint i, int image) {
     int face = 0;
     float s, t;
 #if BOUNDARY == 3
-    vec3 d = vec3(uv[3u * i], uv[3u * i + 1u], uv[3u * i + 2u]);
+    vec3 d = texelFetch(uv, int(i)).xyz;
     face = major_face(d);
     ivec3 ax = FACE_AXIS[face], sg = FACE_SIGN[face];
     float m = float(sg.z) * d[ax.z];
@@ -228,27 +237,28 @@ Pixel setup(uint i, int image) {
         p.dt_duv[ax.z] -= tc * float(sg.z) / (2.0 * m * m);
     }
 #else
-    s = uv[2u * i];
-    t = uv[2u * i + 1u];
+    vec2 st = texelFetch(uv, int(i)).xy;
+    s = st.x;
+    t = st.y;
 #endif
 #if FILTER == 0
     p.nearest = nearest_texel(s, t, image, face);
-    if (p.nearest >= 0) p.nearest += level_info[0].x;
+    if (p.nearest >= 0) p.nearest += LEVEL_INFO(0).x;
 #elif FILTER == 1
     p.t0 = bilinear(0, s, t, image, face);
 #else
     float level = 0.0;
     int top = n_levels - 1;
 #ifdef HAS_DA
-    float h0 = float(level_info[0].y), w0 = float(level_info[0].z);
+    float h0 = float(LEVEL_INFO(0).y), w0 = float(LEVEL_INFO(0).z);
     float a, b, c, dd;
 #if BOUNDARY == 3
-    float psx = float(sg.x) * uv_da[6u * i + uint(2 * ax.x)];
-    float psy = float(sg.x) * uv_da[6u * i + uint(2 * ax.x + 1)];
-    float ptx = float(sg.y) * uv_da[6u * i + uint(2 * ax.y)];
-    float pty = float(sg.y) * uv_da[6u * i + uint(2 * ax.y + 1)];
-    float mx = float(sg.z) * uv_da[6u * i + uint(2 * ax.z)];
-    float my = float(sg.z) * uv_da[6u * i + uint(2 * ax.z + 1)];
+    float psx = float(sg.x) * UV_DA(6u * i + uint(2 * ax.x));
+    float psy = float(sg.x) * UV_DA(6u * i + uint(2 * ax.x + 1));
+    float ptx = float(sg.y) * UV_DA(6u * i + uint(2 * ax.y));
+    float pty = float(sg.y) * UV_DA(6u * i + uint(2 * ax.y + 1));
+    float mx = float(sg.z) * UV_DA(6u * i + uint(2 * ax.z));
+    float my = float(sg.z) * UV_DA(6u * i + uint(2 * ax.z + 1));
     float kk = p.ok ? w0 * 0.5 : 0.0;
     float im = 1.0 / m, im2 = im * im;
     a = kk * (psx * im - sc * mx * im2);
@@ -256,10 +266,10 @@ Pixel setup(uint i, int image) {
     c = kk * (ptx * im - tc * mx * im2);
     dd = kk * (pty * im - tc * my * im2);
 #else
-    a = uv_da[4u * i] * w0;
-    b = uv_da[4u * i + 1u] * w0;
-    c = uv_da[4u * i + 2u] * h0;
-    dd = uv_da[4u * i + 3u] * h0;
+    a = UV_DA(4u * i) * w0;
+    b = UV_DA(4u * i + 1u) * w0;
+    c = UV_DA(4u * i + 2u) * h0;
+    dd = UV_DA(4u * i + 3u) * h0;
 #endif
     float A = a * a + c * c, B = b * b + dd * dd, C = a * b + c * dd;
     float half_ab = (A - B) * 0.5;
@@ -292,7 +302,7 @@ Pixel setup(uint i, int image) {
 #endif
 #endif
 #ifdef HAS_BIAS
-    level += bias[i];
+    level += texelFetch(bias, int(i)).x;
 #endif
     p.live_level = level > 0.0 && level < float(top);
     level = clamp(level, 0.0, float(top));
@@ -311,8 +321,13 @@ Pixel setup(uint i, int image) {
     return p;
 }
 
-float texel(int index, int c) {
-    return index < 0 ? 0.0 : texels[index * channels + c];
+// every channel of texel `index` (-1: zeros), CHANNELS / TEXEL_VEC fetches
+void fetch_texel(int index, out float v[CHANNELS]) {
+    const int fetches = CHANNELS / TEXEL_VEC;
+    for (int q = 0; q < fetches; ++q) {
+        vec4 f = index < 0 ? vec4(0.0) : texelFetch(texels, index * fetches + q);
+        for (int e = 0; e < TEXEL_VEC; ++e) v[q * TEXEL_VEC + e] = f[e];
+    }
 }
 
 #ifdef BACKWARD
@@ -404,8 +419,10 @@ void send_all(Held h) {
 // sum_c g_c texel(index, c): the gradient of the loss by the tap's weight
 float tap_gradient(int index) {
     if (index < 0) return 0.0;
+    float v[CHANNELS];
+    fetch_texel(index, v);
     float r = 0.0;
-    for (int c = 0; c < channels; ++c) r += g_pixel[c] * texels[index * channels + c];
+    for (int c = 0; c < channels; ++c) r += g_pixel[c] * v[c];
     return r;
 }
 
@@ -414,7 +431,10 @@ float tap_gradient(int index) {
 void backward_pixel(uint i, inout Held held0, inout Held held1) {
     int image = tex_batch == 1 ? 0 : int((first_pixel + i) / pixels_per_image);
     Pixel p = setup(i, image);
-    for (int c = 0; c < channels; ++c) g_pixel[c] = grad_out[i * uint(channels) + uint(c)];
+    for (int q = 0; q < CHANNELS / TEXEL_VEC; ++q) {
+        vec4 f = texelFetch(grad_out, int(i) * (CHANNELS / TEXEL_VEC) + q);
+        for (int e = 0; e < TEXEL_VEC; ++e) g_pixel[q * TEXEL_VEC + e] = f[e];
+    }
 #if defined(TEX_GRAD) && MIP
     // a plain read first: once the maximum is known, few invocations reach the atomic
     if (p.ok && p.last_level > top_level_read) atomicMax(top_level_read, p.last_level);
@@ -491,20 +511,27 @@ void main() {
     if (i >= n_pixels) return;
     int image = tex_batch == 1 ? 0 : int((first_pixel + i) / pixels_per_image);
     Pixel p = setup(i, image);
-    for (int c = 0; c < channels; ++c) {
-        float v = 0.0;
+    // the same products and sums, in the same order, as channel by channel
+    float v[CHANNELS], t[CHANNELS];
 #if FILTER == 0
-        v = texel(p.nearest, c);
+    fetch_texel(p.nearest, v);
 #else
-        for (int k = 0; k < 4; ++k) v += p.t0.w[k] * texel(p.t0.index[k], c);
-#if FILTER == 3
-        float v1 = 0.0;
-        for (int k = 0; k < 4; ++k) v1 += p.t1.w[k] * texel(p.t1.index[k], c);
-        v = v + p.frac * (v1 - v);
-#endif
-#endif
-        out_tex[i * uint(channels) + uint(c)] = p.ok ? v : 0.0;
+    for (int c = 0; c < channels; ++c) v[c] = 0.0;
+    for (int k = 0; k < 4; ++k) {
+        fetch_texel(p.t0.index[k], t);
+        for (int c = 0; c < channels; ++c) v[c] += p.t0.w[k] * t[c];
     }
+#if FILTER == 3
+    float v1[CHANNELS];
+    for (int c = 0; c < channels; ++c) v1[c] = 0.0;
+    for (int k = 0; k < 4; ++k) {
+        fetch_texel(p.t1.index[k], t);
+        for (int c = 0; c < channels; ++c) v1[c] += p.t1.w[k] * t[c];
+    }
+    for (int c = 0; c < channels; ++c) v[c] = v[c] + p.frac * (v1[c] - v[c]);
+#endif
+#endif
+    for (int c = 0; c < channels; ++c) out_tex[i * uint(channels) + uint(c)] = p.ok ? v[c] : 0.0;
 #else
     // RUN consecutive pixels (along a row of the image) per invocation
     uint first = gl_GlobalInvocationID.x * uint(RUN);

@@ -11,6 +11,10 @@
 layout(local_size_x = 64) in;
 
 layout(std430, binding = 0) buffer Levels { float levels[]; };
+// the same buffer through a buffer texture (R32F, unit LEVELS_UNIT) for the reads of the
+// other level: llvmpipe's texel fetches are several times faster than its storage-buffer
+// loads (a pass reads one level and writes another: no texel read is written in it)
+layout(binding = LEVELS_UNIT) uniform samplerBuffer levels_view;
 
 uniform int fine_first;     // first float of level l - 1
 uniform int coarse_first;   // first float of level l
@@ -52,7 +56,7 @@ void main() {
             float row = 0.0;
             for (int kx = 0; kx < 3; ++kx) {
                 if (wx[kx] == 0.0) continue;
-                row += wx[kx] * levels[at[ky][kx] + c];
+                row += wx[kx] * texelFetch(levels_view, at[ky][kx] + c).x;
             }
             v += wy[ky] * row;
         }
@@ -82,8 +86,8 @@ void main() {
             float row = 0.0;
             for (int q = 0; q < 2; ++q) {
                 if (wx[q] == 0.0) continue;
-                row += wx[q] * levels[coarse_first + ((image * coarse_size.y + cys[r])
-                                                      * coarse_size.x + cxs[q]) * channels + c];
+                row += wx[q] * texelFetch(levels_view, coarse_first + ((image * coarse_size.y
+                                          + cys[r]) * coarse_size.x + cxs[q]) * channels + c).x;
             }
             v += wy[r] * row;
         }

@@ -157,6 +157,36 @@ def test_cube_gpu_matches_the_reference(ctx, mode):
     compare(ctx, tex, uv, da, bias, mode, "cube")
 
 
+@pytest.mark.parametrize("channels", [1, 2, 4, 6, 8])
+def test_every_texel_fetch_width_matches_the_reference(ctx, channels):
+    """The levels and dL/d out are read 4, 2 or 1 floats a fetch (the widest that divides
+    the channel count: glraster.diff.texture._texel_vec), uv 2 or 3."""
+    assert tx._texel_vec(channels) == (4 if channels % 4 == 0 else 2 if channels % 2 == 0
+                                       else 1)
+    tex, uv, da, bias = make_inputs(24, "wrap", tex_size=(10, 14), channels=channels)
+    compare(ctx, tex, uv, da, bias, "linear-mipmap-linear", "wrap")
+    tex, uv, da, bias = make_inputs(25, "cube", tex_size=(6, 6), channels=channels)
+    compare(ctx, tex, uv, da, bias, "linear", "cube")
+
+
+def test_a_buffer_texture_too_large_for_the_driver_is_refused(ctx):
+    """Past GL_MAX_TEXTURE_BUFFER_SIZE texels a view is refused with a ValueError naming
+    what needed it (llvmpipe allows 2^27, beyond its 128 MiB storage buffers: the limit is
+    lowered here)."""
+    tex, uv, da, bias = make_inputs(26, "wrap", tex_size=(8, 8), channels=4)
+    tex, uv = tex.astype(np.float32), uv.astype(np.float32)
+    tx.forward(tex, uv, ctx=ctx)     # the views exist
+    names, limit = tx._VIEWS[ctx]
+    tx._VIEWS[ctx] = (names, 32)     # fewer texels than tex has
+    try:
+        with pytest.raises(ValueError,
+                           match=r"the texture and its mip levels needs \d+ texels of 4 floats"):
+            tx.forward(tex, uv, ctx=ctx)
+    finally:
+        tx._VIEWS[ctx] = (names, limit)
+    tx.forward(tex, uv, ctx=ctx)
+
+
 def test_batched_odd_texture_user_mips_and_max_mip_level(ctx):
     tex, uv, da, bias = make_inputs(23, "clamp", tex_size=(13, 7), tex_batch=2, channels=5)
     compare(ctx, tex, uv, da, bias, "linear-mipmap-linear", "clamp")
