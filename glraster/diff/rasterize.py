@@ -27,7 +27,8 @@ the exact derivative at the centre (not a 2x2-quad difference such as dFdx). The
 barycentrics are evaluated compensated, so their error does not grow with the distance
 from the framebuffer origin. Coverage, the depth test (LESS on a 32-bit float depth
 buffer, ties keep the earlier triangle) and triangle ids come from the driver, through the
-one draw pipeline (:func:`glraster.gpu.pipeline.draw`).
+one draw pipeline (:func:`glraster.gpu.pipeline.draw`), as an indexed draw
+(``Draw.indexed``: each shared vertex shaded once).
 
 Batches (the B axis): ``pos`` (B, V, 4) draws ``tri`` over each ``pos[b]`` (instanced
 mode); ``pos`` (V, 4) with ``ranges`` (B, 2) draws ``tri[first:first + count]`` for each
@@ -153,7 +154,7 @@ class _Forward:
         uniforms = {"id_base": first} if "id_base" in program else {}
         textures = {"prev_depth": prev_depth} if prev_depth is not None else {}
         spec = pipeline.Draw(program, vao, self.colors, per_triangle=per_triangle,
-                             uniforms=uniforms, textures=textures)
+                             uniforms=uniforms, textures=textures, indexed=True)
         return spec, pos, tri
 
     def new_outputs(self):

@@ -23,6 +23,8 @@
 // everything scaled by k = max_j |w_j|, plus z_j / k:
 //   [0, 2) anchor a   [2, 5) k g_i (x) high  [5, 8) low   [8, 11) k g_i (y) high  [11, 14) low
 //   [14, 17) k s_i(a) high  [17, 20) low     [20, 23) w_i / k   [24, 27) z_i / k
+// It is read as RECORD_STRIDE / 4 whole vec4s (llvmpipe gathers each load per fragment:
+// 7 vector loads cost less than 28 scalar ones, measured).
 // s_i(p) = s_i(a) + grad s_i . (p - a) is evaluated compensated (exact p - a,
 // include/compensated.glsl), so it is about as accurate as a float64 evaluation rounded
 // once to float32, wherever the pixel is.
@@ -32,8 +34,9 @@
 // PEEL (discard fragments at or in front of the previous layer's z/w, prev_depth).
 
 #define RECORD_STRIDE 28
+#define RECORD_VEC4S 7  // RECORD_STRIDE / 4
 
-layout(std430, binding = 2) readonly buffer Setup { float setup[]; };
+layout(std430, binding = 2) readonly buffer Setup { vec4 records[]; };
 #ifdef REMAP
 layout(std430, binding = 3) readonly buffer Ids { int ids[]; };
 #endif
@@ -51,30 +54,36 @@ uniform sampler2D prev_depth;  // (H, W) previous layer's z/w; +inf where it was
 #include "include/compensated.glsl"
 #include "include/triangle_id.glsl"
 
-// k s_i(a) + k grad s_i . d, compensated.
-float evaluate(int base, int i, float dx, float dy) {
-    return compensated_plane(setup[base + 2 + i], setup[base + 5 + i], setup[base + 8 + i],
-                             setup[base + 11 + i], setup[base + 14 + i], setup[base + 17 + i],
+// k s_i(a) + k grad s_i . d, compensated, from the record r.
+float evaluate(float r[RECORD_STRIDE], int i, float dx, float dy) {
+    return compensated_plane(r[2 + i], r[5 + i], r[8 + i], r[11 + i], r[14 + i], r[17 + i],
                              dx, dy);
 }
 
 void main() {
-    int base = RECORD_STRIDE * gl_PrimitiveID;
-    precise float dx = gl_FragCoord.x - setup[base];
-    precise float dy = gl_FragCoord.y - setup[base + 1];
-    vec3 s = vec3(evaluate(base, 0, dx, dy), evaluate(base, 1, dx, dy),
-                  evaluate(base, 2, dx, dy));
-    vec3 zk = vec3(setup[base + 24], setup[base + 25], setup[base + 26]);
+    float r[RECORD_STRIDE];  // this fragment's triangle's record
+    for (int k = 0; k < RECORD_VEC4S; k++) {
+        vec4 part = records[RECORD_VEC4S * gl_PrimitiveID + k];
+        r[4 * k] = part.x;
+        r[4 * k + 1] = part.y;
+        r[4 * k + 2] = part.z;
+        r[4 * k + 3] = part.w;
+    }
+    precise float dx = gl_FragCoord.x - r[0];
+    precise float dy = gl_FragCoord.y - r[1];
+    vec3 s = vec3(evaluate(r, 0, dx, dy), evaluate(r, 1, dx, dy),
+                  evaluate(r, 2, dx, dy));
+    vec3 zk = vec3(r[24], r[25], r[26]);
     float z = dot(s, zk);
 #ifdef PEEL
     if (z <= texelFetch(prev_depth, ivec2(gl_FragCoord.xy), 0).r) {
         discard;
     }
 #endif
-    vec3 gx = vec3(setup[base + 2], setup[base + 3], setup[base + 4]);
-    vec3 gy = vec3(setup[base + 8], setup[base + 9], setup[base + 10]);
+    vec3 gx = vec3(r[2], r[3], r[4]);
+    vec3 gy = vec3(r[8], r[9], r[10]);
 #ifdef SPACE_SCREEN
-    vec3 wk = vec3(setup[base + 20], setup[base + 21], setup[base + 22]);
+    vec3 wk = vec3(r[20], r[21], r[22]);
     vec3 b = s * wk;
     vec3 bx = gx * wk;
     vec3 by = gy * wk;
