@@ -15,8 +15,13 @@ by :meth:`RASTERIZE.check <glraster.diff.op.Op.check>` and are not checked again
 - ``rast_db`` (B, H, W, 4) float32: (du/dx, du/dy, dv/dx, dv/dy) at the pixel centre, per
   window pixel, 0 on empty pixels; (B, H, W, 0) with ``grad_db=False``.
 
-Everything is computed in the fragment shader (shaders/diff/rasterize.frag) from a
-per-triangle record set up on the host in float64, the "homogeneous" method's
+Two passes per image. The raster pass (shaders/diff/rasterize.frag), an indexed draw
+through the one draw pipeline (:func:`glraster.gpu.pipeline.render_many`,
+``Draw.indexed``: each shared vertex shaded once), takes coverage, the depth test (LESS on
+a 32-bit float depth buffer, ties keep the earlier triangle) and the triangle of each pixel
+from the driver, and writes only that triangle's number. The resolve pass
+(shaders/diff/rasterize.comp), one compute invocation per pixel, then computes everything
+else from a per-triangle record set up on the host in float64, the "homogeneous" method's
 (:mod:`glraster.gpu.homogeneous`): with the edge functions e_i = A_i x + B_i y + C_i (rows
 of adj(M), M = [[X_j], [Y_j], [w_j]], X_j = (x_j + w_j) W/2, Y_j = (y_j + w_j) H/2),
 s_i = e_i / det(M), S = sum_j s_j and b_i = s_i / S,
@@ -25,10 +30,10 @@ s_i = e_i / det(M), S = sum_j s_j and b_i = s_i / S,
 
 the exact derivative at the centre (not a 2x2-quad difference such as dFdx). The
 barycentrics are evaluated compensated, so their error does not grow with the distance
-from the framebuffer origin. Coverage, the depth test (LESS on a 32-bit float depth
-buffer, ties keep the earlier triangle) and triangle ids come from the driver, through the
-one draw pipeline (:func:`glraster.gpu.pipeline.draw`), as an indexed draw
-(``Draw.indexed``: each shared vertex shaded once).
+from the framebuffer origin. Evaluating each covered pixel once there, instead of every
+fragment that passes the depth test in the driver's partly covered 4x4 blocks, costs 30%
+less for a 30k-triangle mesh at 256² (docs/performance.md); the values are the same
+operations on the same inputs, so the same bits.
 
 Batches (the B axis): ``pos`` (B, V, 4) draws ``tri`` over each ``pos[b]`` (instanced
 mode); ``pos`` (V, 4) with ``ranges`` (B, 2) draws ``tri[first:first + count]`` for each
@@ -42,8 +47,8 @@ per pixel (shaders/diff/backward_rasterize.comp), summed per vertex by one of th
 accumulations of :mod:`glraster.diff.compute`.
 
 :class:`DepthPeeler` gives successive depth layers: each keeps, per pixel, the nearest
-surface strictly behind the previous layer's z/w (the fragment shader samples the previous
-layer's z/w and discards fragments at or in front of it).
+surface strictly behind the previous layer's z/w (the fragment shader evaluates z/w from the record, samples the previous layer's z/w and discards
+fragments at or in front of it).
 """
 
 from __future__ import annotations
@@ -52,7 +57,7 @@ import functools
 
 import numpy as np
 
-from glraster.errors import ArgumentError
+from glraster.errors import ArgumentError, GLError
 from glraster import validate
 from glraster.diff import compute, layout
 from glraster.diff.saved import RasterizeSaved
@@ -67,8 +72,10 @@ __all__ = ["DepthPeeler", "RasterizeSaved", "backward", "backward_pixels", "forw
 
 VERT = "diff/rasterize.vert"
 FRAG = "diff/rasterize.frag"
+RESOLVE = "diff/rasterize.comp"
 BACKWARD = "diff/backward_rasterize.comp"
-RECORD_STRIDE = 28  # floats per triangle record, see shaders/diff/rasterize.frag
+RECORD_STRIDE = 28  # floats per triangle record, see shaders/diff/rasterize_record.glsl
+RESOLVE_GROUP = 8   # the resolve pass's work groups: 8 x 8 pixels
 
 # Host-side culling below this many triangles costs more than the setup records it saves.
 CULL_MIN_TRIANGLES = 256
@@ -93,7 +100,7 @@ def setup_records(pos: np.ndarray, tri: np.ndarray, resolution, out=None) -> np.
 
 
 class _Forward:
-    """Per-item triangles (culled) and setup records, and the draws of one forward on
+    """Per-item triangles (culled) and setup records, and the two passes of one forward on
     checked inputs (the peeler draws the same items once per layer)."""
 
     def __init__(self, pos, tri, resolution, ranges, grad_db, space, ctx):
@@ -109,12 +116,16 @@ class _Forward:
                                 "the driver's shader storage block limit of "
                                 f"{self.ctx.max_storage_block_size} bytes")
         self.batch = layout.batch_size(pos, ranges)
-        self.colors = {"rast": (4, "f4")}
-        if grad_db:
-            self.colors["rast_db"] = (4, "f4")
+        self.colors = {"drawn": (1, "i4")}
         self._items = [self._item(b) for b in range(self.batch)]
         self._records = [setup_records(pos, tri, (self.height, self.width))
                          for pos, tri, _, _ in self._items]
+        defines = {}
+        if grad_db:
+            defines["OUT_RAST_DB"] = 1
+        if space == "screen":
+            defines["SPACE_SCREEN"] = 1
+        self._resolve_defines = defines
 
     def _item(self, b):
         """(pos, drawn tri, caller ids of the drawn triangles or None, id_base) of item b."""
@@ -136,25 +147,18 @@ class _Forward:
         return pos, np.ascontiguousarray(tri), kept, first
 
     def spec(self, b, prev_depth=None) -> tuple[pipeline.Draw, np.ndarray, np.ndarray]:
-        pos, tri, kept, first = self._items[b]
-        defines = pipeline.output_defines(self.colors)
-        if self.space == "screen":
-            defines["SPACE_SCREEN"] = 1
-        if kept is not None:
-            defines["REMAP"] = 1
-        if prev_depth is not None:
-            defines["PEEL"] = 1
+        """The raster pass of item b: (Draw, pos, drawn tri)."""
+        pos, tri, _, _ = self._items[b]
+        defines = {"PEEL": 1} if prev_depth is not None else {}
         with self.ctx:
             program, vao = self.ctx.program(_shader_path(VERT), _shader_path(FRAG), defines)
-        per_triangle = {}
-        if len(tri):
-            per_triangle[2] = self._records[b]
-        if kept is not None:
-            per_triangle[3] = kept
-        uniforms = {"id_base": first} if "id_base" in program else {}
-        textures = {"prev_depth": prev_depth} if prev_depth is not None else {}
+        per_triangle, textures = {}, {}
+        if prev_depth is not None:
+            textures["prev_depth"] = prev_depth
+            if len(tri):
+                per_triangle[2] = self._records[b]
         spec = pipeline.Draw(program, vao, self.colors, per_triangle=per_triangle,
-                             uniforms=uniforms, textures=textures, indexed=True)
+                             textures=textures, indexed=True)
         return spec, pos, tri
 
     def new_outputs(self):
@@ -163,26 +167,74 @@ class _Forward:
         rast_db = np.empty(shape if self.grad_db else shape[:-1] + (0,), np.float32)
         return rast, rast_db
 
-    def _out(self, b, rast, rast_db) -> dict:
-        out = {"rast": rast[b]}
-        if self.grad_db:
-            out["rast_db"] = rast_db[b]
-        return out
+    def _resolve(self, b, targets, rast, rast_db):
+        """The resolve pass of item b from its raster pass's ``targets`` into ``rast[b]``
+        (and ``rast_db[b]``): bands of rows whose outputs fit one storage block, each
+        dispatched once per storage block of records (the first also writes the empty
+        pixels), then read back."""
+        ctx, width, height = self.ctx, self.width, self.height
+        _, tri, kept, first = self._items[b]
+        if not len(tri):
+            rast[b] = 0.0
+            if self.grad_db:
+                rast_db[b] = 0.0
+            return
+        records = self._records[b]
+        defines = dict(self._resolve_defines)
+        if kept is not None:
+            defines["REMAP"] = 1
+        program = ctx.compute_program(_shader_path(RESOLVE), defines)
+        targets.attachments[targets.color["drawn"]].bind_to_image(0, read=True, write=False)
+        compute.set_uniform(program, "id_base", first)
+        per_block = max(1, ctx.max_storage_block_size // records[0].nbytes)
+        parts = [(start, records[start:start + per_block]) for start in
+                 range(0, len(records), per_block)]
+        band = max(1, ctx.max_storage_block_size // (16 * width))
+        for first_row in range(0, height, band):
+            rows = min(band, height - first_row)
+            nbytes = 16 * rows * width
+            outputs = [ctx.scratch_buffer("rasterize.rast", nbytes)]
+            if self.grad_db:
+                outputs.append(ctx.scratch_buffer("rasterize.rast_db", nbytes))
+            for binding, buffer in enumerate(outputs, 3):
+                buffer.bind_to_storage_buffer(binding)
+            compute.set_uniform(program, "size", (width, rows))
+            compute.set_uniform(program, "first_row", first_row)
+            for number, (start, part) in enumerate(parts):
+                ctx.storage_buffer("rasterize.records", part).bind_to_storage_buffer(2)
+                if kept is not None:
+                    ctx.storage_buffer("rasterize.ids", kept[start:start + len(part)]) \
+                        .bind_to_storage_buffer(5)
+                compute.set_uniform(program, "record_first", start)
+                compute.set_uniform(program, "record_count", len(part))
+                compute.set_uniform(program, "write_empty", int(number == 0))
+                program.run(group_x=-(-width // RESOLVE_GROUP), group_y=-(-rows // RESOLVE_GROUP))
+            ctx.mgl.memory_barrier()
+            for buffer, out in zip(outputs, (rast, rast_db)):
+                buffer.read_into(out[b, first_row:first_row + rows], size=nbytes)
 
     def draw(self, b, rast, rast_db, prev_depth=None):
-        spec, pos, tri = self.spec(b, prev_depth)
-        pipeline.draw(self.ctx, spec, pos, tri, (self.height, self.width),
-                      out=self._out(b, rast, rast_db), during="rasterizing (glraster.diff)")
+        """Item b into ``rast``, ``rast_db`` (``prev_depth``: the peeler's texture)."""
+        self._passes([b], rast, rast_db, prev_depth)
 
     def draw_all(self, rast, rast_db):
-        """Every item into ``rast``, ``rast_db``: small images a few at a time, each group
-        drawn before it is read back (:func:`glraster.gpu.pipeline.draw_many`)."""
+        """Every item into ``rast``, ``rast_db``: small images a few at a time, each group's
+        raster passes drawn before their resolve passes read them (the driver renders one
+        framebuffer while the next draw is set up)."""
         group = max(1, min(FRAMEBUFFER_SLOTS, SLOT_PIXELS // (self.height * self.width)))
         for first in range(0, self.batch, group):
-            draws = [(*self.spec(b), self._out(b, rast, rast_db))
-                     for b in range(first, min(first + group, self.batch))]
-            pipeline.draw_many(self.ctx, draws, (self.height, self.width),
-                               during="rasterizing (glraster.diff)")
+            self._passes(range(first, min(first + group, self.batch)), rast, rast_db)
+
+    def _passes(self, items, rast, rast_db, prev_depth=None):
+        ctx = self.ctx
+        with ctx:
+            targets = pipeline.render_many(
+                ctx, [self.spec(b, prev_depth) for b in items], (self.height, self.width))
+            for b, target in zip(items, targets):
+                self._resolve(b, target, rast, rast_db)
+            error = ctx.mgl.error
+        if error != "GL_NO_ERROR":
+            raise GLError(error, "rasterizing (glraster.diff)")
 
     def saved(self, rast) -> RasterizeSaved:
         return RasterizeSaved(self.pos, self.tri, (self.height, self.width), self.ranges,

@@ -125,14 +125,24 @@ def draw_many(ctx, draws, resolution, *, during: str = "rasterizing") -> list[di
     is bound). The same draws, so the same pixels as :func:`draw`. At most
     :data:`glraster.gpu.context.FRAMEBUFFER_SLOTS` draws. Returns :func:`draw`'s dicts."""
     with ctx:
-        targets = [_render(ctx, spec, pos, tri, resolution, slot)
-                   for slot, (spec, pos, tri, _) in enumerate(draws)]
+        targets = render_many(ctx, [draw[:3] for draw in draws], resolution)
         values = [_read(spec, target, resolution, out or {})
                   for (spec, _, _, out), target in zip(draws, targets)]
         error = ctx.mgl.error
     if error != "GL_NO_ERROR":
         raise GLError(error, during)
     return values
+
+
+def render_many(ctx, draws, resolution) -> list:
+    """Draw each ``(spec, pos, tri)`` of ``draws`` (single-sample specs, at most
+    :data:`glraster.gpu.context.FRAMEBUFFER_SLOTS`) into framebuffer slot 0, 1, ... and
+    read nothing back: the :class:`glraster.gpu.context.Targets` of each, whose textures
+    later GL work of the caller reads (they hold the draw until the slot is drawn again).
+    The caller checks for GL errors."""
+    with ctx:
+        return [_render(ctx, spec, pos, tri, resolution, slot)
+                for slot, (spec, pos, tri) in enumerate(draws)]
 
 
 def _render(ctx, spec: Draw, pos, tri, resolution, slot: int):
