@@ -54,6 +54,7 @@ fragments at or in front of it).
 from __future__ import annotations
 
 import functools
+import weakref
 
 import numpy as np
 
@@ -75,7 +76,17 @@ FRAG = "diff/rasterize.frag"
 RESOLVE = "diff/rasterize.comp"
 BACKWARD = "diff/backward_rasterize.comp"
 RECORD_STRIDE = 28  # floats per triangle record, see shaders/diff/rasterize_record.glsl
-RESOLVE_GROUP = 8   # the resolve pass's work groups: 8 x 8 pixels
+RESOLVE_LOCAL = (8, 8)  # the resolve pass's work group in pixels (rasterize.comp's)
+RECORD_VEC4S = RECORD_STRIDE // 4
+# The resolve pass reads the records from an RGBA32F texture (rasterize_record.glsl says
+# why): RECORDS_PER_ROW records a row (14336 texels, within GL 4.5's minimum
+# GL_MAX_TEXTURE_SIZE of 16384), at most RECORD_TEXTURE_ROWS rows (2M records, 224 MiB)
+# a dispatch.
+RECORDS_PER_ROW = 2048
+RECORD_TEXTURE_ROWS = 1024
+
+# Context -> its record texture (grown by doubling, like the storage buffers)
+_RECORD_TEXTURES = weakref.WeakKeyDictionary()
 
 # Host-side culling below this many triangles costs more than the setup records it saves.
 CULL_MIN_TRIANGLES = 256
@@ -118,14 +129,23 @@ class _Forward:
         self.batch = layout.batch_size(pos, ranges)
         self.colors = {"drawn": (1, "i4")}
         self._items = [self._item(b) for b in range(self.batch)]
-        self._records = [setup_records(pos, tri, (self.height, self.width))
-                         for pos, tri, _, _ in self._items]
-        defines = {}
+        self._per_row = RECORDS_PER_ROW
+        self._records = [self._setup(pos, tri) for pos, tri, _, _ in self._items]
+        defines = {"RECORDS_PER_ROW": self._per_row}
         if grad_db:
             defines["OUT_RAST_DB"] = 1
         if space == "screen":
             defines["SPACE_SCREEN"] = 1
         self._resolve_defines = defines
+
+    def _setup(self, pos, tri) -> np.ndarray:
+        """The records of ``tri`` in whole rows of the record texture: (R RECORDS_PER_ROW,
+        RECORD_STRIDE) float32, the first len(tri) set (:func:`setup_records`), the rest
+        never read."""
+        rows = -(-len(tri) // self._per_row)
+        records = np.empty((rows * self._per_row, RECORD_STRIDE), np.float32)
+        setup_records(pos, tri, (self.height, self.width), out=records[:len(tri)])
+        return records
 
     def _item(self, b):
         """(pos, drawn tri, caller ids of the drawn triangles or None, id_base) of item b."""
@@ -156,7 +176,7 @@ class _Forward:
         if prev_depth is not None:
             textures["prev_depth"] = prev_depth
             if len(tri):
-                per_triangle[2] = self._records[b]
+                per_triangle[2] = self._records[b][:len(tri)]
         spec = pipeline.Draw(program, vao, self.colors, per_triangle=per_triangle,
                              textures=textures, indexed=True)
         return spec, pos, tri
@@ -170,8 +190,8 @@ class _Forward:
     def _resolve(self, b, targets, rast, rast_db):
         """The resolve pass of item b from its raster pass's ``targets`` into ``rast[b]``
         (and ``rast_db[b]``): bands of rows whose outputs fit one storage block, each
-        dispatched once per storage block of records (the first also writes the empty
-        pixels), then read back."""
+        dispatched once per record texture's worth of records (the first also writes the
+        empty pixels), then read back."""
         ctx, width, height = self.ctx, self.width, self.height
         _, tri, kept, first = self._items[b]
         if not len(tri):
@@ -186,9 +206,9 @@ class _Forward:
         program = ctx.compute_program(_shader_path(RESOLVE), defines)
         targets.attachments[targets.color["drawn"]].bind_to_image(0, read=True, write=False)
         compute.set_uniform(program, "id_base", first)
-        per_block = max(1, ctx.max_storage_block_size // records[0].nbytes)
-        parts = [(start, records[start:start + per_block]) for start in
-                 range(0, len(records), per_block)]
+        compute.set_uniform(program, "records", 0)
+        per_block = self._per_row * RECORD_TEXTURE_ROWS
+        blocks = range(0, len(tri), per_block)
         band = max(1, ctx.max_storage_block_size // (16 * width))
         for first_row in range(0, height, band):
             rows = min(band, height - first_row)
@@ -200,18 +220,37 @@ class _Forward:
                 buffer.bind_to_storage_buffer(binding)
             compute.set_uniform(program, "size", (width, rows))
             compute.set_uniform(program, "first_row", first_row)
-            for number, (start, part) in enumerate(parts):
-                ctx.storage_buffer("rasterize.records", part).bind_to_storage_buffer(2)
+            for start in blocks:
+                count = min(per_block, len(tri) - start)
+                if first_row == 0 or len(blocks) > 1:
+                    self._record_texture(records[start:start + per_block]).use(location=0)
                 if kept is not None:
-                    ctx.storage_buffer("rasterize.ids", kept[start:start + len(part)]) \
+                    ctx.storage_buffer("rasterize.ids", kept[start:start + count]) \
                         .bind_to_storage_buffer(5)
                 compute.set_uniform(program, "record_first", start)
-                compute.set_uniform(program, "record_count", len(part))
-                compute.set_uniform(program, "write_empty", int(number == 0))
-                program.run(group_x=-(-width // RESOLVE_GROUP), group_y=-(-rows // RESOLVE_GROUP))
+                compute.set_uniform(program, "record_count", count)
+                compute.set_uniform(program, "write_empty", int(start == 0))
+                program.run(group_x=-(-width // RESOLVE_LOCAL[0]),
+                            group_y=-(-rows // RESOLVE_LOCAL[1]))
             ctx.mgl.memory_barrier()
             for buffer, out in zip(outputs, (rast, rast_db)):
                 buffer.read_into(out[b, first_row:first_row + rows], size=nbytes)
+
+    def _record_texture(self, part: np.ndarray):
+        """The context's record texture holding ``part`` (whole rows of records) from row 0."""
+        ctx = self.ctx
+        rows = len(part) // self._per_row
+        width = self._per_row * RECORD_VEC4S
+        texture = _RECORD_TEXTURES.get(ctx)
+        if texture is None or texture.width != width or texture.height < rows:
+            if texture is not None:
+                texture.release()
+            texture = ctx.mgl.texture((width, min(RECORD_TEXTURE_ROWS,
+                                                  1 << (rows - 1).bit_length())), 4, dtype="f4")
+            texture.filter = (ctx.mgl.NEAREST, ctx.mgl.NEAREST)
+            _RECORD_TEXTURES[ctx] = texture
+        texture.write(memoryview(part).cast("B"), viewport=(0, 0, width, rows))
+        return texture
 
     def draw(self, b, rast, rast_db, prev_depth=None):
         """Item b into ``rast``, ``rast_db`` (``prev_depth``: the peeler's texture)."""

@@ -20,13 +20,14 @@
 // there, from the triangle's setup record (rasterize_record.glsl): the derivatives are
 // the exact closed form at the centre, not a 2x2-quad difference.
 //
-// The records bound at binding 2 are those of the drawn triangles record_first ..
-// record_first + record_count - 1 (one storage block); a pixel of another triangle is left
-// to the dispatch of its own records, an empty one is written by the dispatch with
-// write_empty.
+// The bound records (the texture ``records``) are those of the drawn triangles
+// record_first .. record_first + record_count - 1 (one texture's worth); a pixel of another
+// triangle is left to the dispatch of its own records, an empty one is written by the
+// dispatch with write_empty.
 //
-// Host defines: OUT_RAST_DB; SPACE_SCREEN; REMAP (ids[] at binding 5 holds the caller's
-// triangle index of each drawn triangle of the bound records).
+// Host defines: RECORDS_PER_ROW (the record texture's layout); OUT_RAST_DB; SPACE_SCREEN;
+// REMAP (ids[] at binding 5 holds the caller's triangle index of each drawn triangle of
+// the bound records).
 
 layout(local_size_x = 8, local_size_y = 8) in;
 

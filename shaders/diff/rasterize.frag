@@ -15,6 +15,7 @@ layout(location = 0) out int out_drawn;
 uniform int tri_base;  // index of the storage batch's first triangle (set by the pipeline)
 
 #ifdef PEEL
+#define RECORDS_IN_BUFFER
 #include "rasterize_record.glsl"
 uniform sampler2D prev_depth;  // (H, W) previous layer's z/w; +inf where it was empty
 #endif

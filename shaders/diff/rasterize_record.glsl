@@ -7,8 +7,12 @@
 // everything scaled by k = max_j |w_j|, plus z_j / k:
 //   [0, 2) anchor a   [2, 5) k g_i (x) high  [5, 8) low   [8, 11) k g_i (y) high  [11, 14) low
 //   [14, 17) k s_i(a) high  [17, 20) low     [20, 23) w_i / k   [24, 27) z_i / k
-// It is read as RECORD_VEC4S whole vec4s (llvmpipe gathers each load per invocation: 7
-// vector loads cost less than 28 scalar ones, measured).
+// It is read as RECORD_VEC4S whole vec4s: by default from an RGBA32F texture of
+// RECORDS_PER_ROW records a row (host define; texelFetch returns the stored bits), which
+// llvmpipe gathers with vector loads, where it loads a storage buffer's per-invocation
+// addresses one invocation at a time (measured: the resolve pass took a third of the time
+// at 1024² reading the texture); with RECORDS_IN_BUFFER from the storage buffer at
+// binding 2 (the peeler's raster pass, whose draws the pipeline splits by storage block).
 //
 // s_i(p) = s_i(a) + grad s_i . (p - a) is evaluated compensated (exact p - a,
 // include/compensated.glsl), so it is about as accurate as a float64 evaluation rounded
@@ -17,14 +21,21 @@
 #define RECORD_STRIDE 28
 #define RECORD_VEC4S 7  // RECORD_STRIDE / 4
 
+#ifdef RECORDS_IN_BUFFER
 layout(std430, binding = 2) readonly buffer Setup { vec4 records[]; };
+#define RECORD_PART(t, k) records[RECORD_VEC4S * (t) + (k)]
+#else
+uniform sampler2D records;  // record t at row t / RECORDS_PER_ROW, texels RECORD_VEC4S wide
+#define RECORD_PART(t, k) texelFetch(records, ivec2(((t) % RECORDS_PER_ROW) * RECORD_VEC4S + (k), \
+                                                    (t) / RECORDS_PER_ROW), 0)
+#endif
 
 #include "include/compensated.glsl"
 
-// The record of triangle t of the bound record buffer.
+// The record of triangle t of the bound records.
 void load_record(int t, out float r[RECORD_STRIDE]) {
     for (int k = 0; k < RECORD_VEC4S; k++) {
-        vec4 part = records[RECORD_VEC4S * t + k];
+        vec4 part = RECORD_PART(t, k);
         r[4 * k] = part.x;
         r[4 * k + 1] = part.y;
         r[4 * k + 2] = part.z;

@@ -291,9 +291,10 @@ def test_range_batch_equals_separate_calls_with_ids_into_the_whole_tri(ctx):
 
 
 def test_outputs_split_over_storage_blocks_are_the_same_bits(ctx, monkeypatch):
-    """A driver storage block limit below the records and the output rows: the resolve
-    pass runs per block of records and per band of rows, the peeler's raster pass per
-    batch of records, and every layer is bit for bit the one-block result."""
+    """Record textures of 256 records and a driver storage block limit below the records
+    and the output rows: the resolve pass runs per texture of records and per band of
+    rows, the peeler's raster pass per batch of records, and every layer is bit for bit
+    the one-block result."""
     pos, tri, res = _scene("icosphere")
     pos = np.asarray(pos, np.float32)
     tri = np.asarray(tri, np.int32)
@@ -302,6 +303,9 @@ def test_outputs_split_over_storage_blocks_are_the_same_bits(ctx, monkeypatch):
     limit = max(pos.nbytes, 16 * res[1] * 7)  # bands of 7 rows or so
     assert limit < len(tri) * dr.RECORD_STRIDE * 4 // 2 and limit < 16 * res[1] * res[0] // 2
     monkeypatch.setattr(ctx, "max_storage_block_size", limit)
+    monkeypatch.setattr(dr, "RECORDS_PER_ROW", 4)
+    monkeypatch.setattr(dr, "RECORD_TEXTURE_ROWS", 64)
+    assert len(tri) > 3 * 4 * 64
     for space, (rast, db) in zip(("persp", "screen"), whole):
         split_rast, split_db, _ = forward(pos, tri, res, ctx=ctx, space=space)
         assert (rast[..., 3] > 0).any()
