@@ -290,6 +290,26 @@ def test_range_batch_equals_separate_calls_with_ids_into_the_whole_tri(ctx):
     assert not rast[3].any() and not db[3].any()
 
 
+def test_host_culling_changes_no_bit(ctx, monkeypatch):
+    """An item whose triangles are half off-screen is drawn culled (ids remapped by the
+    resolve pass), one with few dropped is drawn whole: both equal the unculled draw."""
+    pos, tri, res = _scene("icosphere")
+    pos = np.asarray(pos, np.float32)
+    tri = np.asarray(tri, np.int32)
+    shifted = pos.copy()
+    shifted[:, 0] += 0.8 * shifted[:, 3]
+    batch = np.stack([pos, shifted])
+    kept = [len(dr._Forward(batch, tri, res, None, True, "persp", ctx)._items[b][1])
+            for b in range(2)]
+    assert kept[0] > 0.75 * len(tri) and kept[1] < 0.75 * len(tri)
+    culled = forward(batch, tri, res, ctx=ctx)[:2]
+    monkeypatch.setattr(dr, "CULL_MIN_TRIANGLES", len(tri) + 1)
+    whole = forward(batch, tri, res, ctx=ctx)[:2]
+    assert (culled[0][1, ..., 3] > 0).any()
+    for a, b in zip(culled, whole):
+        np.testing.assert_array_equal(a.view(np.uint32), b.view(np.uint32))
+
+
 def test_outputs_split_over_storage_blocks_are_the_same_bits(ctx, monkeypatch):
     """Record textures of 256 records and a driver storage block limit below the records
     and the output rows: the resolve pass runs per texture of records and per band of
