@@ -12,7 +12,7 @@ three ways:
   vertex attribute ``a_position``, per-triangle buffers as above. The driver's vertex
   cache then shades a vertex shared by neighbouring triangles once, where the pulled path
   shades all 3 T corners (llvmpipe's draw module, which runs the vertex stage on one
-  thread: measured 16% less time for a 30k-triangle mesh at 256², docs/performance.md);
+  thread: measured 11% less time for a 30k-triangle mesh at 256², docs/performance.md);
 * vertex attributes (GL 3.3, ``Draw.vertex_input``): the host de-indexes the triangles
   into a vertex buffer of 3 T positions, the attribute ``a_position``, beside the vertex
   numbers k (``a_vertex``; see :meth:`Context.attribute_array`).
