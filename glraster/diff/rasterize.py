@@ -193,32 +193,50 @@ class _Forward:
         rast_db = np.empty(shape if self.grad_db else shape[:-1] + (0,), np.float32)
         return rast, rast_db
 
-    def _resolve(self, b, targets, rast, rast_db):
-        """The resolve pass of item b from its raster pass's ``targets`` into ``rast[b]``
-        (and ``rast_db[b]``): bands of rows whose outputs fit one storage block, each
-        dispatched once per record texture's worth of records (the first also writes the
-        empty pixels), then read back."""
+    def _groups(self, items) -> list:
+        """``items`` (consecutive) in the groups of one resolve dispatch each: all of them
+        when each has one record texture's worth of records, together they fit one record
+        texture and their outputs one storage block, else one by one."""
+        per_block = self._per_row * RECORD_TEXTURE_ROWS
+        tris = [len(self._items[b][1]) for b in items]
+        rows = sum(-(-t // self._per_row) for t in tris)
+        nbytes = 16 * len(items) * self.height * self.width
+        if (len(items) > 1 and max(tris) <= per_block and rows <= RECORD_TEXTURE_ROWS
+                and nbytes <= self.ctx.max_storage_block_size):
+            return [list(items)]
+        return [[b] for b in items]
+
+    def _resolve(self, items, targets, rast, rast_db):
+        """The resolve pass of consecutive ``items`` (one of :meth:`_groups`) from their
+        raster passes' ``targets`` into their slices of ``rast`` (and ``rast_db``): bands
+        of rows whose outputs fit one storage block, each dispatched once per record
+        texture's worth of records (the first also writes the empty pixels), then read
+        back. More than one item: one band, one texture, one dispatch."""
         ctx, width, height = self.ctx, self.width, self.height
-        _, tri, kept, first = self._items[b]
-        if not len(tri):
-            rast[b] = 0.0
+        parts = [self._items[b] for b in items]
+        if len(items) == 1 and not len(parts[0][1]):
+            rast[items[0]] = 0.0
             if self.grad_db:
-                rast_db[b] = 0.0
+                rast_db[items[0]] = 0.0
             return
-        records = self._records[b]
         defines = dict(self._resolve_defines)
-        if kept is not None:
+        remap = any(kept is not None for _, _, kept, _ in parts)
+        if remap:
             defines["REMAP"] = 1
         program = ctx.compute_program(_shader_path(RESOLVE), defines)
-        targets.attachments[targets.color["drawn"]].bind_to_image(0, read=True, write=False)
-        compute.set_uniform(program, "id_base", first)
+        for unit, target in enumerate(targets):
+            target.attachments[target.color["drawn"]].bind_to_image(unit, read=True,
+                                                                    write=False)
+        pad = (0,) * (FRAMEBUFFER_SLOTS - len(items))
+        compute.set_uniform(program, "id_base", tuple(first for *_, first in parts) + pad)
         compute.set_uniform(program, "records", 0)
         per_block = self._per_row * RECORD_TEXTURE_ROWS
-        blocks = range(0, len(tri), per_block)
-        band = max(1, ctx.max_storage_block_size // (16 * width))
+        blocks = range(0, max(len(tri) for _, tri, _, _ in parts), per_block)
+        band = height if len(items) > 1 else max(1, ctx.max_storage_block_size // (16 * width))
+        first_item, last_item = items[0], items[-1] + 1
         for first_row in range(0, height, band):
             rows = min(band, height - first_row)
-            nbytes = 16 * rows * width
+            nbytes = 16 * len(items) * rows * width
             outputs = [ctx.scratch_buffer("rasterize.rast", nbytes)]
             if self.grad_db:
                 outputs.append(ctx.scratch_buffer("rasterize.rast_db", nbytes))
@@ -227,26 +245,38 @@ class _Forward:
             compute.set_uniform(program, "size", (width, rows))
             compute.set_uniform(program, "first_row", first_row)
             for start in blocks:
-                count = min(per_block, len(tri) - start)
+                counts = tuple(min(per_block, max(len(tri) - start, 0))
+                               for _, tri, _, _ in parts)
                 if first_row == 0 or len(blocks) > 1:
-                    self._record_texture(records[start:start + per_block]).use(location=0)
-                if kept is not None:
-                    ctx.storage_buffer("rasterize.ids", kept[start:start + count]) \
+                    record_rows = self._upload_records(items, start, per_block)
+                    compute.set_uniform(program, "record_row", record_rows + pad)
+                if remap:
+                    ids = [kept[start:start + count] if kept is not None
+                           else np.arange(first + start, first + start + count, dtype=np.int32)
+                           for (_, _, kept, first), count in zip(parts, counts)]
+                    ctx.storage_buffer("rasterize.ids", np.concatenate(ids)) \
                         .bind_to_storage_buffer(5)
+                    compute.set_uniform(program, "ids_first",
+                                        tuple(np.cumsum((0,) + counts[:-1]).tolist()) + pad)
                 compute.set_uniform(program, "record_first", start)
-                compute.set_uniform(program, "record_count", count)
+                compute.set_uniform(program, "record_count", counts + pad)
                 compute.set_uniform(program, "write_empty", int(start == 0))
                 program.run(group_x=-(-width // RESOLVE_LOCAL[0]),
-                            group_y=-(-rows // RESOLVE_LOCAL[1]))
+                            group_y=-(-rows // RESOLVE_LOCAL[1]), group_z=len(items))
             ctx.mgl.memory_barrier()
             for buffer, out in zip(outputs, (rast, rast_db)):
-                buffer.read_into(out[b, first_row:first_row + rows], size=nbytes)
+                buffer.read_into(out[first_item:last_item, first_row:first_row + rows],
+                                 size=nbytes)
 
-    def _record_texture(self, part: np.ndarray):
-        """The context's record texture holding ``part`` (whole rows of records) from row 0."""
+    def _upload_records(self, items, start: int, count: int) -> tuple:
+        """Records start .. start + count - 1 (whole rows) of each of ``items`` into the
+        context's record texture, one after the other, bound to texture unit 0; the first
+        row of each."""
         ctx = self.ctx
-        rows = len(part) // self._per_row
         width = self._per_row * RECORD_VEC4S
+        parts = [self._records[b][start:start + count] for b in items]
+        heights = [len(part) // self._per_row for part in parts]
+        rows = max(1, sum(heights))
         texture = _RECORD_TEXTURES.get(ctx)
         if texture is None or texture.width != width or texture.height < rows:
             if texture is not None:
@@ -255,8 +285,14 @@ class _Forward:
                                                   1 << (rows - 1).bit_length())), 4, dtype="f4")
             texture.filter = (ctx.mgl.NEAREST, ctx.mgl.NEAREST)
             _RECORD_TEXTURES[ctx] = texture
-        texture.write(memoryview(part).cast("B"), viewport=(0, 0, width, rows))
-        return texture
+        first_rows, row = [], 0
+        for part, height in zip(parts, heights):
+            first_rows.append(row)
+            if height:
+                texture.write(memoryview(part).cast("B"), viewport=(0, row, width, height))
+            row += height
+        texture.use(location=0)
+        return tuple(first_rows)
 
     def draw(self, b, rast, rast_db, prev_depth=None):
         """Item b into ``rast``, ``rast_db`` (``prev_depth``: the peeler's texture)."""
@@ -275,8 +311,9 @@ class _Forward:
         with ctx:
             targets = pipeline.render_many(
                 ctx, [self.spec(b, prev_depth) for b in items], (self.height, self.width))
-            for b, target in zip(items, targets):
-                self._resolve(b, target, rast, rast_db)
+            slots = dict(zip(items, targets))
+            for group in self._groups(items):
+                self._resolve(group, [slots[b] for b in group], rast, rast_db)
             error = ctx.mgl.error
         if error != "GL_NO_ERROR":
             raise GLError(error, "rasterizing (glraster.diff)")

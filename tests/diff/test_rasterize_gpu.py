@@ -290,10 +290,14 @@ def test_range_batch_equals_separate_calls_with_ids_into_the_whole_tri(ctx):
     assert not rast[3].any() and not db[3].any()
 
 
-def test_host_culling_changes_no_bit(ctx, monkeypatch):
+@pytest.mark.parametrize("small", [False, True])
+def test_host_culling_changes_no_bit(ctx, monkeypatch, small):
     """An item whose triangles are half off-screen is drawn culled (ids remapped by the
-    resolve pass), one with few dropped is drawn whole: both equal the unculled draw."""
+    resolve pass), one with few dropped is drawn whole: both equal the unculled draw, also
+    as small images resolved by one dispatch together, and each equals its own call."""
     pos, tri, res = _scene("icosphere")
+    if small:
+        res = (40, 56)
     pos = np.asarray(pos, np.float32)
     tri = np.asarray(tri, np.int32)
     shifted = pos.copy()
@@ -308,6 +312,11 @@ def test_host_culling_changes_no_bit(ctx, monkeypatch):
     assert (culled[0][1, ..., 3] > 0).any()
     for a, b in zip(culled, whole):
         np.testing.assert_array_equal(a.view(np.uint32), b.view(np.uint32))
+    monkeypatch.undo()
+    for b in range(2):
+        alone = forward(batch[b], tri, res, ctx=ctx)[:2]
+        for a, one in zip(culled, alone):
+            np.testing.assert_array_equal(a[b].view(np.uint32), one[0].view(np.uint32))
 
 
 def test_outputs_split_over_storage_blocks_are_the_same_bits(ctx, monkeypatch):
