@@ -15,8 +15,13 @@ by :meth:`RASTERIZE.check <glraster.diff.op.Op.check>` and are not checked again
 - ``rast_db`` (B, H, W, 4) float32: (du/dx, du/dy, dv/dx, dv/dy) at the pixel centre, per
   window pixel, 0 on empty pixels; (B, H, W, 0) with ``grad_db=False``.
 
-Everything is computed in the fragment shader (shaders/diff/rasterize.frag) from a
-per-triangle record set up on the host in float64, the "homogeneous" method's
+Two passes per image. The raster pass (shaders/diff/rasterize.frag), an indexed draw
+through the one draw pipeline (:func:`glraster.gpu.pipeline.render_many`,
+``Draw.indexed``: each shared vertex shaded once), takes coverage, the depth test (LESS on
+a 32-bit float depth buffer, ties keep the earlier triangle) and the triangle of each pixel
+from the driver, and writes only that triangle's number. The resolve pass
+(shaders/diff/rasterize.comp), one compute invocation per pixel, then computes everything
+else from a per-triangle record set up on the host in float64, the "homogeneous" method's
 (:mod:`glraster.gpu.homogeneous`): with the edge functions e_i = A_i x + B_i y + C_i (rows
 of adj(M), M = [[X_j], [Y_j], [w_j]], X_j = (x_j + w_j) W/2, Y_j = (y_j + w_j) H/2),
 s_i = e_i / det(M), S = sum_j s_j and b_i = s_i / S,
@@ -25,9 +30,10 @@ s_i = e_i / det(M), S = sum_j s_j and b_i = s_i / S,
 
 the exact derivative at the centre (not a 2x2-quad difference such as dFdx). The
 barycentrics are evaluated compensated, so their error does not grow with the distance
-from the framebuffer origin. Coverage, the depth test (LESS on a 32-bit float depth
-buffer, ties keep the earlier triangle) and triangle ids come from the driver, through the
-one draw pipeline (:func:`glraster.gpu.pipeline.draw`).
+from the framebuffer origin. Evaluating each covered pixel once there, instead of every
+fragment that passes the depth test in the driver's partly covered 4x4 blocks, costs 30%
+less for a 30k-triangle mesh at 256² (docs/performance.md); the values are the same
+operations on the same inputs, so the same bits.
 
 Batches (the B axis): ``pos`` (B, V, 4) draws ``tri`` over each ``pos[b]`` (instanced
 mode); ``pos`` (V, 4) with ``ranges`` (B, 2) draws ``tri[first:first + count]`` for each
@@ -41,17 +47,18 @@ per pixel (shaders/diff/backward_rasterize.comp), summed per vertex by one of th
 accumulations of :mod:`glraster.diff.compute`.
 
 :class:`DepthPeeler` gives successive depth layers: each keeps, per pixel, the nearest
-surface strictly behind the previous layer's z/w (the fragment shader samples the previous
-layer's z/w and discards fragments at or in front of it).
+surface strictly behind the previous layer's z/w (the fragment shader evaluates z/w from the record, samples the previous layer's z/w and discards
+fragments at or in front of it).
 """
 
 from __future__ import annotations
 
 import functools
+import weakref
 
 import numpy as np
 
-from glraster.errors import ArgumentError
+from glraster.errors import ArgumentError, GLError
 from glraster import validate
 from glraster.diff import compute, layout
 from glraster.diff.saved import RasterizeSaved
@@ -66,11 +73,29 @@ __all__ = ["DepthPeeler", "RasterizeSaved", "backward", "backward_pixels", "forw
 
 VERT = "diff/rasterize.vert"
 FRAG = "diff/rasterize.frag"
+RESOLVE = "diff/rasterize.comp"
 BACKWARD = "diff/backward_rasterize.comp"
-RECORD_STRIDE = 28  # floats per triangle record, see shaders/diff/rasterize.frag
+RECORD_STRIDE = 28  # floats per triangle record, see shaders/diff/rasterize_record.glsl
+RESOLVE_LOCAL = (8, 8)  # the resolve pass's work group in pixels (rasterize.comp's)
+RECORD_VEC4S = RECORD_STRIDE // 4
+# The resolve pass reads the records from an RGBA32F texture (rasterize_record.glsl says
+# why): RECORDS_PER_ROW records a row (14336 texels, within GL 4.5's minimum
+# GL_MAX_TEXTURE_SIZE of 16384), at most RECORD_TEXTURE_ROWS rows (2M records, 224 MiB)
+# a dispatch.
+RECORDS_PER_ROW = 2048
+RECORD_TEXTURE_ROWS = 1024
+
+# Context -> its record texture (grown by doubling, like the storage buffers)
+_RECORD_TEXTURES = weakref.WeakKeyDictionary()
 
 # Host-side culling below this many triangles costs more than the setup records it saves.
 CULL_MIN_TRIANGLES = 256
+# A triangle the cull drops produces no fragment when drawn (its tests are conservative),
+# so the culled list (a gather of tri, and ids remapped in the shader) is used only when it
+# drops at least this fraction of an item's triangles: dropping 0.8% of the 30,720 of the
+# envmap scene saved less than the gather cost (measured: a forward 1.5 to 8 ms CPU
+# faster without it, of 45 to 57).
+CULL_MIN_DROPPED = 0.25
 
 
 @functools.lru_cache(maxsize=8)
@@ -92,7 +117,7 @@ def setup_records(pos: np.ndarray, tri: np.ndarray, resolution, out=None) -> np.
 
 
 class _Forward:
-    """Per-item triangles (culled) and setup records, and the draws of one forward on
+    """Per-item triangles (culled) and setup records, and the two passes of one forward on
     checked inputs (the peeler draws the same items once per layer)."""
 
     def __init__(self, pos, tri, resolution, ranges, grad_db, space, ctx):
@@ -108,12 +133,25 @@ class _Forward:
                                 "the driver's shader storage block limit of "
                                 f"{self.ctx.max_storage_block_size} bytes")
         self.batch = layout.batch_size(pos, ranges)
-        self.colors = {"rast": (4, "f4")}
-        if grad_db:
-            self.colors["rast_db"] = (4, "f4")
+        self.colors = {"drawn": (1, "i4")}
         self._items = [self._item(b) for b in range(self.batch)]
-        self._records = [setup_records(pos, tri, (self.height, self.width))
-                         for pos, tri, _, _ in self._items]
+        self._per_row = RECORDS_PER_ROW
+        self._records = [self._setup(pos, tri) for pos, tri, _, _ in self._items]
+        defines = {"RECORDS_PER_ROW": self._per_row}
+        if grad_db:
+            defines["OUT_RAST_DB"] = 1
+        if space == "screen":
+            defines["SPACE_SCREEN"] = 1
+        self._resolve_defines = defines
+
+    def _setup(self, pos, tri) -> np.ndarray:
+        """The records of ``tri`` in whole rows of the record texture: (R RECORDS_PER_ROW,
+        RECORD_STRIDE) float32, the first len(tri) set (:func:`setup_records`), the rest
+        never read."""
+        rows = -(-len(tri) // self._per_row)
+        records = np.empty((rows * self._per_row, RECORD_STRIDE), np.float32)
+        setup_records(pos, tri, (self.height, self.width), out=records[:len(tri)])
+        return records
 
     def _item(self, b):
         """(pos, drawn tri, caller ids of the drawn triangles or None, id_base) of item b."""
@@ -129,31 +167,24 @@ class _Forward:
             culling = _cull.cull(pos, tri, (self.height, self.width),
                                  llvmpipe=self.ctx.is_llvmpipe,
                                  subpixel_bits=self.ctx.subpixel_bits)
-            if not culling.all_kept:
+            if len(culling.kept) <= (1.0 - CULL_MIN_DROPPED) * len(tri):
                 kept = (culling.kept + first).astype(np.int32)
                 tri = tri[culling.kept]
         return pos, np.ascontiguousarray(tri), kept, first
 
     def spec(self, b, prev_depth=None) -> tuple[pipeline.Draw, np.ndarray, np.ndarray]:
-        pos, tri, kept, first = self._items[b]
-        defines = pipeline.output_defines(self.colors)
-        if self.space == "screen":
-            defines["SPACE_SCREEN"] = 1
-        if kept is not None:
-            defines["REMAP"] = 1
-        if prev_depth is not None:
-            defines["PEEL"] = 1
+        """The raster pass of item b: (Draw, pos, drawn tri)."""
+        pos, tri, _, _ = self._items[b]
+        defines = {"PEEL": 1} if prev_depth is not None else {}
         with self.ctx:
             program, vao = self.ctx.program(_shader_path(VERT), _shader_path(FRAG), defines)
-        per_triangle = {}
-        if len(tri):
-            per_triangle[2] = self._records[b]
-        if kept is not None:
-            per_triangle[3] = kept
-        uniforms = {"id_base": first} if "id_base" in program else {}
-        textures = {"prev_depth": prev_depth} if prev_depth is not None else {}
+        per_triangle, textures = {}, {}
+        if prev_depth is not None:
+            textures["prev_depth"] = prev_depth
+            if len(tri):
+                per_triangle[2] = self._records[b][:len(tri)]
         spec = pipeline.Draw(program, vao, self.colors, per_triangle=per_triangle,
-                             uniforms=uniforms, textures=textures)
+                             textures=textures, indexed=True)
         return spec, pos, tri
 
     def new_outputs(self):
@@ -162,26 +193,130 @@ class _Forward:
         rast_db = np.empty(shape if self.grad_db else shape[:-1] + (0,), np.float32)
         return rast, rast_db
 
-    def _out(self, b, rast, rast_db) -> dict:
-        out = {"rast": rast[b]}
-        if self.grad_db:
-            out["rast_db"] = rast_db[b]
-        return out
+    def _groups(self, items) -> list:
+        """``items`` (consecutive) in the groups of one resolve dispatch each: all of them
+        when each has one record texture's worth of records, together they fit one record
+        texture and their outputs one storage block, else one by one."""
+        per_block = self._per_row * RECORD_TEXTURE_ROWS
+        tris = [len(self._items[b][1]) for b in items]
+        rows = sum(-(-t // self._per_row) for t in tris)
+        nbytes = 16 * len(items) * self.height * self.width
+        if (len(items) > 1 and max(tris) <= per_block and rows <= RECORD_TEXTURE_ROWS
+                and nbytes <= self.ctx.max_storage_block_size):
+            return [list(items)]
+        return [[b] for b in items]
+
+    def _resolve(self, items, targets, rast, rast_db):
+        """The resolve pass of consecutive ``items`` (one of :meth:`_groups`) from their
+        raster passes' ``targets`` into their slices of ``rast`` (and ``rast_db``): bands
+        of rows whose outputs fit one storage block, each dispatched once per record
+        texture's worth of records (the first also writes the empty pixels), then read
+        back. More than one item: one band, one texture, one dispatch."""
+        ctx, width, height = self.ctx, self.width, self.height
+        parts = [self._items[b] for b in items]
+        if len(items) == 1 and not len(parts[0][1]):
+            rast[items[0]] = 0.0
+            if self.grad_db:
+                rast_db[items[0]] = 0.0
+            return
+        defines = dict(self._resolve_defines)
+        remap = any(kept is not None for _, _, kept, _ in parts)
+        if remap:
+            defines["REMAP"] = 1
+        program = ctx.compute_program(_shader_path(RESOLVE), defines)
+        for unit, target in enumerate(targets):
+            target.attachments[target.color["drawn"]].bind_to_image(unit, read=True,
+                                                                    write=False)
+        pad = (0,) * (FRAMEBUFFER_SLOTS - len(items))
+        compute.set_uniform(program, "id_base", tuple(first for *_, first in parts) + pad)
+        compute.set_uniform(program, "records", 0)
+        per_block = self._per_row * RECORD_TEXTURE_ROWS
+        blocks = range(0, max(len(tri) for _, tri, _, _ in parts), per_block)
+        band = height if len(items) > 1 else max(1, ctx.max_storage_block_size // (16 * width))
+        first_item, last_item = items[0], items[-1] + 1
+        for first_row in range(0, height, band):
+            rows = min(band, height - first_row)
+            nbytes = 16 * len(items) * rows * width
+            outputs = [ctx.scratch_buffer("rasterize.rast", nbytes)]
+            if self.grad_db:
+                outputs.append(ctx.scratch_buffer("rasterize.rast_db", nbytes))
+            for binding, buffer in enumerate(outputs, 3):
+                buffer.bind_to_storage_buffer(binding)
+            compute.set_uniform(program, "size", (width, rows))
+            compute.set_uniform(program, "first_row", first_row)
+            for start in blocks:
+                counts = tuple(min(per_block, max(len(tri) - start, 0))
+                               for _, tri, _, _ in parts)
+                if first_row == 0 or len(blocks) > 1:
+                    record_rows = self._upload_records(items, start, per_block)
+                    compute.set_uniform(program, "record_row", record_rows + pad)
+                if remap:
+                    ids = [kept[start:start + count] if kept is not None
+                           else np.arange(first + start, first + start + count, dtype=np.int32)
+                           for (_, _, kept, first), count in zip(parts, counts)]
+                    ctx.storage_buffer("rasterize.ids", np.concatenate(ids)) \
+                        .bind_to_storage_buffer(5)
+                    compute.set_uniform(program, "ids_first",
+                                        tuple(np.cumsum((0,) + counts[:-1]).tolist()) + pad)
+                compute.set_uniform(program, "record_first", start)
+                compute.set_uniform(program, "record_count", counts + pad)
+                compute.set_uniform(program, "write_empty", int(start == 0))
+                program.run(group_x=-(-width // RESOLVE_LOCAL[0]),
+                            group_y=-(-rows // RESOLVE_LOCAL[1]), group_z=len(items))
+            ctx.mgl.memory_barrier()
+            for buffer, out in zip(outputs, (rast, rast_db)):
+                buffer.read_into(out[first_item:last_item, first_row:first_row + rows],
+                                 size=nbytes)
+
+    def _upload_records(self, items, start: int, count: int) -> tuple:
+        """Records start .. start + count - 1 (whole rows) of each of ``items`` into the
+        context's record texture, one after the other, bound to texture unit 0; the first
+        row of each."""
+        ctx = self.ctx
+        width = self._per_row * RECORD_VEC4S
+        parts = [self._records[b][start:start + count] for b in items]
+        heights = [len(part) // self._per_row for part in parts]
+        rows = max(1, sum(heights))
+        texture = _RECORD_TEXTURES.get(ctx)
+        if texture is None or texture.width != width or texture.height < rows:
+            if texture is not None:
+                texture.release()
+            texture = ctx.mgl.texture((width, min(RECORD_TEXTURE_ROWS,
+                                                  1 << (rows - 1).bit_length())), 4, dtype="f4")
+            texture.filter = (ctx.mgl.NEAREST, ctx.mgl.NEAREST)
+            _RECORD_TEXTURES[ctx] = texture
+        first_rows, row = [], 0
+        for part, height in zip(parts, heights):
+            first_rows.append(row)
+            if height:
+                texture.write(memoryview(part).cast("B"), viewport=(0, row, width, height))
+            row += height
+        texture.use(location=0)
+        return tuple(first_rows)
 
     def draw(self, b, rast, rast_db, prev_depth=None):
-        spec, pos, tri = self.spec(b, prev_depth)
-        pipeline.draw(self.ctx, spec, pos, tri, (self.height, self.width),
-                      out=self._out(b, rast, rast_db), during="rasterizing (glraster.diff)")
+        """Item b into ``rast``, ``rast_db`` (``prev_depth``: the peeler's texture)."""
+        self._passes([b], rast, rast_db, prev_depth)
 
     def draw_all(self, rast, rast_db):
-        """Every item into ``rast``, ``rast_db``: small images a few at a time, each group
-        drawn before it is read back (:func:`glraster.gpu.pipeline.draw_many`)."""
+        """Every item into ``rast``, ``rast_db``: small images a few at a time, each group's
+        raster passes drawn before their resolve passes read them (the driver renders one
+        framebuffer while the next draw is set up)."""
         group = max(1, min(FRAMEBUFFER_SLOTS, SLOT_PIXELS // (self.height * self.width)))
         for first in range(0, self.batch, group):
-            draws = [(*self.spec(b), self._out(b, rast, rast_db))
-                     for b in range(first, min(first + group, self.batch))]
-            pipeline.draw_many(self.ctx, draws, (self.height, self.width),
-                               during="rasterizing (glraster.diff)")
+            self._passes(range(first, min(first + group, self.batch)), rast, rast_db)
+
+    def _passes(self, items, rast, rast_db, prev_depth=None):
+        ctx = self.ctx
+        with ctx:
+            targets = pipeline.render_many(
+                ctx, [self.spec(b, prev_depth) for b in items], (self.height, self.width))
+            slots = dict(zip(items, targets))
+            for group in self._groups(items):
+                self._resolve(group, [slots[b] for b in group], rast, rast_db)
+            error = ctx.mgl.error
+        if error != "GL_NO_ERROR":
+            raise GLError(error, "rasterizing (glraster.diff)")
 
     def saved(self, rast) -> RasterizeSaved:
         return RasterizeSaved(self.pos, self.tri, (self.height, self.width), self.ranges,

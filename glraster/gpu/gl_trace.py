@@ -2,10 +2,10 @@
 
 A :class:`Recorder` patches the moderngl methods through which glraster talks to the
 driver (buffer uploads, clears, bindings and readbacks; compute dispatches and memory
-barriers; framebuffer use, clear and readback; draws; texture uploads and bindings;
-uniform writes; enable/disable) for as long as it is active, and appends every call, with
-the very objects and arguments it got, to the current *segment* (named with
-:meth:`Recorder.segment`; calls outside any segment go to ``"(outside)"``).
+barriers; framebuffer use, clear and readback; draws; texture uploads and bindings to
+texture and image units; uniform writes; enable/disable) for as long as it is active, and
+appends every call, with the very objects and arguments it got, to the current *segment*
+(named with :meth:`Recorder.segment`; calls outside any segment go to ``"(outside)"``).
 
 :meth:`Trace.replay` runs a segment's calls again without anything around them: no
 Python wrappers, no validation, no allocation, the same programs and buffers (compiled
@@ -49,6 +49,7 @@ _PATCHED = (
     (moderngl.Framebuffer, "read_into", "readback"),
     (moderngl.VertexArray, "render", "gl"),
     (moderngl.Texture, "use", "gl"),
+    (moderngl.Texture, "bind_to_image", "gl"),
     (moderngl.Texture, "write", "upload"),
 )
 

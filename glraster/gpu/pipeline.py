@@ -1,14 +1,24 @@
 """The one draw pipeline: render targets, batched draws, readback and id decoding.
 
-:func:`draw` renders T triangles with ``glDrawArrays(3 T)`` into float / integer color
-targets and a 32-bit float depth buffer, and reads back what was asked. Vertex k is
-corner k % 3 of triangle k / 3, and the shaders get its clip position in one of two ways:
+:func:`draw` renders T triangles into float / integer color targets and a 32-bit float
+depth buffer, and reads back what was asked. The shaders get the clip positions in one of
+three ways:
 
-* storage buffers (GLSL 4.50 shaders): positions at binding 0 and indices at binding 1,
-  pulled by ``gl_VertexID``; optional per-triangle buffers at bindings 2, 3, ...;
+* storage buffers (GLSL 4.50 shaders), ``glDrawArrays(3 T)``: vertex k is corner k % 3 of
+  triangle k / 3, positions at binding 0 and indices at binding 1 pulled by
+  ``gl_VertexID``; optional per-triangle buffers at bindings 2, 3, ...;
+* indexed (``Draw.indexed``, GLSL 4.50 shaders that need no corner number):
+  ``glDrawElements(3 T)`` with ``tri`` as the index buffer and the (V, 4) positions as the
+  vertex attribute ``a_position``, per-triangle buffers as above. The driver's vertex
+  cache then shades a vertex shared by neighbouring triangles once, where the pulled path
+  shades all 3 T corners (llvmpipe's draw module, which runs the vertex stage on one
+  thread: measured 11% less time for a 30k-triangle mesh at 256², docs/performance.md);
 * vertex attributes (GL 3.3, ``Draw.vertex_input``): the host de-indexes the triangles
   into a vertex buffer of 3 T positions, the attribute ``a_position``, beside the vertex
   numbers k (``a_vertex``; see :meth:`Context.attribute_array`).
+
+The triangles and the fragments they produce are the same on every path (gl_PrimitiveID
+counts the triangles of a draw call in order, GL 4.5 section 11.1.3.9).
 
 Multisampling (``Draw.samples`` S > 1): the targets are multisample textures, depth too,
 and every sample is read back exactly by a resolve pass (``raster/resolve.frag``: one
@@ -21,6 +31,7 @@ draw through it.
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -53,6 +64,9 @@ class Draw:
     vertex_input : positions as the vertex attribute ``a_position`` of a de-indexed vertex
                    buffer (GL 3.3 shaders, e.g. ``raster33/``) instead of storage buffers;
                    ``per_triangle`` must then be empty
+    indexed      : ``glDrawElements`` over ``tri`` with positions as the vertex attribute
+                   ``a_position`` (the program's vao is not used; gl_VertexID is the
+                   vertex's index, there is no corner number)
     samples      : samples per pixel (1: single-sample targets, today's path); > 1 needs a
                    count the context offers (``Context.sample_counts``)
     depth_clear, depth_func : the depth buffer's clear value and the test ("<": LESS)
@@ -68,6 +82,7 @@ class Draw:
     depth_test: bool = True
     textures: dict = field(default_factory=dict)
     vertex_input: bool = False
+    indexed: bool = False
     samples: int = 1
     depth_clear: float = 1.0
     depth_func: str = "<"
@@ -110,14 +125,24 @@ def draw_many(ctx, draws, resolution, *, during: str = "rasterizing") -> list[di
     is bound). The same draws, so the same pixels as :func:`draw`. At most
     :data:`glraster.gpu.context.FRAMEBUFFER_SLOTS` draws. Returns :func:`draw`'s dicts."""
     with ctx:
-        targets = [_render(ctx, spec, pos, tri, resolution, slot)
-                   for slot, (spec, pos, tri, _) in enumerate(draws)]
+        targets = render_many(ctx, [draw[:3] for draw in draws], resolution)
         values = [_read(spec, target, resolution, out or {})
                   for (spec, _, _, out), target in zip(draws, targets)]
         error = ctx.mgl.error
     if error != "GL_NO_ERROR":
         raise GLError(error, during)
     return values
+
+
+def render_many(ctx, draws, resolution) -> list:
+    """Draw each ``(spec, pos, tri)`` of ``draws`` (single-sample specs, at most
+    :data:`glraster.gpu.context.FRAMEBUFFER_SLOTS`) into framebuffer slot 0, 1, ... and
+    read nothing back: the :class:`glraster.gpu.context.Targets` of each, whose textures
+    later GL work of the caller reads (they hold the draw until the slot is drawn again).
+    The caller checks for GL errors."""
+    with ctx:
+        return [_render(ctx, spec, pos, tri, resolution, slot)
+                for slot, (spec, pos, tri) in enumerate(draws)]
 
 
 def _render(ctx, spec: Draw, pos, tri, resolution, slot: int):
@@ -170,8 +195,12 @@ def _draw_batches(ctx, spec: Draw, pos, tri, tag: str = "") -> None:
                              "(OpenGL 4.5), not vertex_input")
         batch = VERTEX_BATCH_TRIANGLES
     else:
-        ctx.storage_buffer("positions" + tag, pos).bind_to_storage_buffer(0)
-        batch = ctx.max_storage_block_size // (3 * tri.itemsize)
+        positions = ctx.storage_buffer("positions" + tag, pos)
+        if spec.indexed:
+            batch = len(tri)  # the index buffer is no storage block
+        else:
+            positions.bind_to_storage_buffer(0)
+            batch = ctx.max_storage_block_size // (3 * tri.itemsize)
         for array in spec.per_triangle.values():
             batch = min(batch, ctx.max_storage_block_size // max(array[0].nbytes, 1))
     if spec.cull_backfaces:
@@ -191,8 +220,13 @@ def _draw_batches(ctx, spec: Draw, pos, tri, tag: str = "") -> None:
                 corners = pos[part.reshape(-1)]  # (3 t, 4): corner k of triangle j at 3 j + k
                 vao = ctx.attribute_array(spec.program, "vertices" + suffix, corners)
             else:
-                vao = spec.vao
-                ctx.storage_buffer("indices" + suffix, part).bind_to_storage_buffer(1)
+                indices = ctx.storage_buffer("indices" + suffix, part)
+                if spec.indexed:
+                    vao = _indexed_array(ctx, spec.program, "indices" + suffix, positions,
+                                         indices)
+                else:
+                    vao = spec.vao
+                    indices.bind_to_storage_buffer(1)
                 for binding, array in spec.per_triangle.items():
                     ctx.storage_buffer(f"binding{binding}{suffix}", array[base:base + batch]) \
                         .bind_to_storage_buffer(binding)
@@ -206,6 +240,28 @@ def _draw_batches(ctx, spec: Draw, pos, tri, tag: str = "") -> None:
             mgl.enable(mgl.DEPTH_TEST)
         if spec.depth_func != "<":
             mgl.depth_func = "<"
+
+
+# Context -> {(program glo, index buffer name): (program, positions, indices, vao)}
+_INDEXED_ARRAYS = weakref.WeakKeyDictionary()
+
+
+def _indexed_array(ctx, program, name: str, positions, indices):
+    """The vertex array drawing ``program`` with ``a_position`` from the buffer
+    ``positions`` ((V, 4) float32) and the uint32 index buffer ``indices`` (a storage
+    buffer of ``ctx``; int32 indices >= 0 have the same bits). Cached per program and
+    index buffer name, remade when either buffer was replaced (grown)."""
+    cache = _INDEXED_ARRAYS.setdefault(ctx, {})
+    key = (program.glo, name)
+    cached = cache.get(key)
+    if cached is None or cached[0] is not program or cached[1] is not positions \
+            or cached[2] is not indices:
+        if cached is not None and cached[0] is program:
+            cached[3].release()
+        vao = ctx.mgl.vertex_array(program, [(positions, "4f", "a_position")],
+                                   index_buffer=indices, index_element_size=4)
+        cache[key] = cached = (program, positions, indices, vao)
+    return cached[3]
 
 
 def _read_samples(ctx, spec: Draw, targets, resolution) -> dict:

@@ -1,12 +1,11 @@
 #version 450 core
-// Vertex pulling for the differentiable rasterize (glraster/diff/rasterize.py).
-// glDrawArrays(GL_TRIANGLES, 0, 3 T): vertex k is corner k % 3 of triangle k / 3. The
-// fragment shader computes everything from per-triangle records fetched by gl_PrimitiveID,
-// so there are no varyings.
+// The differentiable rasterize's vertex stage (glraster/diff/rasterize.py): an indexed draw
+// (glDrawElements over tri, glraster.gpu.pipeline's Draw.indexed), so the driver's vertex
+// cache shades a vertex shared by neighbouring triangles once. The fragment shader computes
+// everything from per-triangle records fetched by gl_PrimitiveID: there are no varyings.
 
-layout(std430, binding = 0) readonly buffer Positions { vec4 positions[]; };  // (V, 4) clip space
-layout(std430, binding = 1) readonly buffer Indices { int indices[]; };       // (T, 3) flattened
+layout(location = 0) in vec4 a_position;  // clip space, pos[tri[t, j]]
 
 void main() {
-    gl_Position = positions[indices[gl_VertexID]];
+    gl_Position = a_position;
 }

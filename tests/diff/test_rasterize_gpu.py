@@ -235,16 +235,18 @@ def test_id_encoding_is_exact_and_monotone_above_2_24():
 
 
 def test_shader_encodes_ids_beyond_2_24_as_layout_does(ctx):
-    """The fragment shader's encode_id, driven with a draw whose first triangle has a
-    large index (the id_base uniform the range mode sets), writes encode_ids's bits."""
+    """The resolve pass's encode_id, driven with an item whose first triangle has a large
+    index (the id_base uniform the range mode sets), writes encode_ids's bits."""
     pos, tri = synthetic.random_soup(40, seed=2)
     res = (64, 64)
     job = dr._Forward(np.asarray(pos, np.float32), np.asarray(tri, np.int32), res, None, False,
                       "persp", ctx)
     for first in (2**24 - 20, 2**24 + 5, 2**27 + 3, 700_000_000):
-        spec, p, t = job.spec(0)
-        spec.uniforms["id_base"] = first
-        values = pipeline.draw(ctx, spec, p, t, res)["rast"]
+        p, t, kept, _ = job._items[0]
+        job._items[0] = (p, t, kept, first)
+        rast, rast_db = job.new_outputs()
+        job.draw(0, rast, rast_db)
+        values = rast[0]
         plain, _, _ = forward(pos, tri, res, ctx=ctx, grad_db=False)
         index = decode_ids(plain[0, ..., 3])
         want = np.where(index >= 0, encode_ids(np.where(index >= 0, index + first, 0)), 0)
@@ -286,6 +288,61 @@ def test_range_batch_equals_separate_calls_with_ids_into_the_whole_tri(ctx):
         np.testing.assert_array_equal(rast[b, ..., :3], r1[0, ..., :3])
         np.testing.assert_array_equal(db[b], d1[0])
     assert not rast[3].any() and not db[3].any()
+
+
+@pytest.mark.parametrize("small", [False, True])
+def test_host_culling_changes_no_bit(ctx, monkeypatch, small):
+    """An item whose triangles are half off-screen is drawn culled (ids remapped by the
+    resolve pass), one with few dropped is drawn whole: both equal the unculled draw, also
+    as small images resolved by one dispatch together, and each equals its own call."""
+    pos, tri, res = _scene("icosphere")
+    if small:
+        res = (40, 56)
+    pos = np.asarray(pos, np.float32)
+    tri = np.asarray(tri, np.int32)
+    shifted = pos.copy()
+    shifted[:, 0] += 0.8 * shifted[:, 3]
+    batch = np.stack([pos, shifted])
+    kept = [len(dr._Forward(batch, tri, res, None, True, "persp", ctx)._items[b][1])
+            for b in range(2)]
+    assert kept[0] > 0.75 * len(tri) and kept[1] < 0.75 * len(tri)
+    culled = forward(batch, tri, res, ctx=ctx)[:2]
+    monkeypatch.setattr(dr, "CULL_MIN_TRIANGLES", len(tri) + 1)
+    whole = forward(batch, tri, res, ctx=ctx)[:2]
+    assert (culled[0][1, ..., 3] > 0).any()
+    for a, b in zip(culled, whole):
+        np.testing.assert_array_equal(a.view(np.uint32), b.view(np.uint32))
+    monkeypatch.undo()
+    for b in range(2):
+        alone = forward(batch[b], tri, res, ctx=ctx)[:2]
+        for a, one in zip(culled, alone):
+            np.testing.assert_array_equal(a[b].view(np.uint32), one[0].view(np.uint32))
+
+
+def test_outputs_split_over_storage_blocks_are_the_same_bits(ctx, monkeypatch):
+    """Record textures of 256 records and a driver storage block limit below the records
+    and the output rows: the resolve pass runs per texture of records and per band of
+    rows, the peeler's raster pass per batch of records, and every layer is bit for bit
+    the one-block result."""
+    pos, tri, res = _scene("icosphere")
+    pos = np.asarray(pos, np.float32)
+    tri = np.asarray(tri, np.int32)
+    whole = [forward(pos, tri, res, ctx=ctx, space=space)[:2] for space in ("persp", "screen")]
+    layers = peel(pos, tri, res, 2, ctx)
+    limit = max(pos.nbytes, 16 * res[1] * 7)  # bands of 7 rows or so
+    assert limit < len(tri) * dr.RECORD_STRIDE * 4 // 2 and limit < 16 * res[1] * res[0] // 2
+    monkeypatch.setattr(ctx, "max_storage_block_size", limit)
+    monkeypatch.setattr(dr, "RECORDS_PER_ROW", 4)
+    monkeypatch.setattr(dr, "RECORD_TEXTURE_ROWS", 64)
+    assert len(tri) > 3 * 4 * 64
+    for space, (rast, db) in zip(("persp", "screen"), whole):
+        split_rast, split_db, _ = forward(pos, tri, res, ctx=ctx, space=space)
+        assert (rast[..., 3] > 0).any()
+        np.testing.assert_array_equal(split_rast.view(np.uint32), rast.view(np.uint32))
+        np.testing.assert_array_equal(split_db.view(np.uint32), db.view(np.uint32))
+    for (rast, db, _), (split_rast, split_db, _) in zip(layers, peel(pos, tri, res, 2, ctx)):
+        np.testing.assert_array_equal(split_rast.view(np.uint32), rast.view(np.uint32))
+        np.testing.assert_array_equal(split_db.view(np.uint32), db.view(np.uint32))
 
 
 # --------------------------------------------------------------------------- depth peeling
