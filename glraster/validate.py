@@ -257,7 +257,8 @@ def resolution(res, max_size: int | None = None) -> tuple[int, int]:
         raise ArgumentError("resolution", f"resolution must be (height, width), "
                                           f"got {res!r}") from None
     for name, value in (("height", height), ("width", width)):
-        if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
+        if type(value) is not int and (isinstance(value, (bool, np.bool_))  # (int: fast)
+                                       or not isinstance(value, numbers.Integral)):
             raise ArgumentError("resolution", f"resolution {name} must be an integer, "
                                               f"got {value!r}")
         if value <= 0:
