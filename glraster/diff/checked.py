@@ -22,12 +22,12 @@ held weakly, so a raster whose tensor was collected is never vouched for.
 
 from __future__ import annotations
 
-import ctypes
 import threading
 
 import numpy as np
 
 from glraster import validate
+from glraster.diff.address import address
 
 __all__ = ["declared", "finite_array", "made", "raster", "vouched"]
 
@@ -54,7 +54,7 @@ def _make_room(table: dict, owner_of) -> None:
             del table[key]
 
 
-class declared:  # noqa: N801 (used as a function: ``with declared(entries):``)
+class declared:  # (lower case: used as a function, ``with declared(entries):``)
     """Within the block (this thread), the arrays of ``entries`` are known by their key (a
     plain context manager: a generator-based one costs 3.5 us a call, run per op call)."""
 
@@ -71,21 +71,13 @@ class declared:  # noqa: N801 (used as a function: ``with declared(entries):``)
         _local.regions = self._previous
 
 
-def _region(arr: np.ndarray) -> tuple[int, int]:
-    """(address, nbytes) of the C-contiguous non-empty ``arr``, as :func:`declared` knows
-    regions (a ctypes view of a writable array: 0.8 us; ``ndarray.ctypes``: 3.6 us)."""
-    if arr.flags.writeable:
-        return ctypes.addressof(ctypes.c_char.from_buffer(arr)), arr.nbytes
-    return arr.ctypes.data, arr.nbytes
-
-
 def _made_from(rast: np.ndarray) -> int | None:
     """The triangle count of the declared raster ``rast`` was made from, or None when it
     is none (not declared, not made, or its owner collected)."""
     regions = getattr(_local, "regions", None)
     if not regions or not rast.flags.c_contiguous or not rast.nbytes:
         return None
-    key, _ = regions.get(_region(rast), (None, None))
+    key, _ = regions.get((address(rast), rast.nbytes), (None, None))
     got = _made.get(key)
     return got[1] if got is not None and got[0]() is not None else None
 
@@ -115,7 +107,7 @@ def finite_array(name: str, value, dtype) -> np.ndarray:
     declared_as = None
     if (regions and isinstance(value, np.ndarray) and value.dtype == dtype
             and value.flags.c_contiguous and value.nbytes):
-        declared_as = regions.get(_region(value))
+        declared_as = regions.get((address(value), value.nbytes))
         if declared_as is not None:
             owner = _finite.get(declared_as[0])
             if owner is not None and owner() is not None:
