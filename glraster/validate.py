@@ -29,6 +29,8 @@ from glraster.types import INTERPOLATIONS, OUTPUTS
 SPACES = ("persp", "screen")
 # dtype kinds (numpy.dtype.kind) of integers (signed, unsigned) and of real numbers
 INTEGER_KINDS, REAL_KINDS = "iu", "iuf"
+# the unsigned integer dtype of each integer itemsize (bytes), for :func:`triangles`
+_UNSIGNED = {size: np.dtype(f"u{size}") for size in (1, 2, 4, 8)}
 
 
 # --------------------------------------------------------------------------- arrays
@@ -112,6 +114,13 @@ def triangles(tri, num_vertices: int, of: str = "pos") -> np.ndarray:
         raise ArgumentError("tri", f"tri must have an integer dtype, got {arr.dtype}")
     if arr.ndim != 2 or arr.shape[1] != 3:
         raise ArgumentError("tri", f"tri must have shape (T, 3), got {arr.shape}")
+    # One reduction where the unsigned view's max decides: a negative n-bit index reads as
+    # 2^(n-1) or more (two's complement), so max < num_vertices <= 2^(n-1) means every
+    # index is valid (native byte order only: a swapped one would read other values).
+    size = arr.dtype.itemsize
+    if arr.dtype.isnative and num_vertices <= 2 ** (8 * size - 1) \
+            and int(arr.view(_UNSIGNED[size]).max()) < num_vertices:
+        return np.ascontiguousarray(arr, dtype=np.int32)
     low, high = int(arr.min()), int(arr.max())
     if low < 0:
         raise ArgumentError("tri", f"tri must hold indices >= 0, got {low}")
@@ -257,7 +266,8 @@ def resolution(res, max_size: int | None = None) -> tuple[int, int]:
         raise ArgumentError("resolution", f"resolution must be (height, width), "
                                           f"got {res!r}") from None
     for name, value in (("height", height), ("width", width)):
-        if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
+        if type(value) is not int and (isinstance(value, (bool, np.bool_))  # (int: fast)
+                                       or not isinstance(value, numbers.Integral)):
             raise ArgumentError("resolution", f"resolution {name} must be an integer, "
                                               f"got {value!r}")
         if value <= 0:

@@ -29,6 +29,8 @@ import weakref
 
 import numpy as np
 
+from glraster.diff.address import address
+
 __all__ = ["ENTRIES", "MAX_BYTES", "forget", "lookup", "remember"]
 
 ENTRIES = 8              # remembered calls per context
@@ -67,7 +69,7 @@ def _same(a, b) -> bool:
 
 def _same_memory(a: np.ndarray, b: np.ndarray) -> bool:
     # a view of the memory the entry holds (alive, unchanged by its stamp): the same bits
-    return a.ctypes.data == b.ctypes.data and a.strides == b.strides
+    return address(a) == address(b) and a.strides == b.strides
 
 
 def _bits(a: np.ndarray) -> np.ndarray:
