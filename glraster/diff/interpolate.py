@@ -18,9 +18,15 @@ shaders/diff/backward_interpolate.comp), :data:`glraster.diff.compute.RUN_PIXELS
 consecutive pixels per invocation (a triangle's corners read once per stretch of its pixels)
 and the attribute count a compile-time constant, dispatched in chunks by
 :mod:`glraster.diff.compute`; dL/d attr is summed per vertex by one of its accumulations.
+The gathered inputs (attributes, triangles, rast, rast_db and the incoming gradients) are
+read through buffer textures over their storage buffers (:func:`_bind_view`): on llvmpipe
+several times faster than storage-buffer loads at per-pixel addresses, the same floats.
 """
 
 from __future__ import annotations
+
+import ctypes
+import weakref
 
 import numpy as np
 
@@ -35,6 +41,57 @@ FORWARD = "diff/interpolate.comp"
 BACKWARD = "diff/backward_interpolate.comp"
 
 
+# Buffer textures (GL 4.6 section 8.9) over the passes' input buffers, on texture units
+# _TEXEL_UNIT + the unit of include/interpolate_views.glsl (no other pass samples there).
+_GL_TEXTURE_BUFFER, _GL_MAX_TEXTURE_BUFFER_SIZE = 0x8C2A, 0x8C2B
+_VIEW_FORMATS = {4: 0x8814, 2: 0x8230, 1: 0x822E}   # GL_RGBA32F, GL_RG32F, GL_R32F
+_GL_RGB32I = 0x8D83                                  # the triangles, 3 int32 a texel
+_TEXEL_UNIT = 16
+_UNIT_ATTR, _UNIT_TRI, _UNIT_RAST, _UNIT_RAST_DB, _UNIT_GRAD_OUT, _UNIT_GRAD_OUT_DA = range(6)
+# context -> ({unit: buffer texture name}, GL_MAX_TEXTURE_BUFFER_SIZE)
+_VIEWS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def _row_vec(num_attr: int) -> int:
+    """Floats per fetch of an attribute row: 4, 2 or 1, whichever divides ``num_attr``."""
+    return 4 if num_attr % 4 == 0 else (2 if num_attr % 2 == 0 else 1)
+
+
+def _bind_view(ctx: Context, unit: int, buffer, texels: int, fmt: int, what: str) -> None:
+    """Bind the first ``texels`` texels of ``buffer`` (of the sized format ``fmt``, 16-byte
+    ones at most) as a buffer texture on unit _TEXEL_UNIT + ``unit``: one texture object per
+    context and unit, pointed at the buffer on every call. Inside ``with ctx``."""
+    views = _VIEWS.get(ctx)
+    if views is None:
+        limit = ctypes.c_int(0)
+        ctx.gl_function("glGetIntegerv", None, ctypes.c_uint, ctypes.POINTER(ctypes.c_int))(
+            _GL_MAX_TEXTURE_BUFFER_SIZE, ctypes.byref(limit))
+        views = _VIEWS[ctx] = ({}, limit.value)
+    name = views[0].get(unit)
+    if name is None:
+        names = (ctypes.c_uint * 1)()
+        ctx.gl_function("glCreateTextures", None, ctypes.c_uint, ctypes.c_int,
+                        ctypes.POINTER(ctypes.c_uint))(_GL_TEXTURE_BUFFER, 1, names)
+        name = views[0][unit] = names[0]
+    if texels > views[1]:
+        raise ValueError(f"interpolate's {what} need {texels} texels in one buffer texture, "
+                         f"more than the {views[1]} {ctx.renderer} allows: use fewer "
+                         "vertices or attributes")
+    texel_bytes = {_GL_RGB32I: 12, _VIEW_FORMATS[4]: 16, _VIEW_FORMATS[2]: 8}.get(fmt, 4)
+    ctx.gl_function("glTextureBufferRange", None, ctypes.c_uint, ctypes.c_uint, ctypes.c_uint,
+                    ctypes.c_ssize_t, ctypes.c_ssize_t)(
+        name, fmt, buffer.glo, 0, max(int(texels), 1) * texel_bytes)
+    ctx.gl_function("glBindTextureUnit", None, ctypes.c_uint, ctypes.c_uint)(
+        _TEXEL_UNIT + unit, name)
+
+
+def _bind_pixels(ctx: Context, unit: int, name: str, values: np.ndarray, vec: int) -> None:
+    """Upload ``values`` (C-contiguous float32) to storage buffer ``name`` and bind it as a
+    buffer texture of ``vec`` floats a texel on ``unit``."""
+    _bind_view(ctx, unit, ctx.storage_buffer(name, values), values.size // vec,
+               _VIEW_FORMATS[vec], name.split(".")[-1])
+
+
 def _columns(diff_index: tuple) -> tuple[tuple, list]:
     """The distinct chosen attributes (first-listed order) and, per listing, its place
     among them: the GPU derives each attribute once, repeats are copies."""
@@ -43,7 +100,7 @@ def _columns(diff_index: tuple) -> tuple[tuple, list]:
 
 
 class _Pass:
-    """What both passes bind: attributes (binding 0) and triangles (1) on ``ctx``, and the
+    """What both passes bind: attributes and triangles (buffer textures) on ``ctx``, and the
     uniforms of the flattened (B, H, W) pixel grid."""
 
     def __init__(self, attr: np.ndarray, rast: np.ndarray, tri: np.ndarray, ctx: Context):
@@ -54,11 +111,17 @@ class _Pass:
         self.batch, self.height, self.width, _ = rast.shape
         self.pixels = self.batch * self.height * self.width
         self.num_attr = self.attr3.shape[2]
+        self.vec = _row_vec(self.num_attr)
+
+    def defines(self) -> dict:
+        return {"N_ATTR": self.num_attr, "ATTR_VEC": self.vec, "TEXEL_UNIT": _TEXEL_UNIT,
+                "RUN": compute.RUN_PIXELS}
 
     def bind(self, program) -> None:
         ctx = self.ctx
-        ctx.storage_buffer("interpolate.attr", self.attr3.reshape(-1)).bind_to_storage_buffer(0)
-        ctx.storage_buffer("interpolate.tri", self.tri).bind_to_storage_buffer(1)
+        _bind_pixels(ctx, _UNIT_ATTR, "interpolate.attr", self.attr3.reshape(-1), self.vec)
+        _bind_view(ctx, _UNIT_TRI, ctx.storage_buffer("interpolate.tri", self.tri),
+                   len(self.tri), _GL_RGB32I, "tri")
         compute.set_uniform(program, "pixels_per_image", self.height * self.width)
         compute.set_uniform(program, "vertex_stride", self.stride)
         compute.set_uniform(program, "n_tri", len(self.tri))
@@ -111,18 +174,18 @@ def _forward(job: _Pass, rast_db, diff_index: tuple):
     run = compute.RUN_PIXELS
     with ctx:
         program = ctx.compute_program(shader_path(FORWARD), {"N_DIFF": n_diff,
-                                                             "N_ATTR": num_attr, "RUN": run})
+                                                             **job.defines()})
         job.bind(program)
         if n_diff:
             ctx.storage_buffer("interpolate.diff_index",
                                np.asarray(diff_index, np.int32)).bind_to_storage_buffer(5)
         for first, count in compute.chunks(job.pixels, 4 * (num_attr + 2 * n_diff) + 32):
             part = slice(first, first + count)
-            ctx.storage_buffer("interpolate.rast", flat_rast[part]).bind_to_storage_buffer(2)
+            _bind_pixels(ctx, _UNIT_RAST, "interpolate.rast", flat_rast[part], 4)
             values = ctx.scratch_buffer("interpolate.out", count * num_attr * 4)
             values.bind_to_storage_buffer(3)
             if n_diff:
-                ctx.storage_buffer("interpolate.rast_db", flat_db[part]).bind_to_storage_buffer(4)
+                _bind_pixels(ctx, _UNIT_RAST_DB, "interpolate.rast_db", flat_db[part], 4)
                 derivs = ctx.scratch_buffer("interpolate.out_da", count * 8 * n_diff)
                 derivs.bind_to_storage_buffer(6)
             compute.set_uniform(program, "n_pixels", count)
@@ -194,9 +257,9 @@ def _zeros_if(wanted: bool, shape):
 
 
 class _Backward:
-    """One backward dispatch (the shader's bindings: 0 attr, 1 tri, 2 rast, 3 grad_out,
-    4 grad_rast, 5 the accumulated grad_attr, 6 rast_db,
-    7 the chosen attributes' slots, 8 grad_out_da, 9 grad_rast_db)."""
+    """One backward dispatch (the shader's storage bindings: 4 grad_rast, 5 the accumulated
+    grad_attr, 7 the chosen attributes' slots, 9 grad_rast_db; buffer textures for attr,
+    tri, rast, rast_db, grad_out and grad_out_da)."""
 
     def __init__(self, job: _Pass, saved: InterpolateSaved, diff_index: tuple, mode: str,
                  want: tuple[bool, bool, bool]):
@@ -215,8 +278,7 @@ class _Backward:
         grad_db = np.empty((job.pixels, 4), np.float32) if want_db and n_diff else None
         per_pixel = 4 * (num_attr + 2 * n_diff) + 48
         run = compute.RUN_PIXELS
-        defines = {compute.DEFINES[mode]: None, "N_DIFF": n_diff, "N_ATTR": num_attr,
-                   "RUN": run}
+        defines = {compute.DEFINES[mode]: None, "N_DIFF": n_diff, **job.defines()}
         if not want_attr:
             defines["NO_GRAD_ATTR"] = None
         if grad_rast is None and grad_db is None:
@@ -273,14 +335,14 @@ class _Backward:
         holding their grad_rast and grad_rast_db (or None)."""
         ctx = self.job.ctx
         part = slice(first, first + count)
-        ctx.storage_buffer("interpolate.rast", flat[0][part]).bind_to_storage_buffer(2)
-        ctx.storage_buffer("interpolate.grad_out", flat[1][part]).bind_to_storage_buffer(3)
+        _bind_pixels(ctx, _UNIT_RAST, "interpolate.rast", flat[0][part], 4)
+        _bind_pixels(ctx, _UNIT_GRAD_OUT, "interpolate.grad_out", flat[1][part], self.job.vec)
         out_rast = ctx.scratch_buffer("interpolate.grad_rast", count * 16)
         out_rast.bind_to_storage_buffer(4)
         out_db = None
         if n_diff:
-            ctx.storage_buffer("interpolate.rast_db", flat[2][part]).bind_to_storage_buffer(6)
-            ctx.storage_buffer("interpolate.grad_out_da", flat[3][part]).bind_to_storage_buffer(8)
+            _bind_pixels(ctx, _UNIT_RAST_DB, "interpolate.rast_db", flat[2][part], 4)
+            _bind_pixels(ctx, _UNIT_GRAD_OUT_DA, "interpolate.grad_out_da", flat[3][part], 2)
             out_db = ctx.scratch_buffer("interpolate.grad_rast_db", count * 16)
             out_db.bind_to_storage_buffer(9)
         compute.set_uniform(program, "n_pixels", count)

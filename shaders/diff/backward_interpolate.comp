@@ -10,17 +10,16 @@
 // (N_ATTR: the attribute count, so the 3 N_ATTR local sums are an array) and each sum
 // added with one atomic (fixed point: one pair of word atomics). NO_GRAD_ATTR: dL/da not
 // wanted (no accumulation at all), NO_GRAD_RAST: grad_rast and grad_rast_db not wanted
-// (not written).
+// (not written). The gathered inputs (attributes, triangles, rast, rast_db, dL/d out,
+// dL/d out_da) are read through buffer textures (include/interpolate_views.glsl).
 #ifdef ACCUM_ATOMIC_FLOAT
 #extension GL_NV_shader_atomic_float : require
 #endif
 
 layout(local_size_x = 64) in;
 
-layout(std430, binding = 0) readonly buffer Attr { float attr[]; };
-layout(std430, binding = 1) readonly buffer Tri { int tri[]; };
-layout(std430, binding = 2) readonly buffer Rast { vec4 rast[]; };
-layout(std430, binding = 3) readonly buffer GradOut { float grad_out[]; };
+#include "include/interpolate_views.glsl"
+layout(binding = TEXEL_UNIT + 4) uniform samplerBuffer grad_out;
 layout(std430, binding = 4) writeonly buffer GradRast { vec4 grad_rast[]; };
 #if defined(ACCUM_ATOMIC_FLOAT)
 layout(std430, binding = 5) buffer GradAttr { float grad_attr[]; };
@@ -28,9 +27,8 @@ layout(std430, binding = 5) buffer GradAttr { float grad_attr[]; };
 layout(std430, binding = 5) buffer GradAttr { uint grad_attr[]; };
 #endif
 #if N_DIFF > 0
-layout(std430, binding = 6) readonly buffer RastDb { vec4 rast_db[]; };
 layout(std430, binding = 7) readonly buffer DiffSlot { int diff_slot[]; };  // per attribute: its place among the chosen, or -1
-layout(std430, binding = 8) readonly buffer GradOutDa { float grad_out_da[]; };
+layout(binding = TEXEL_UNIT + 5) uniform samplerBuffer grad_out_da;
 layout(std430, binding = 9) writeonly buffer GradRastDb { vec4 grad_rast_db[]; };
 #endif
 
@@ -55,7 +53,6 @@ uniform uint fixed_groups;   // ACCUM_FIXED_POINT: B with batched attr (one scal
 #define TERM float
 #define TERM_ZERO 0.0
 #endif
-#define ROW (N_ATTR > 0 ? N_ATTR : 1)
 #define SUMS (3 * ROW)
 
 // the local sums of a stretch of pixels on one triangle (corner rows o[j], attribute k:
@@ -91,7 +88,7 @@ void main() {
     for (uint r = 0u; r < uint(RUN); ++r) {
         uint i = start + r;
         if (i >= n_pixels) break;
-        vec4 rs = rast[i];
+        vec4 rs = texelFetch(rast, int(i));
         int t = decode_id(rs.w) - 1;
         if (t < 0 || t >= n_tri) {
 #ifndef NO_GRAD_RAST
@@ -108,12 +105,15 @@ void main() {
             open_t = t;
             open_image = image;
             uint base = image * vertex_stride;
-            open_o = uint[3]((uint(tri[3 * t]) + base) * A, (uint(tri[3 * t + 1]) + base) * A,
-                             (uint(tri[3 * t + 2]) + base) * A);
+            uvec3 corner = uvec3(texelFetch(tri, t).xyz) + base;
+            open_o = uint[3](corner.x * A, corner.y * A, corner.z * A);
+            float a0[ROW], a1[ROW], a2[ROW];
+            load_row(attr, corner.x, a0);
+            load_row(attr, corner.y, a1);
+            load_row(attr, corner.z, a2);
             for (uint k = 0u; k < A; ++k) {
-                float c2 = attr[open_o[2] + k];
-                d0[k] = attr[open_o[0] + k] - c2;
-                d1[k] = attr[open_o[1] + k] - c2;
+                d0[k] = a0[k] - a2[k];
+                d1[k] = a1[k] - a2[k];
             }
             open_group = vertex_stride == 0u ? 0u : image;
 #ifdef ACCUM_FIXED_POINT
@@ -125,19 +125,21 @@ void main() {
         float u = rs.x, v = rs.y, w = 1.0 - rs.x - rs.y;
         float gu = 0.0, gv = 0.0;
 #if N_DIFF > 0
-        vec4 db = rast_db[i];
+        vec4 db = texelFetch(rast_db, int(i));
         vec4 gdb = vec4(0.0);
 #endif
+        float g_row[ROW];
+        load_row(grad_out, i, g_row);
         for (uint k = 0u; k < A; ++k) {
-            float g = grad_out[i * A + k];
+            float g = g_row[k];
             gu += g * d0[k];
             gv += g * d1[k];
             float c0 = 0.0, c1 = 0.0;
 #if N_DIFF > 0
             int j = diff_slot[k];
             if (j >= 0) {
-                float gx = grad_out_da[(i * uint(N_DIFF) + uint(j)) * 2u];
-                float gy = grad_out_da[(i * uint(N_DIFF) + uint(j)) * 2u + 1u];
+                vec2 gxy = texelFetch(grad_out_da, int(i) * N_DIFF + j).xy;
+                float gx = gxy.x, gy = gxy.y;
                 gdb += vec4(gx * d0[k], gy * d0[k], gx * d1[k], gy * d1[k]);
                 c0 = gx * db.x + gy * db.y;
                 c1 = gx * db.z + gy * db.w;

@@ -6,15 +6,15 @@
 // stored (dA_k/dx, dA_k/dy) per chosen attribute k. Empty pixels get zeros. N_ATTR: the
 // attribute count (compile time, so the loops over attributes unroll); the corner
 // attributes of a triangle are loaded once per stretch of its pixels in the run.
+// The gathered inputs (attributes, triangles, rast, rast_db) are read through buffer
+// textures over their buffers (GL 4.6 section 8.9, texelFetch; units TEXEL_UNIT on, see
+// include/interpolate_views.glsl), ATTR_VEC attributes a fetch.
 
 layout(local_size_x = 64) in;
 
-layout(std430, binding = 0) readonly buffer Attr { float attr[]; };
-layout(std430, binding = 1) readonly buffer Tri { int tri[]; };
-layout(std430, binding = 2) readonly buffer Rast { vec4 rast[]; };
+#include "include/interpolate_views.glsl"
 layout(std430, binding = 3) writeonly buffer Out { float out_attr[]; };
 #if N_DIFF > 0
-layout(std430, binding = 4) readonly buffer RastDb { vec4 rast_db[]; };
 layout(std430, binding = 5) readonly buffer DiffIndex { int diff_index[]; };
 layout(std430, binding = 6) writeonly buffer OutDa { float out_da[]; };
 #endif
@@ -30,7 +30,6 @@ uniform int n_tri;
 #ifndef RUN
 #define RUN 1
 #endif
-#define ROW (N_ATTR > 0 ? N_ATTR : 1)
 
 void main() {
     uint start = gl_GlobalInvocationID.x * uint(RUN);
@@ -41,7 +40,7 @@ void main() {
     for (uint r = 0u; r < uint(RUN); ++r) {
         uint i = start + r;
         if (i >= n_pixels) break;
-        vec4 rs = rast[i];
+        vec4 rs = texelFetch(rast, int(i));
         int t = decode_id(rs.w) - 1;
         if (t < 0 || t >= n_tri) {
             for (uint k = 0u; k < A; ++k) out_attr[i * A + k] = 0.0;
@@ -56,20 +55,16 @@ void main() {
             open_t = t;
             open_image = image;
             uint base = image * vertex_stride;
-            uint o0 = (uint(tri[3 * t]) + base) * A;
-            uint o1 = (uint(tri[3 * t + 1]) + base) * A;
-            uint o2 = (uint(tri[3 * t + 2]) + base) * A;
-            for (uint k = 0u; k < A; ++k) {
-                a0[k] = attr[o0 + k];
-                a1[k] = attr[o1 + k];
-                a2[k] = attr[o2 + k];
-            }
+            ivec3 c = texelFetch(tri, t).xyz;
+            load_row(attr, uint(c.x) + base, a0);
+            load_row(attr, uint(c.y) + base, a1);
+            load_row(attr, uint(c.z) + base, a2);
         }
         float u = rs.x, v = rs.y, w = 1.0 - rs.x - rs.y;
         for (uint k = 0u; k < A; ++k)
             out_attr[i * A + k] = u * a0[k] + v * a1[k] + w * a2[k];
 #if N_DIFF > 0
-        vec4 db = rast_db[i];
+        vec4 db = texelFetch(rast_db, int(i));
         for (uint j = 0u; j < uint(N_DIFF); ++j) {
             uint k = uint(diff_index[j]);
             float d0 = a0[k] - a2[k], d1 = a1[k] - a2[k];

@@ -296,3 +296,35 @@ def test_unwanted_gradients_are_none_and_the_wanted_unchanged(ctx, scene):
         got = ip.backward(saved, go, gda, needs=needs, deterministic=True)
         for want, g, all_ in zip(needs, got, full):
             assert (g is None) if not want else np.array_equal(g, all_), needs
+
+
+@pytest.mark.parametrize("columns", [8, 6, 5, 1])
+def test_fetch_widths_give_the_same_bits_per_column(ctx, scene, columns):
+    """Attribute rows are fetched 4, 2 or 1 floats a texel (whatever divides A): the first
+    ``columns`` attributes of an 8-attribute set interpolate, derive and get gradients
+    with the same bits whatever the width (every column's arithmetic is its own)."""
+    _, rast, rast_db, tri, rng = scene
+    attr8 = rng.normal(size=(int(tri.max()) + 1, 8)).astype(np.float32)
+    out8, da8, saved8 = forward(attr8, rast, tri, rast_db, "all", ctx=ctx)
+    go8 = rng.normal(size=out8.shape).astype(np.float32)
+    gda8 = rng.normal(size=da8.shape).astype(np.float32)
+    grad8 = ip.backward(saved8, go8, gda8, deterministic=True)[0]
+    attr = np.ascontiguousarray(attr8[:, :columns])
+    out, da, saved = forward(attr, rast, tri, rast_db, "all", ctx=ctx)
+    assert np.array_equal(out, out8[..., :columns])
+    assert np.array_equal(da, da8[..., :2 * columns])
+    grad = ip.backward(saved, np.ascontiguousarray(go8[..., :columns]),
+                       np.ascontiguousarray(gda8[..., :2 * columns]), deterministic=True)[0]
+    assert np.array_equal(grad, grad8[:, :columns])
+
+
+def test_buffer_texture_limit_is_a_clear_error(ctx, scene):
+    attr, rast, _rast_db, tri, _ = scene
+    forward(attr, rast, tri, ctx=ctx)
+    names, limit = ip._VIEWS[ctx]
+    ip._VIEWS[ctx] = (names, 8)
+    try:
+        with pytest.raises(ValueError, match="interpolate's attr need .* texels in one buffer"):
+            forward(attr, rast, tri, ctx=ctx)
+    finally:
+        ip._VIEWS[ctx] = (names, limit)
