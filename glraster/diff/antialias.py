@@ -1,4 +1,4 @@
-"""Antialiasing with visibility gradients on the GPU (NumPy API; seed 003, "Antialias").
+"""Antialiasing with visibility gradients on the GPU (NumPy API; Laine et al. 2020).
 
 :func:`forward` (the GPU core of :data:`glraster.diff.ops.ANTIALIAS`, with the float64
 reference's signature) blends the colours of neighbouring pixels across the silhouette edges of

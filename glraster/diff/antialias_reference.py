@@ -1,6 +1,6 @@
 """The antialias op's float64 reference core: antialiasing of a rendered image with
 visibility gradients, forward and backward, in NumPy (docs/differentiable.md, "Antialias";
-seed 003, "Antialias").
+Laine et al. 2020, "Modular Primitives for High-Performance Differentiable Rendering").
 
 The core signature of :mod:`glraster.diff.op` (the same as the GPU core,
 :mod:`glraster.diff.antialias`): ``forward(color, rast, pos, *, tri, topology_hash,

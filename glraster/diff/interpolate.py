@@ -19,18 +19,16 @@ consecutive pixels per invocation (a triangle's corners read once per stretch of
 and the attribute count a compile-time constant, dispatched in chunks by
 :mod:`glraster.diff.compute`; dL/d attr is summed per vertex by one of its accumulations.
 The gathered inputs (attributes, triangles, rast, rast_db and the incoming gradients) are
-read through buffer textures over their storage buffers (:func:`_bind_view`): on llvmpipe
-several times faster than storage-buffer loads at per-pixel addresses, the same floats.
+read through buffer textures over their storage buffers (:mod:`glraster.diff.buffer_views`):
+on llvmpipe several times faster than storage-buffer loads at per-pixel addresses, the
+same floats.
 """
 
 from __future__ import annotations
 
-import ctypes
-import weakref
-
 import numpy as np
 
-from glraster.diff import compute
+from glraster.diff import buffer_views, compute
 from glraster.diff.saved import InterpolateSaved
 from glraster.gpu.context import Context, default_context
 from glraster.gpu.shaders import shader_path
@@ -43,53 +41,26 @@ BACKWARD = "diff/backward_interpolate.comp"
 
 # Buffer textures (GL 4.6 section 8.9) over the passes' input buffers, on texture units
 # _TEXEL_UNIT + the unit of include/interpolate_views.glsl (no other pass samples there).
-_GL_TEXTURE_BUFFER, _GL_MAX_TEXTURE_BUFFER_SIZE = 0x8C2A, 0x8C2B
-_VIEW_FORMATS = {4: 0x8814, 2: 0x8230, 1: 0x822E}   # GL_RGBA32F, GL_RG32F, GL_R32F
-_GL_RGB32I = 0x8D83                                  # the triangles, 3 int32 a texel
 _TEXEL_UNIT = 16
 _UNIT_ATTR, _UNIT_TRI, _UNIT_RAST, _UNIT_RAST_DB, _UNIT_GRAD_OUT, _UNIT_GRAD_OUT_DA = range(6)
-# context -> ({unit: buffer texture name}, GL_MAX_TEXTURE_BUFFER_SIZE)
-_VIEWS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
-def _row_vec(num_attr: int) -> int:
-    """Floats per fetch of an attribute row: 4, 2 or 1, whichever divides ``num_attr``."""
-    return 4 if num_attr % 4 == 0 else (2 if num_attr % 2 == 0 else 1)
+def _row_vec(num_attr: int) -> int:  # floats per fetch of an attribute row
+    return buffer_views.float_vec(num_attr)
 
 
 def _bind_view(ctx: Context, unit: int, buffer, texels: int, fmt: int, what: str) -> None:
-    """Bind the first ``texels`` texels of ``buffer`` (of the sized format ``fmt``, 16-byte
-    ones at most) as a buffer texture on unit _TEXEL_UNIT + ``unit``: one texture object per
-    context and unit, pointed at the buffer on every call. Inside ``with ctx``."""
-    views = _VIEWS.get(ctx)
-    if views is None:
-        limit = ctypes.c_int(0)
-        ctx.gl_function("glGetIntegerv", None, ctypes.c_uint, ctypes.POINTER(ctypes.c_int))(
-            _GL_MAX_TEXTURE_BUFFER_SIZE, ctypes.byref(limit))
-        views = _VIEWS[ctx] = ({}, limit.value)
-    name = views[0].get(unit)
-    if name is None:
-        names = (ctypes.c_uint * 1)()
-        ctx.gl_function("glCreateTextures", None, ctypes.c_uint, ctypes.c_int,
-                        ctypes.POINTER(ctypes.c_uint))(_GL_TEXTURE_BUFFER, 1, names)
-        name = views[0][unit] = names[0]
-    if texels > views[1]:
-        raise ValueError(f"interpolate's {what} need {texels} texels in one buffer texture, "
-                         f"more than the {views[1]} {ctx.renderer} allows: use fewer "
-                         "vertices or attributes")
-    texel_bytes = {_GL_RGB32I: 12, _VIEW_FORMATS[4]: 16, _VIEW_FORMATS[2]: 8}.get(fmt, 4)
-    ctx.gl_function("glTextureBufferRange", None, ctypes.c_uint, ctypes.c_uint, ctypes.c_uint,
-                    ctypes.c_ssize_t, ctypes.c_ssize_t)(
-        name, fmt, buffer.glo, 0, max(int(texels), 1) * texel_bytes)
-    ctx.gl_function("glBindTextureUnit", None, ctypes.c_uint, ctypes.c_uint)(
-        _TEXEL_UNIT + unit, name)
+    """Bind the first ``texels`` texels of ``buffer`` (of the sized format ``fmt``) as a
+    buffer texture on unit _TEXEL_UNIT + ``unit``. Inside ``with ctx``."""
+    buffer_views.bind(ctx, _TEXEL_UNIT + unit, buffer, texels * buffer_views.texel_bytes(fmt),
+                      fmt, f"interpolate's {what}", "use fewer vertices or attributes")
 
 
 def _bind_pixels(ctx: Context, unit: int, name: str, values: np.ndarray, vec: int) -> None:
     """Upload ``values`` (C-contiguous float32) to storage buffer ``name`` and bind it as a
     buffer texture of ``vec`` floats a texel on ``unit``."""
     _bind_view(ctx, unit, ctx.storage_buffer(name, values), values.size // vec,
-               _VIEW_FORMATS[vec], name.split(".")[-1])
+               buffer_views.FLOATS[vec], name.split(".")[-1])
 
 
 def _columns(diff_index: tuple) -> tuple[tuple, list]:
@@ -121,7 +92,7 @@ class _Pass:
         ctx = self.ctx
         _bind_pixels(ctx, _UNIT_ATTR, "interpolate.attr", self.attr3.reshape(-1), self.vec)
         _bind_view(ctx, _UNIT_TRI, ctx.storage_buffer("interpolate.tri", self.tri),
-                   len(self.tri), _GL_RGB32I, "tri")
+                   len(self.tri), buffer_views.GL_RGB32I, "tri")
         compute.set_uniform(program, "pixels_per_image", self.height * self.width)
         compute.set_uniform(program, "vertex_stride", self.stride)
         compute.set_uniform(program, "n_tri", len(self.tri))

@@ -12,9 +12,9 @@ derivations in docs/differentiable.md, "Texture"), in compute shaders
   down to 1 x 1, or taken from the caller (``mip``);
 * the shaders read their inputs (the levels, uv, uv_da, the bias, dL/d out, the level
   table) through buffer textures over the storage buffers they are uploaded to
-  (:func:`_bind_view`): on llvmpipe several times faster than storage-buffer loads, the
-  same bits;
-* each pixel computes its level itself (seed 003: level = 0.5 log2 of the largest
+  (:mod:`glraster.diff.buffer_views`): on llvmpipe several times faster than
+  storage-buffer loads, the same bits;
+* each pixel computes its level itself (level = 0.5 log2 of the largest
   eigenvalue of J^T J, J the texel-space Jacobian from ``uv_da``, plus ``mip_level_bias``,
   clamped to the pyramid) and filters with texel fetches at texel centres (no GL sampler:
   see :func:`sampler_probe` for why);
@@ -37,6 +37,7 @@ import weakref
 import numpy as np
 
 from glraster import validate
+from glraster.diff import buffer_views
 from glraster.diff.compute import LOCAL_SIZE, accumulation
 from glraster.diff.compute import chunks as _chunks
 from glraster.diff.compute import read as _read
@@ -94,56 +95,25 @@ def _cleared(ctx: Context, name: str, nbytes: int):
 
 
 # Every buffer the texture shader reads (the levels, the per-pixel inputs) is read through a
-# buffer texture over it (GL 4.6 section 8.9, texelFetch in texture.comp): llvmpipe's texel
-# fetches are several times faster than its storage-buffer loads, and return the same
-# floats. Formats by floats per fetch; units from _TEXEL_UNIT on (texels, uv, uv_da, bias,
-# dL/d out, the level table, the pyramid passes' levels), which no other glraster pass
-# samples from.
-_GL_TEXTURE_BUFFER, _GL_MAX_TEXTURE_BUFFER_SIZE = 0x8C2A, 0x8C2B
-_VIEW_FORMATS = {4: 0x8814, 3: 0x8815, 2: 0x8230, 1: 0x822E}  # GL_RGBA32F .. GL_R32F
-_GL_RGBA32UI, _GL_RGBA32I = 0x8D70, 0x8D82
+# buffer texture over it (glraster.diff.buffer_views, texelFetch in texture.comp). Units
+# from _TEXEL_UNIT on (texels, uv, uv_da, bias, dL/d out, the level table, the pyramid
+# passes' levels), which no other glraster pass samples from.
 _TEXEL_UNIT = 8
 _UNIT_TEXELS, _UNIT_UV, _UNIT_UV_DA, _UNIT_BIAS, _UNIT_GRAD_OUT, _UNIT_INFO, _UNIT_LEVELS = \
     range(7)
-# context -> ({unit: buffer texture name}, GL_MAX_TEXTURE_BUFFER_SIZE)
-_VIEWS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
-def _texel_vec(channels: int) -> int:
-    """Floats per fetch of a texel (or of dL/d out): 4, 2 or 1, whichever divides
-    ``channels``."""
-    return 4 if channels % 4 == 0 else (2 if channels % 2 == 0 else 1)
+def _texel_vec(channels: int) -> int:  # floats per fetch of a texel or of dL/d out
+    return buffer_views.float_vec(channels)
 
 
 def _bind_view(ctx: Context, unit: int, buffer, nbytes: int, vec: int, what: str,
                words: int = 0) -> None:
     """Bind the first ``nbytes`` of ``buffer`` as a buffer texture of ``vec`` floats a
-    texel (``words``: of 4 integers, _GL_RGBA32UI or _GL_RGBA32I) on unit _TEXEL_UNIT +
-    ``unit`` (one texture object per context and unit, pointed at the buffer on every
-    call). Inside ``with ctx``."""
-    views = _VIEWS.get(ctx)
-    if views is None:
-        limit = ctypes.c_int(0)
-        ctx.gl_function("glGetIntegerv", None, ctypes.c_uint, ctypes.POINTER(ctypes.c_int))(
-            _GL_MAX_TEXTURE_BUFFER_SIZE, ctypes.byref(limit))
-        views = _VIEWS[ctx] = ({}, limit.value)
-    name = views[0].get(unit)
-    if name is None:
-        names = (ctypes.c_uint * 1)()
-        ctx.gl_function("glCreateTextures", None, ctypes.c_uint, ctypes.c_int,
-                        ctypes.POINTER(ctypes.c_uint))(_GL_TEXTURE_BUFFER, 1, names)
-        name = views[0][unit] = names[0]
-    texels = int(nbytes) // (4 * vec)
-    if texels > views[1]:
-        raise ValueError(f"{what} needs {texels} texels of {vec} floats in one buffer "
-                         f"texture, more than the {views[1]} {ctx.renderer} allows: use a "
-                         "smaller texture, fewer pixels or max_mip_level")
-    ctx.gl_function("glTextureBufferRange", None, ctypes.c_uint, ctypes.c_uint, ctypes.c_uint,
-                    ctypes.c_ssize_t, ctypes.c_ssize_t)(
-        name, words or _VIEW_FORMATS[vec], buffer.glo, 0,
-        max(texels, 1) * 4 * vec)
-    ctx.gl_function("glBindTextureUnit", None, ctypes.c_uint, ctypes.c_uint)(
-        _TEXEL_UNIT + unit, name)
+    texel (``words``: of 4 integers, GL_RGBA32UI or GL_RGBA32I) on unit _TEXEL_UNIT +
+    ``unit``. Inside ``with ctx``."""
+    buffer_views.bind(ctx, _TEXEL_UNIT + unit, buffer, nbytes, words or buffer_views.FLOATS[vec],
+                      what, "use a smaller texture, fewer pixels or max_mip_level")
 
 
 def _storage_limit(ctx: Context, nbytes: int, what: str) -> None:
@@ -266,13 +236,13 @@ def _pixel_inputs(args: TextureArgs):
 
 def _bind_input(ctx, unit: int, name: str, values: np.ndarray, vec: int) -> None:
     """Upload a chunk's per-pixel input ``values`` (count, k) float32 and bind it as a
-    buffer texture of ``vec`` floats a texel (:func:`_bind_view`)."""
+    buffer texture of ``vec`` floats a texel (:mod:`glraster.diff.buffer_views`)."""
     _bind_view(ctx, unit, ctx.storage_buffer(name, values), values.nbytes, vec, name)
 
 
 def _bind_common(ctx, program, args, defines, part, uv, da, bias, info, count, first):
     _bind_view(ctx, _UNIT_INFO, ctx.storage_buffer("texture.info", info), info.nbytes, 4,
-               "the level table", words=_GL_RGBA32I)
+               "the level table", words=buffer_views.GL_RGBA32I)
     _bind_input(ctx, _UNIT_UV, "texture.uv", uv[part], uv.shape[1])
     if "HAS_DA" in defines:
         _bind_input(ctx, _UNIT_UV_DA, "texture.uv_da", da[part], 1)
@@ -360,7 +330,7 @@ def fixed_point_values(ctx: Context, words, count: int, shift: int):
     program = ctx.compute_program(shader_path(_RESOLVE_SHADER), {"WORDS_UNIT": _TEXEL_UNIT})
     out = ctx.scratch_buffer("texture.grad_tex_float", max(quads, 1) * 16)
     _bind_view(ctx, _UNIT_TEXELS, words, max(quads, 1) * 32, 4, "the texel gradients",
-               words=_GL_RGBA32UI)
+               words=buffer_views.GL_RGBA32UI)
     out.bind_to_storage_buffer(1)
     _set(program, "unit", float(np.ldexp(1.0, -shift)))
     step = _MAX_GROUPS * LOCAL_SIZE

@@ -1,5 +1,5 @@
 """The texture op's float64 reference core: the mip pyramid and filtered lookups, forward
-and backward, in NumPy (seed 003, "texture"; docs/differentiable.md, "Texture").
+and backward, in NumPy (docs/differentiable.md, "Texture").
 
 The core signature of :mod:`glraster.diff.op` (the same as the GPU core,
 :mod:`glraster.diff.texture`): ``forward(tex, uv, uv_da, mip_level_bias, *mip, filter_mode,
@@ -7,7 +7,7 @@ boundary_mode, max_mip_level, own_mips, ctx) -> ((out,), saved)`` on arrays chec
 :func:`glraster.diff.texture_args.check` (layouts there), and ``backward(saved, grad_out,
 needs=None) -> (grad_tex, grad_uv, grad_uv_da, grad_mip_level_bias, *grad_mip)``.
 
-The level (mipmap modes) is seed 003's: with J the Jacobian of the texel position
+The level (mipmap modes) is nvdiffrast's: with J the Jacobian of the texel position
 (s Wt, t Ht) with respect to the image pixel (X, Y), a = Wt ds/dX, b = Wt ds/dY,
 c = Ht dt/dX, d = Ht dt/dY, the entries of J^T J are A = a^2 + c^2, B = b^2 + d^2,
 C = ab + cd, its largest eigenvalue ``lenMajorSqr`` = (A + B)/2 + sqrt(((A - B)/2)^2 + C^2)
@@ -269,7 +269,7 @@ def _nearest(s, t, image, shapes, boundary, face=None):
 
 def _level_of(args: TextureArgs, uv, da, bias, face_data):
     """Per pixel: the unclamped level and its derivatives by uv_da (N, 4|6) and by the cube
-    direction (N, 3) (zeros for 2-D), seed 003's lenMajorSqr."""
+    direction (N, 3) (zeros for 2-D), the squared length of the major axis."""
     n = len(uv)
     dda = np.zeros((n, 0 if da is None else da.shape[1]))
     duv = np.zeros((n, 3))

@@ -1,6 +1,6 @@
 """The topology hash of a triangle mesh: its edges and, per edge, the triangles on either
 side (NumPy only, no GL), which the antialias op walks across (docs/differentiable.md,
-"Antialias"; seed 003, "Edge Hash Function"). Both antialias cores read it; the GPU probes
+"Antialias"; Laine et al. 2020). Both antialias cores read it; the GPU probes
 :meth:`TopologyHash.table`, an open-addressing hash table of the edges.
 """
 

@@ -9,7 +9,7 @@ powers of two (the 2 x 2 box pyramid), written the way one would without a custo
 * boundaries: "clamp" is ``padding_mode="border"``, "zero" ``"zeros"``; "wrap" (which
   grid_sample lacks) pads the level by one texel circularly and samples
   ((s mod 1) W + 1)/(W + 2) of the padded level;
-* the pyramid by ``avg_pool2d(2)``; the level from uv_da by seed 003's formula in torch ops;
+* the pyramid by ``avg_pool2d(2)``; the level from uv_da by the same formula in torch ops;
 * linear-mipmap-linear "by hand": every level sampled at every pixel and blended with the
   hat weights max(0, 1 - |level - k|) (per-pixel levels differ, so grid_sample cannot pick
   one); linear-mipmap-nearest with the weight 1 on round(level).

@@ -188,7 +188,7 @@ def window_xy(pos, resolution):
 
 def test_alpha_is_half_minus_the_crossing_distance():
     """Every blended pair's alpha against the crossing computed in the window plane the
-    way seed 003 writes it (x = x_1 + (x_2 - x_1)(y_c - y_1)/(y_2 - y_1), for horizontal
+    way the derivation writes it (x = x_1 + (x_2 - x_1)(y_c - y_1)/(y_2 - y_1), for horizontal
     pairs; y likewise for vertical ones)."""
     pos, tri, colors = mesh_scene()
     rast, col = shade(pos, tri, colors)

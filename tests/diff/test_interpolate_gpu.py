@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from glraster import validate
-from glraster.diff import compute, interpolate_reference
+from glraster.diff import buffer_views, compute, interpolate_reference
 from glraster.diff import interpolate as ip
 from glraster.diff.ops import INTERPOLATE, RASTERIZE
 from tests.diff.test_rasterize_backward import U32, Err, covered, random_soup
@@ -321,10 +321,10 @@ def test_fetch_widths_give_the_same_bits_per_column(ctx, scene, columns):
 def test_buffer_texture_limit_is_a_clear_error(ctx, scene):
     attr, rast, _rast_db, tri, _ = scene
     forward(attr, rast, tri, ctx=ctx)
-    names, limit = ip._VIEWS[ctx]
-    ip._VIEWS[ctx] = (names, 8)
+    names, limit = buffer_views._VIEWS[ctx]
+    buffer_views._VIEWS[ctx] = (names, 8)
     try:
-        with pytest.raises(ValueError, match="interpolate's attr need .* texels in one buffer"):
+        with pytest.raises(ValueError, match="interpolate's attr needs .* texels of .* in one buffer"):
             forward(attr, rast, tri, ctx=ctx)
     finally:
-        ip._VIEWS[ctx] = (names, limit)
+        buffer_views._VIEWS[ctx] = (names, limit)

@@ -35,6 +35,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from glraster.diff import buffer_views
 from glraster.diff import compute as bg
 from glraster.diff import texture as tx
 from glraster.diff import texture_args as ta
@@ -176,14 +177,14 @@ def test_a_buffer_texture_too_large_for_the_driver_is_refused(ctx):
     tex, uv, da, bias = make_inputs(26, "wrap", tex_size=(8, 8), channels=4)
     tex, uv = tex.astype(np.float32), uv.astype(np.float32)
     tx.forward(tex, uv, ctx=ctx)     # the views exist
-    names, limit = tx._VIEWS[ctx]
-    tx._VIEWS[ctx] = (names, 32)     # fewer texels than tex has
+    names, limit = buffer_views._VIEWS[ctx]
+    buffer_views._VIEWS[ctx] = (names, 32)     # fewer texels than tex has
     try:
         with pytest.raises(ValueError,
-                           match=r"the texture and its mip levels needs \d+ texels of 4 floats"):
+                           match=r"the texture and its mip levels needs \d+ texels of 16 bytes"):
             tx.forward(tex, uv, ctx=ctx)
     finally:
-        tx._VIEWS[ctx] = (names, limit)
+        buffer_views._VIEWS[ctx] = (names, limit)
     tx.forward(tex, uv, ctx=ctx)
 
 
