@@ -60,7 +60,7 @@ import numpy as np
 
 from glraster.errors import ArgumentError, GLError
 from glraster import validate
-from glraster.diff import compute, layout
+from glraster.diff import buffer_views, compute, layout
 from glraster.diff.saved import RasterizeSaved
 from glraster.gpu import cull as _cull
 from glraster.gpu import homogeneous_kernel
@@ -362,6 +362,13 @@ def forward(pos, *, tri, resolution, ranges=None, grad_db: bool = True, space: s
 
 # --------------------------------------------------------------------------- backward
 
+# The backward reads its gathered inputs through buffer textures (GL 4.6 section 8.9;
+# :mod:`glraster.diff.buffer_views` says why) on texture units _TEXEL_UNIT + these (texture
+# samples on 8-14, interpolate on 16-21).
+_TEXEL_UNIT = 24
+_UNIT_POS, _UNIT_TRI, _UNIT_RAST, _UNIT_GRAD_RAST, _UNIT_GRAD_DB = range(5)
+_GL_RGBA32F = buffer_views.FLOATS[4]
+
 
 def backward(saved: RasterizeSaved, grad_rast=None, grad_db=None, *, needs=None,
              deterministic: bool = False, accumulate: str | None = None):
@@ -409,8 +416,8 @@ def backward_pixels(saved: RasterizeSaved, grad_rast, grad_db=None) -> np.ndarra
 
 class _Backward:
     """One backward dispatch: the program and the per-vertex buffers, then the chunks of
-    pixels (the shader's bindings: 0 pos, 1 tri, 2 rast, 3 grad_rast, 4 grad_db, 5 the
-    accumulated gradient or the per-pixel contributions)."""
+    pixels (the shader's buffer textures: pos, tri, rast, grad_rast, grad_db; its storage
+    buffer 5: the accumulated gradient or the per-pixel contributions)."""
 
     def __init__(self, saved: RasterizeSaved, grad_rast, grad_db, mode: str):
         self.saved, self.mode = saved, mode
@@ -426,7 +433,7 @@ class _Backward:
         pos = saved.pos
         self.pos3 = pos if pos.ndim == 3 else pos[None]
         self.stride = pos.shape[-2] if pos.ndim == 3 else 0
-        self.defines = {compute.DEFINES[mode]: None}
+        self.defines = {compute.DEFINES[mode]: None, "TEXEL_UNIT": _TEXEL_UNIT}
         self.run_length = compute.RUN_PIXELS if mode != "per_pixel" else 1
         if self.run_length > 1:
             self.defines["RUN"] = self.run_length
@@ -442,8 +449,8 @@ class _Backward:
         pixels = self.batch * self.height * self.width
         with ctx:
             program = ctx.compute_program(shader_path(BACKWARD), self.defines)
-            ctx.storage_buffer("backward.pos", self.pos3.reshape(-1, 4)).bind_to_storage_buffer(0)
-            ctx.storage_buffer("backward.tri", tri).bind_to_storage_buffer(1)
+            self._view(_UNIT_POS, "backward.pos", self.pos3.reshape(-1, 4), _GL_RGBA32F)
+            self._view(_UNIT_TRI, "backward.tri", tri, buffer_views.GL_RGB32I)
             compute.set_uniform(program, "size", (self.width, self.height))
             compute.set_uniform(program, "vertex_stride", self.stride)
             compute.set_uniform(program, "n_tri", len(tri))
@@ -471,16 +478,24 @@ class _Backward:
                 total = compute.read(grad, total_vertices * 4)
         return total.reshape(self.saved.pos.shape)
 
+    def _view(self, unit: int, name: str, values: np.ndarray, fmt: int) -> None:
+        """Upload ``values`` (C-contiguous rows of one texel each) to storage buffer
+        ``name`` and bind it as a buffer texture of format ``fmt`` on unit _TEXEL_UNIT +
+        ``unit``. Inside ``with ctx``."""
+        buffer_views.bind(self.ctx, _TEXEL_UNIT + unit, self.ctx.storage_buffer(name, values),
+                          values.nbytes, fmt, f"rasterize's backward {name.split('.')[-1]}",
+                          "use fewer vertices or triangles")
+
     def _chunk(self, program, first: int, count: int):
         """Run pixels first .. first + count - 1; their (count, 3, 4) contributions in
         per-pixel mode, else None (they went to the atomic sum)."""
         ctx = self.ctx
         part = slice(first, first + count)
         rast, grad_rast, grad_db = self.flat
-        ctx.storage_buffer("backward.rast", rast[part]).bind_to_storage_buffer(2)
-        ctx.storage_buffer("backward.grad_rast", grad_rast[part]).bind_to_storage_buffer(3)
+        self._view(_UNIT_RAST, "backward.rast", rast[part], _GL_RGBA32F)
+        self._view(_UNIT_GRAD_RAST, "backward.grad_rast", grad_rast[part], _GL_RGBA32F)
         if grad_db is not None:
-            ctx.storage_buffer("backward.grad_db", grad_db[part]).bind_to_storage_buffer(4)
+            self._view(_UNIT_GRAD_DB, "backward.grad_db", grad_db[part], _GL_RGBA32F)
         if self.mode == "per_pixel":
             out = ctx.scratch_buffer("backward.contrib", count * 48)
             out.bind_to_storage_buffer(5)

@@ -21,12 +21,17 @@
 
 layout(local_size_x = 64) in;
 
-layout(std430, binding = 0) readonly buffer Pos { vec4 pos[]; };
-layout(std430, binding = 1) readonly buffer Tri { int tri[]; };
-layout(std430, binding = 2) readonly buffer Rast { vec4 rast[]; };
-layout(std430, binding = 3) readonly buffer GradRast { vec4 grad_rast[]; };
+// The gathered inputs, read through buffer textures over their buffers (GL 4.6 section
+// 8.9, texelFetch: on llvmpipe a vector gather, where a storage-buffer load at per-lane
+// addresses is one scalar load per lane; the same bits). Units from TEXEL_UNIT: + 0 pos
+// (RGBA32F, one vertex a texel), + 1 tri (RGB32I, one triangle a texel), + 2 rast,
+// + 3 dL/d rast, + 4 dL/d rast_db (RGBA32F, one pixel a texel).
+layout(binding = TEXEL_UNIT) uniform samplerBuffer pos;
+layout(binding = TEXEL_UNIT + 1) uniform isamplerBuffer tri;
+layout(binding = TEXEL_UNIT + 2) uniform samplerBuffer rast;
+layout(binding = TEXEL_UNIT + 3) uniform samplerBuffer grad_rast;
 #ifdef GRAD_DB
-layout(std430, binding = 4) readonly buffer GradDb { vec4 grad_db[]; };
+layout(binding = TEXEL_UNIT + 4) uniform samplerBuffer grad_db;
 #endif
 #if defined(ACCUM_ATOMIC_FLOAT)
 layout(std430, binding = 5) buffer GradPos { float grad_pos[]; };
@@ -99,11 +104,11 @@ uvec3 next_position(uvec3 at) {
 }
 
 bool pixel_at(uint i, uvec3 at, out Pixel px) {
-    px.t = decode_id(rast[i].w) - 1;
+    px.t = decode_id(texelFetch(rast, int(i)).w) - 1;
     if (px.t < 0 || px.t >= n_tri) return false;
-    px.gbary = grad_rast[i].xy;
+    px.gbary = texelFetch(grad_rast, int(i)).xy;
 #ifdef GRAD_DB
-    px.gdb = grad_db[i];
+    px.gdb = texelFetch(grad_db, int(i));
 #else
     px.gdb = vec4(0.0);
 #endif
@@ -118,9 +123,9 @@ bool pixel_at(uint i, uvec3 at, out Pixel px) {
 // the vertices idx (batch offset included) of triangle t in image b, and their positions
 void corners(int t, uint b, out uint idx[3], out vec4 p[3]) {
     uint base = b * vertex_stride;
-    idx = uint[3](uint(tri[3 * t]) + base, uint(tri[3 * t + 1]) + base,
-                  uint(tri[3 * t + 2]) + base);
-    for (int j = 0; j < 3; ++j) p[j] = pos[idx[j]];
+    uvec3 c = uvec3(texelFetch(tri, t).xyz) + base;
+    idx = uint[3](c.x, c.y, c.z);
+    for (int j = 0; j < 3; ++j) p[j] = texelFetch(pos, int(idx[j]));
 }
 
 // The pixel's terms to the clip-space (x, y, w) of its triangle's vertices, positions p.
