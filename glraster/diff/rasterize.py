@@ -368,6 +368,9 @@ def forward(pos, *, tri, resolution, ranges=None, grad_db: bool = True, space: s
 _TEXEL_UNIT = 24
 _UNIT_POS, _UNIT_TRI, _UNIT_RAST, _UNIT_GRAD_RAST, _UNIT_GRAD_DB = range(5)
 _GL_RGBA32F = buffer_views.FLOATS[4]
+# A work group of the accumulating passes is a tile of 64 runs of RUN_PIXELS pixels,
+# _TILE_RUNS a row (backward_rasterize.comp).
+_TILE_RUNS = 2
 
 
 def backward(saved: RasterizeSaved, grad_rast=None, grad_db=None, *, needs=None,
@@ -436,7 +439,7 @@ class _Backward:
         self.defines = {compute.DEFINES[mode]: None, "TEXEL_UNIT": _TEXEL_UNIT}
         self.run_length = compute.RUN_PIXELS if mode != "per_pixel" else 1
         if self.run_length > 1:
-            self.defines["RUN"] = self.run_length
+            self.defines.update(RUN=self.run_length, TILE_RUNS=_TILE_RUNS)
         if saved.space == "screen":
             self.defines["SPACE_SCREEN"] = None
         if grad_db is not None:
@@ -456,7 +459,7 @@ class _Backward:
             compute.set_uniform(program, "n_tri", len(tri))
             if mode == "per_pixel":
                 terms = np.empty((pixels, 3, 4), np.float32)
-                for first, count in compute.chunks(pixels, 48):
+                for first, count in self._chunks(48):
                     terms[first:first + count] = self._chunk(program, first, count)
                 return terms
             if mode == "fixed_point":
@@ -467,16 +470,23 @@ class _Backward:
                                             total_vertices * 4 // groups,
                                             3 * pixels // groups, "grad_rast")
                 for _ in acc.passes(program, 5):
-                    for first, count in compute.chunks(pixels, 16):
+                    for first, count in self._chunks(16):
                         self._chunk(program, first, count)
                 total = acc.result()
             else:
                 grad = compute.zeroed(ctx, "backward.grad_pos", total_vertices * 16)
                 grad.bind_to_storage_buffer(5)
-                for first, count in compute.chunks(pixels, 16):
+                for first, count in self._chunks(16):
                     self._chunk(program, first, count)
                 total = compute.read(grad, total_vertices * 4)
         return total.reshape(self.saved.pos.shape)
+
+    def _chunks(self, bytes_per_pixel: int):
+        """(first, count) ranges of whole image rows (the B H rows stacked) whose per-pixel
+        buffers stay under compute.MAX_CHUNK_BYTES."""
+        w = self.width
+        for first_row, rows in compute.chunks(self.batch * self.height, bytes_per_pixel * w):
+            yield first_row * w, rows * w
 
     def _view(self, unit: int, name: str, values: np.ndarray, fmt: int) -> None:
         """Upload ``values`` (C-contiguous rows of one texel each) to storage buffer
@@ -501,7 +511,12 @@ class _Backward:
             out.bind_to_storage_buffer(5)
         compute.set_uniform(program, "n_pixels", count)
         compute.set_uniform(program, "first_pixel", first)
-        compute.run(ctx, program, -(-count // self.run_length))
+        if self.run_length > 1:   # tiles of 64 / _TILE_RUNS rows, _TILE_RUNS runs wide
+            tiles_x = -(-self.width // (_TILE_RUNS * self.run_length))
+            tiles_y = -(-(count // self.width) // (compute.LOCAL_SIZE // _TILE_RUNS))
+            compute.run(ctx, program, tiles_x * tiles_y * compute.LOCAL_SIZE)
+        else:
+            compute.run(ctx, program, count)
         if self.mode == "per_pixel":
             return compute.read(out, count * 12).reshape(count, 3, 4)
         return None
