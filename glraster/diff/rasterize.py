@@ -484,9 +484,10 @@ class _Backward:
     def _chunks(self, bytes_per_pixel: int):
         """(first, count) ranges of whole image rows (the B H rows stacked) whose per-pixel
         buffers stay under compute.MAX_CHUNK_BYTES."""
-        w = self.width
-        for first_row, rows in compute.chunks(self.batch * self.height, bytes_per_pixel * w):
-            yield first_row * w, rows * w
+        w, total = self.width, self.batch * self.height
+        step = max(1, compute.MAX_CHUNK_BYTES // (bytes_per_pixel * w))
+        for first_row in range(0, total, step):
+            yield first_row * w, min(step, total - first_row) * w
 
     def _view(self, unit: int, name: str, values: np.ndarray, fmt: int) -> None:
         """Upload ``values`` (C-contiguous rows of one texel each) to storage buffer
