@@ -200,18 +200,15 @@ void pixel_terms(Pixel px, vec4 p[3], out vec3 terms[3]) {
 #ifdef ACCUM_FIXED_POINT
 #define TERM uvec2
 #define TERM_ZERO uvec2(0u)
-#define TERM_ADD(a, b) fixed_point_add(a, b)
 #else
 #define TERM float
 #define TERM_ZERO 0.0
-#define TERM_ADD(a, b) ((a) + (b))
 #endif
 
-// sums `sum` (vertex, coordinate) of triangle t, image b, added to grad_pos
-void flush(int t, uint b, TERM sum[9]) {
-    uvec3 v = uvec3(texelFetch(tri, t).xyz) + b * vertex_stride;
+// sums `sum` (vertex, coordinate) to the vertices idx, added to grad_pos
+void flush(uint idx[3], TERM sum[9]) {
     for (int j = 0; j < 3; ++j) {
-        uint o = 4u * v[j];
+        uint o = 4u * idx[j];
 #ifdef ACCUM_FIXED_POINT
         FIXED_ADD_WORDS(grad_pos, fixed_groups, o + 0u, sum[3 * j]);
         FIXED_ADD_WORDS(grad_pos, fixed_groups, o + 1u, sum[3 * j + 1]);
@@ -236,7 +233,8 @@ void main() {
     uint image = image_row / size.y;
     uvec3 at = uvec3(x0, image_row - image * size.y, image);
     int open_t = -1;
-    vec4 open_p[3];          // the open triangle's positions, loaded once per stretch
+    uint open_idx[3];        // the open triangle's vertices and positions, loaded once
+    vec4 open_p[3];          // per stretch
     TERM sum[9];
     uint largest = 0u;       // fixed point: fixed_point_magnitude of the largest term
 #ifdef ACCUM_FIXED_POINT
@@ -247,10 +245,9 @@ void main() {
         Pixel px;
         if (!pixel_at(start + r, at, px)) continue;
         if (px.t != open_t) {
-            if (open_t >= 0) flush(open_t, image, sum);
+            if (open_t >= 0) flush(open_idx, sum);
             open_t = px.t;
-            uint idx[3];
-            corners(open_t, image, idx, open_p);
+            corners(open_t, image, open_idx, open_p);
             for (int m = 0; m < 9; ++m) sum[m] = TERM_ZERO;
         }
         vec3 terms[3];
@@ -267,7 +264,7 @@ void main() {
             }
         }
     }
-    if (open_t >= 0) flush(open_t, image, sum);
+    if (open_t >= 0) flush(open_idx, sum);
 #ifdef ACCUM_FIXED_POINT
     FIXED_TRACK(grad_pos, group, largest);
 #endif
