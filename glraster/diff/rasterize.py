@@ -60,7 +60,7 @@ import numpy as np
 
 from glraster.errors import ArgumentError, GLError
 from glraster import validate
-from glraster.diff import compute, layout
+from glraster.diff import buffer_views, compute, layout
 from glraster.diff.saved import RasterizeSaved
 from glraster.gpu import cull as _cull
 from glraster.gpu import homogeneous_kernel
@@ -362,6 +362,16 @@ def forward(pos, *, tri, resolution, ranges=None, grad_db: bool = True, space: s
 
 # --------------------------------------------------------------------------- backward
 
+# The backward reads its gathered inputs through buffer textures (GL 4.6 section 8.9;
+# :mod:`glraster.diff.buffer_views` says why) on texture units _TEXEL_UNIT + these (texture
+# samples on 8-14, interpolate on 16-21).
+_TEXEL_UNIT = 24
+_UNIT_POS, _UNIT_TRI, _UNIT_RAST, _UNIT_GRAD_RAST, _UNIT_GRAD_DB = range(5)
+_GL_RGBA32F = buffer_views.FLOATS[4]
+# A work group of the accumulating passes is a tile of 64 runs of RUN_PIXELS pixels,
+# _TILE_RUNS a row (backward_rasterize.comp).
+_TILE_RUNS = 2
+
 
 def backward(saved: RasterizeSaved, grad_rast=None, grad_db=None, *, needs=None,
              deterministic: bool = False, accumulate: str | None = None):
@@ -409,8 +419,8 @@ def backward_pixels(saved: RasterizeSaved, grad_rast, grad_db=None) -> np.ndarra
 
 class _Backward:
     """One backward dispatch: the program and the per-vertex buffers, then the chunks of
-    pixels (the shader's bindings: 0 pos, 1 tri, 2 rast, 3 grad_rast, 4 grad_db, 5 the
-    accumulated gradient or the per-pixel contributions)."""
+    pixels (the shader's buffer textures: pos, tri, rast, grad_rast, grad_db; its storage
+    buffer 5: the accumulated gradient or the per-pixel contributions)."""
 
     def __init__(self, saved: RasterizeSaved, grad_rast, grad_db, mode: str):
         self.saved, self.mode = saved, mode
@@ -426,10 +436,10 @@ class _Backward:
         pos = saved.pos
         self.pos3 = pos if pos.ndim == 3 else pos[None]
         self.stride = pos.shape[-2] if pos.ndim == 3 else 0
-        self.defines = {compute.DEFINES[mode]: None}
+        self.defines = {compute.DEFINES[mode]: None, "TEXEL_UNIT": _TEXEL_UNIT}
         self.run_length = compute.RUN_PIXELS if mode != "per_pixel" else 1
         if self.run_length > 1:
-            self.defines["RUN"] = self.run_length
+            self.defines.update(RUN=self.run_length, TILE_RUNS=_TILE_RUNS)
         if saved.space == "screen":
             self.defines["SPACE_SCREEN"] = None
         if grad_db is not None:
@@ -442,14 +452,14 @@ class _Backward:
         pixels = self.batch * self.height * self.width
         with ctx:
             program = ctx.compute_program(shader_path(BACKWARD), self.defines)
-            ctx.storage_buffer("backward.pos", self.pos3.reshape(-1, 4)).bind_to_storage_buffer(0)
-            ctx.storage_buffer("backward.tri", tri).bind_to_storage_buffer(1)
+            self._view(_UNIT_POS, "backward.pos", self.pos3.reshape(-1, 4), _GL_RGBA32F)
+            self._view(_UNIT_TRI, "backward.tri", tri, buffer_views.GL_RGB32I)
             compute.set_uniform(program, "size", (self.width, self.height))
             compute.set_uniform(program, "vertex_stride", self.stride)
             compute.set_uniform(program, "n_tri", len(tri))
             if mode == "per_pixel":
                 terms = np.empty((pixels, 3, 4), np.float32)
-                for first, count in compute.chunks(pixels, 48):
+                for first, count in self._chunks(48):
                     terms[first:first + count] = self._chunk(program, first, count)
                 return terms
             if mode == "fixed_point":
@@ -460,16 +470,32 @@ class _Backward:
                                             total_vertices * 4 // groups,
                                             3 * pixels // groups, "grad_rast")
                 for _ in acc.passes(program, 5):
-                    for first, count in compute.chunks(pixels, 16):
+                    for first, count in self._chunks(16):
                         self._chunk(program, first, count)
                 total = acc.result()
             else:
                 grad = compute.zeroed(ctx, "backward.grad_pos", total_vertices * 16)
                 grad.bind_to_storage_buffer(5)
-                for first, count in compute.chunks(pixels, 16):
+                for first, count in self._chunks(16):
                     self._chunk(program, first, count)
                 total = compute.read(grad, total_vertices * 4)
         return total.reshape(self.saved.pos.shape)
+
+    def _chunks(self, bytes_per_pixel: int):
+        """(first, count) ranges of whole image rows (the B H rows stacked) whose per-pixel
+        buffers stay under compute.MAX_CHUNK_BYTES."""
+        w, total = self.width, self.batch * self.height
+        step = max(1, compute.MAX_CHUNK_BYTES // (bytes_per_pixel * w))
+        for first_row in range(0, total, step):
+            yield first_row * w, min(step, total - first_row) * w
+
+    def _view(self, unit: int, name: str, values: np.ndarray, fmt: int) -> None:
+        """Upload ``values`` (C-contiguous rows of one texel each) to storage buffer
+        ``name`` and bind it as a buffer texture of format ``fmt`` on unit _TEXEL_UNIT +
+        ``unit``. Inside ``with ctx``."""
+        buffer_views.bind(self.ctx, _TEXEL_UNIT + unit, self.ctx.storage_buffer(name, values),
+                          values.nbytes, fmt, f"rasterize's backward {name.split('.')[-1]}",
+                          "use fewer vertices or triangles")
 
     def _chunk(self, program, first: int, count: int):
         """Run pixels first .. first + count - 1; their (count, 3, 4) contributions in
@@ -477,16 +503,21 @@ class _Backward:
         ctx = self.ctx
         part = slice(first, first + count)
         rast, grad_rast, grad_db = self.flat
-        ctx.storage_buffer("backward.rast", rast[part]).bind_to_storage_buffer(2)
-        ctx.storage_buffer("backward.grad_rast", grad_rast[part]).bind_to_storage_buffer(3)
+        self._view(_UNIT_RAST, "backward.rast", rast[part], _GL_RGBA32F)
+        self._view(_UNIT_GRAD_RAST, "backward.grad_rast", grad_rast[part], _GL_RGBA32F)
         if grad_db is not None:
-            ctx.storage_buffer("backward.grad_db", grad_db[part]).bind_to_storage_buffer(4)
+            self._view(_UNIT_GRAD_DB, "backward.grad_db", grad_db[part], _GL_RGBA32F)
         if self.mode == "per_pixel":
             out = ctx.scratch_buffer("backward.contrib", count * 48)
             out.bind_to_storage_buffer(5)
         compute.set_uniform(program, "n_pixels", count)
         compute.set_uniform(program, "first_pixel", first)
-        compute.run(ctx, program, -(-count // self.run_length))
+        if self.run_length > 1:   # tiles of 64 / _TILE_RUNS rows, _TILE_RUNS runs wide
+            tiles_x = -(-self.width // (_TILE_RUNS * self.run_length))
+            tiles_y = -(-(count // self.width) // (compute.LOCAL_SIZE // _TILE_RUNS))
+            compute.run(ctx, program, tiles_x * tiles_y * compute.LOCAL_SIZE)
+        else:
+            compute.run(ctx, program, count)
         if self.mode == "per_pixel":
             return compute.read(out, count * 12).reshape(count, 3, 4)
         return None

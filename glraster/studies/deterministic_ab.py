@@ -8,7 +8,8 @@ scene, random upstream gradients); the driver asks the workers for one round in 
 Per checkout and round it times the rasterize forward with rast_db, the rasterize backward
 with atomics and deterministic, and the interpolate core backward (diff_attrs="all") with
 atomics and deterministic, and reports the medians over rounds of the per-round ratios
-``backward_deterministic_over_forward`` and ``interpolate_deterministic_over_atomic``
+``backward_atomic_over_forward``, ``backward_deterministic_over_forward``,
+``rasterize_deterministic_over_atomic`` and ``interpolate_deterministic_over_atomic``
 (the bench-diff cells of the same names).
 
     glraster study deterministic-ab --base /path/to/other/checkout \\
@@ -109,8 +110,9 @@ def main(argv=None) -> int:
     if not args.base:
         parser.error("--base is required")
     sides = {"base": _start(args.base), "new": _start(args.new)}
-    print("| cell | side | fwd ms | det bwd ms | det / fwd | interp det / atomic |")
-    print("|---|---|---|---|---|---|")
+    print("| cell | side | fwd ms | atomic bwd ms | det bwd ms | atomic / fwd | det / fwd "
+          "| det / atomic | interp det / atomic |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for size in args.sizes:
         for count in args.counts:
             times = {side: {c: [] for c in CALLS} for side in sides}
@@ -123,11 +125,15 @@ def main(argv=None) -> int:
                         times[side][name].append(seconds)
             for side, t in times.items():
                 t = {k: np.array(v) for k, v in t.items()}
+                atomic_fwd = np.median(t["backward_atomic"] / t["forward_db"])
                 det_fwd = np.median(t["backward_deterministic"] / t["forward_db"])
+                det_atomic = np.median(t["backward_deterministic"] / t["backward_atomic"])
                 interp = np.median(t["interp_deterministic"] / t["interp_atomic"])
                 print(f"| {size}² {count} | {side} | {np.median(t['forward_db']) * 1e3:.1f} "
+                      f"| {np.median(t['backward_atomic']) * 1e3:.1f} "
                       f"| {np.median(t['backward_deterministic']) * 1e3:.1f} "
-                      f"| {det_fwd:.2f} | {interp:.2f} |", flush=True)
+                      f"| {atomic_fwd:.2f} | {det_fwd:.2f} | {det_atomic:.2f} | {interp:.2f} |",
+                      flush=True)
     for proc in sides.values():
         proc.stdin.close()
         proc.wait()

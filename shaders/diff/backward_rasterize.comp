@@ -7,7 +7,7 @@
 // (atomicCompSwap loop on the float's bits) | ACCUM_FIXED_POINT (64-bit fixed-point integer
 // sums, include/fixed_point.glsl: bit-reproducible) | ACCUM_PER_PIXEL (each pixel writes
 // its three vertex contributions, for backward_pixels); RUN (pixels per invocation, local
-// sums: see main); GRAD_DB.
+// sums), TILE_RUNS (runs per tile row): see main; GRAD_DB.
 //
 // Mathematics (docs/differentiable.md, "Backward on the GPU"). In the pixel-relative window
 // frame V'_j = (X_j - p_x w_j, Y_j - p_y w_j, w_j), with X = (x + w) W/2, Y = (y + w) H/2,
@@ -21,12 +21,17 @@
 
 layout(local_size_x = 64) in;
 
-layout(std430, binding = 0) readonly buffer Pos { vec4 pos[]; };
-layout(std430, binding = 1) readonly buffer Tri { int tri[]; };
-layout(std430, binding = 2) readonly buffer Rast { vec4 rast[]; };
-layout(std430, binding = 3) readonly buffer GradRast { vec4 grad_rast[]; };
+// The gathered inputs, read through buffer textures over their buffers (GL 4.6 section
+// 8.9, texelFetch: on llvmpipe a vector gather, where a storage-buffer load at per-lane
+// addresses is one scalar load per lane; the same bits). Units from TEXEL_UNIT: + 0 pos
+// (RGBA32F, one vertex a texel), + 1 tri (RGB32I, one triangle a texel), + 2 rast,
+// + 3 dL/d rast, + 4 dL/d rast_db (RGBA32F, one pixel a texel).
+layout(binding = TEXEL_UNIT) uniform samplerBuffer pos;
+layout(binding = TEXEL_UNIT + 1) uniform isamplerBuffer tri;
+layout(binding = TEXEL_UNIT + 2) uniform samplerBuffer rast;
+layout(binding = TEXEL_UNIT + 3) uniform samplerBuffer grad_rast;
 #ifdef GRAD_DB
-layout(std430, binding = 4) readonly buffer GradDb { vec4 grad_db[]; };
+layout(binding = TEXEL_UNIT + 4) uniform samplerBuffer grad_db;
 #endif
 #if defined(ACCUM_ATOMIC_FLOAT)
 layout(std430, binding = 5) buffer GradPos { float grad_pos[]; };
@@ -84,26 +89,12 @@ uvec3 pixel_position(uint g) {
     return uvec3(r - y * size.x, y, b);
 }
 
-// the position of the next flat pixel
-uvec3 next_position(uvec3 at) {
-    at.x += 1u;
-    if (at.x == size.x) {
-        at.x = 0u;
-        at.y += 1u;
-        if (at.y == size.y) {
-            at.y = 0u;
-            at.z += 1u;
-        }
-    }
-    return at;
-}
-
 bool pixel_at(uint i, uvec3 at, out Pixel px) {
-    px.t = decode_id(rast[i].w) - 1;
+    px.t = decode_id(texelFetch(rast, int(i)).w) - 1;
     if (px.t < 0 || px.t >= n_tri) return false;
-    px.gbary = grad_rast[i].xy;
+    px.gbary = texelFetch(grad_rast, int(i)).xy;
 #ifdef GRAD_DB
-    px.gdb = grad_db[i];
+    px.gdb = texelFetch(grad_db, int(i));
 #else
     px.gdb = vec4(0.0);
 #endif
@@ -118,9 +109,9 @@ bool pixel_at(uint i, uvec3 at, out Pixel px) {
 // the vertices idx (batch offset included) of triangle t in image b, and their positions
 void corners(int t, uint b, out uint idx[3], out vec4 p[3]) {
     uint base = b * vertex_stride;
-    idx = uint[3](uint(tri[3 * t]) + base, uint(tri[3 * t + 1]) + base,
-                  uint(tri[3 * t + 2]) + base);
-    for (int j = 0; j < 3; ++j) p[j] = pos[idx[j]];
+    uvec3 c = uvec3(texelFetch(tri, t).xyz) + base;
+    idx = uint[3](c.x, c.y, c.z);
+    for (int j = 0; j < 3; ++j) p[j] = texelFetch(pos, int(idx[j]));
 }
 
 // The pixel's terms to the clip-space (x, y, w) of its triangle's vertices, positions p.
@@ -198,10 +189,14 @@ void pixel_terms(Pixel px, vec4 p[3], out vec3 terms[3]) {
 }
 
 #ifdef RUN
-// RUN consecutive pixels per invocation: the terms of a stretch of pixels on one triangle
-// are summed locally and added with one atomic per vertex coordinate (fixed point: one
-// pair of word atomics; 64-bit integer sums are associative, so the same bits), instead
-// of one per pixel.
+// A work group is a tile of TILE_ROWS rows of TILE_RUNS runs of RUN consecutive pixels (of
+// the chunk's rows: the B H image rows stacked), one run per invocation, so an invocation
+// stays in one image (one fixed-point group: one scale, one FIXED_TRACK). The terms of a
+// stretch of a run's pixels on one triangle are summed locally and added with one atomic
+// per vertex coordinate (fixed point: one pair of word atomics; 64-bit integer sums are
+// associative, so the same bits), instead of one per pixel.
+#define TILE_ROWS (64 / TILE_RUNS)
+#define TILE_WIDTH (TILE_RUNS * RUN)
 #ifdef ACCUM_FIXED_POINT
 #define TERM uvec2
 #define TERM_ZERO uvec2(0u)
@@ -210,11 +205,8 @@ void pixel_terms(Pixel px, vec4 p[3], out vec3 terms[3]) {
 #define TERM_ZERO 0.0
 #endif
 
-void flush(uint b, uint idx[3], TERM sum[9], uint largest) {
-#ifdef ACCUM_FIXED_POINT
-    uint group = vertex_stride == 0u ? 0u : b;
-    FIXED_TRACK(grad_pos, group, largest);
-#endif
+// sums `sum` (vertex, coordinate) to the vertices idx, added to grad_pos
+void flush(uint idx[3], TERM sum[9]) {
     for (int j = 0; j < 3; ++j) {
         uint o = 4u * idx[j];
 #ifdef ACCUM_FIXED_POINT
@@ -230,30 +222,33 @@ void flush(uint b, uint idx[3], TERM sum[9], uint largest) {
 }
 
 void main() {
-    uint start = gl_GlobalInvocationID.x * uint(RUN);
+    uint l = gl_LocalInvocationIndex;
+    uint tiles_x = (size.x + uint(TILE_WIDTH) - 1u) / uint(TILE_WIDTH);
+    uint row = (gl_WorkGroupID.x / tiles_x) * uint(TILE_ROWS) + l / uint(TILE_RUNS);
+    uint x0 = (gl_WorkGroupID.x % tiles_x) * uint(TILE_WIDTH) + (l % uint(TILE_RUNS)) * uint(RUN);
+    if (row >= n_pixels / size.x || x0 >= size.x) return;
+    uint count = min(uint(RUN), size.x - x0);
+    uint start = row * size.x + x0;               // the run's first pixel in this chunk
+    uint image_row = first_pixel / size.x + row;  // its row among the B H
+    uint image = image_row / size.y;
+    uvec3 at = uvec3(x0, image_row - image * size.y, image);
     int open_t = -1;
-    uint open_b = 0u;
-    uint open_idx[3] = uint[3](0u, 0u, 0u);
-    vec4 open_p[3];          // the open triangle's positions, loaded once per run
+    uint open_idx[3];        // the open triangle's vertices and positions, loaded once
+    vec4 open_p[3];          // per stretch
     TERM sum[9];
     uint largest = 0u;       // fixed point: fixed_point_magnitude of the largest term
-    float scale = 0.0;
-    uvec3 at = pixel_position(first_pixel + start);
-    for (uint r = 0u; r < uint(RUN); ++r, at = next_position(at)) {
-        uint i = start + r;
-        if (i >= n_pixels) break;
-        Pixel px;
-        if (!pixel_at(i, at, px)) continue;
-        if (px.t != open_t || px.b != open_b) {
-            if (open_t >= 0) flush(open_b, open_idx, sum, largest);
-            open_t = px.t;
-            open_b = px.b;
-            corners(open_t, open_b, open_idx, open_p);
 #ifdef ACCUM_FIXED_POINT
-            scale = uintBitsToFloat(grad_pos[fixed_groups + (vertex_stride == 0u ? 0u : open_b)]);
+    uint group = vertex_stride == 0u ? 0u : image;
+    float scale = uintBitsToFloat(grad_pos[fixed_groups + group]);
 #endif
+    for (uint r = 0u; r < count; ++r, ++at.x) {
+        Pixel px;
+        if (!pixel_at(start + r, at, px)) continue;
+        if (px.t != open_t) {
+            if (open_t >= 0) flush(open_idx, sum);
+            open_t = px.t;
+            corners(open_t, image, open_idx, open_p);
             for (int m = 0; m < 9; ++m) sum[m] = TERM_ZERO;
-            largest = 0u;
         }
         vec3 terms[3];
         pixel_terms(px, open_p, terms);
@@ -269,7 +264,10 @@ void main() {
             }
         }
     }
-    if (open_t >= 0) flush(open_b, open_idx, sum, largest);
+    if (open_t >= 0) flush(open_idx, sum);
+#ifdef ACCUM_FIXED_POINT
+    FIXED_TRACK(grad_pos, group, largest);
+#endif
 }
 #else
 void main() {

@@ -475,6 +475,32 @@ def test_chunked_dispatch_equals_one_dispatch(ctx, monkeypatch):
     assert np.array_equal(whole, parts)
 
 
+@pytest.mark.parametrize("batched_pos", [False, True])
+def test_accumulating_chunks_and_tiles_give_the_same_sums(ctx, monkeypatch, batched_pos):
+    """The accumulating passes run 32 x 32-pixel tiles over the stacked B H rows, in chunks
+    of whole rows: a frame whose sides are no multiple of the tile, three images (tiles
+    across image borders) and 5-row chunks (chunk borders inside tiles) give the bits of
+    one dispatch (deterministic) and sums within float32 reordering of them (atomic)."""
+    pos, tri, res = random_soup(21, resolution=(37, 45))
+    if batched_pos:
+        pos = np.stack([pos, pos * np.float32(1.05), pos[::-1].copy()])
+        rast = gpu_rast(ctx, pos, tri, res)
+    else:
+        rast = np.concatenate([gpu_rast(ctx, pos, tri, res)] * 3)
+    rng = np.random.default_rng(22)
+    g, h = upstream(rng, rast.shape), upstream(rng, rast.shape)
+    det = gpu_backward(pos, tri, rast, g, h, ctx=ctx, deterministic=True)
+    atomic = gpu_backward(pos, tri, rast, g, h, ctx=ctx)
+    monkeypatch.setattr(compute, "MAX_CHUNK_BYTES", 16 * 45 * 5)
+    assert np.array_equal(gpu_backward(pos, tri, rast, g, h, ctx=ctx, deterministic=True), det)
+    parts = gpu_backward(pos, tri, rast, g, h, ctx=ctx)
+    exact = reference_backward(pos, tri, rast, g, h)
+    scale = np.abs(exact).max()
+    assert np.abs(parts - exact).max() <= 1e-4 * scale
+    assert np.abs(atomic - exact).max() <= 1e-4 * scale
+    assert np.abs(det - exact).max() <= 1e-4 * scale
+
+
 def test_accumulation_choice_and_atomic_float_on_llvmpipe(ctx):
     mode = compute.accumulation(ctx)
     if ctx.is_llvmpipe:
