@@ -18,7 +18,8 @@ invocation's run of pixels on one triangle locally, then add each sum with one a
     bit pattern (core GL 4.3). Same result model as ``"atomic_float"``, slower.
 ``"fixed_point"`` (``deterministic=True`` for rasterize, interpolate, antialias)
     Each term is rounded to a multiple of 2^-k and added as a 64-bit integer with 32-bit
-    integer atomics on the GPU (:class:`FixedPointSum`: range and rounding). Integer
+    integer atomics on the GPU, one a term as a rule (:class:`FixedPointSum`: range and
+    rounding). Integer
     addition is associative, so the same inputs give bit-identical results on every run,
     whatever the order in which the invocations add (or the chunking of the pixels).
 ``"per_pixel"`` (``deterministic=True`` for texture)
@@ -29,6 +30,8 @@ invocation's run of pixels on one triangle locally, then add each sum with one a
 
 from __future__ import annotations
 
+import ctypes
+
 import numpy as np
 
 from glraster.errors import ArgumentError
@@ -36,8 +39,9 @@ from glraster.diff.ids import decode_ids
 from glraster.gpu.context import Context
 
 __all__ = [
-    "ACCUMULATIONS", "DEFINES", "FIXED_POINT_ACCUMULATIONS", "FixedPointSum", "LOCAL_SIZE",
-    "RUN_PIXELS", "MAX_CHUNK_BYTES", "accumulation", "chunks", "corner_vertices", "fixed_point_exponent",
+    "ACCUMULATIONS", "DEFINES", "FIXED_BIAS", "FIXED_POINT_ACCUMULATIONS", "FixedPointSum",
+    "LOCAL_SIZE", "RUN_PIXELS", "MAX_CHUNK_BYTES", "accumulation", "chunks", "corner_vertices",
+    "fixed_point_clear", "fixed_point_exponent",
     "has_atomic_float", "read", "run", "set_uniform", "zeroed",
 ]
 
@@ -144,15 +148,35 @@ def corner_vertices(rast_chunk_ids: np.ndarray, first: int, tri: np.ndarray,
 # --------------------------------------------------------------------------- fixed point
 
 
-def fixed_point_exponent(largest: float, terms: int) -> int:
-    """The exponent k of fixed-point sums of at most ``terms`` terms per value whose
-    largest magnitude is ``largest`` (> 0, finite): the largest k with
-    ``largest * 2^k < 2^L``, L = 63 - ceil(log2 terms), so that no sum of rounded terms
-    reaches 2^63; clipped to [-126, 127] (2^k a normal float32; the upper clip only
-    coarsens the rounding, the lower one is never reached by float32 terms)."""
-    headroom = 63 - (max(int(terms), 1) - 1).bit_length()      # L = 63 - ceil(log2 terms)
+# FixedPointSum: the bias of every value's low word, and B with every |q| < 2^B
+FIXED_BIAS = 1 << 31
+FIXED_TERM_BITS = 31
+# glClearNamedBufferSubData (GL 4.5, section 6.3.1) with (2^31, 0) as the pattern
+_GL_RG32UI, _GL_RG_INTEGER, _GL_UNSIGNED_INT = 0x823C, 0x8228, 0x1405
+
+
+def fixed_point_exponent(largest: float, terms: int = 1) -> int:
+    """The exponent k of fixed-point sums whose largest term magnitude is ``largest``
+    (> 0, finite): the largest k with ``largest * 2^k < 2^31``, clipped to [-126, 127]
+    (2^k a normal float32; the upper clip only coarsens the rounding, the lower one is
+    never reached by float32 terms). ``terms``, a bound on the number of terms of one
+    value, must stay below 2^32 - 1 (then no sum of them reaches 2^63)."""
+    if not 0 < int(terms) < (1 << 32) - 1:
+        raise ValueError(f"fixed-point sums take 1 .. 2^32 - 2 terms per value, got {terms}")
     _, e = np.frexp(np.float64(largest))                         # largest < 2^e
-    return int(np.clip(headroom - int(e), -126, 127))
+    return int(np.clip(FIXED_TERM_BITS - int(e), -126, 127))
+
+
+def fixed_point_clear(ctx: Context, buffer, nbytes: int) -> None:
+    """Set the first ``nbytes`` (a multiple of 8) of ``buffer`` to (low, high) word pairs
+    (2^31, 0): fixed-point sums of 0 with the bias of include/fixed_point.glsl, written
+    by the driver where the buffer lives. Inside ``with ctx``."""
+    clear = ctx.gl_function("glClearNamedBufferSubData", None, ctypes.c_uint, ctypes.c_uint,
+                            ctypes.c_ssize_t, ctypes.c_ssize_t, ctypes.c_uint, ctypes.c_uint,
+                            ctypes.c_void_p)
+    pattern = (ctypes.c_uint32 * 2)(FIXED_BIAS, 0)
+    clear(buffer.glo, _GL_RG32UI, 0, int(nbytes), _GL_RG_INTEGER, _GL_UNSIGNED_INT,
+          ctypes.byref(pattern))
 
 
 class FixedPointSum:
@@ -161,24 +185,30 @@ class FixedPointSum:
 
     The summed values form ``groups`` groups of ``size`` values (the images of a batched
     input, or one group); group g has its own exponent k_g. A term t of group g is added
-    as the integer ``q = roundEven(t * 2^k_g)``, as two 32-bit words with a carry
-    (``atomicAdd`` on uint, core GL 4.3: no 64-bit atomics needed).
+    as the integer ``q = roundEven(t * 2^k_g)`` to a 64-bit two's-complement sum held in
+    two 32-bit words (``atomicAdd`` on uint, core GL 4.3: no 64-bit atomics needed), the
+    low word biased by 2^31: the high word takes an atomic only when the low one carries,
+    i.e. when a running sum crosses +-2^31 (+ a multiple of 2^32), so a term costs one
+    atomic as a rule (where an unbiased sum near zero would carry at every sign change).
 
     Range: ``k_g = fixed_point_exponent(M_g, terms)``, M_g the largest |t| added to group
-    g in this call and ``terms`` a bound on the number of terms of one value (3 per pixel
-    for a triangle's corners), so every |q| < 2^(63 - ceil(log2 terms)) and no sum wraps.
-    The dispatch records M_g itself (``atomicMax`` on the float bits). The first pass uses
-    the exponents of the previous call under the same ``name`` as a guess; where one
-    differs from the one M_g gives, the sums are discarded and the pass is repeated with
-    the right exponents. So k_g depends on this call's terms only, never on the history;
-    in a fitting loop, where M_g rarely changes its power of two, one pass is the rule.
+    g in this call: every |q| <= 2^31, so a value of n terms stays below n 2^31 in
+    magnitude, and ``terms`` (a bound on n, 3 per pixel for a triangle's corners) below
+    2^32 - 1 keeps every sum, bias included, inside the 64 bits. The dispatch records M_g
+    itself (``atomicMax`` on the float bits). The first pass uses the exponents of the
+    previous call under the same ``name`` as a guess; where one differs from the one M_g
+    gives, the sums are discarded and the pass is repeated with the right exponents. So
+    k_g depends on this call's terms only, never on the history; in a fitting loop, where
+    M_g rarely changes its power of two, one pass is the rule.
 
-    Rounding: each term is off by at most 2^-(k_g + 1), so a value of n terms differs from
-    the exact sum of its float32 terms by at most ``n * 2^-(k_g + 1)``, which is below
-    ``n * M_g * 2^(ceil(log2 terms) - 63)``, before the conversion to float32 (through
-    float64), which adds at most one float32 ulp of the result. Huge terms only lower
-    k_g (down to 2^-88 for float32's largest); non-finite terms raise
-    :class:`~glraster.errors.ArgumentError` naming ``argument``.
+    Rounding: each term is off by at most 2^-(k_g + 1) <= M_g 2^-31 (2^-8 of a float32
+    ulp of M_g; a term of M_g / 2^7 or more, 24 significant bits, is exact), so a value of
+    n terms differs from the exact sum of its float32 terms by at most
+    ``n * 2^-(k_g + 1) <= n * M_g * 2^-31`` (for n >= 2 terms of M_g / 2 or more, at most
+    2^-6 of the float accumulations' bound (n - 1) u sum|t|, u = 2^-24), before the
+    conversion to float32 (through float64), which adds at most one float32 ulp of the
+    result. Huge terms only lower k_g (down to 2^-97 for float32's largest); non-finite
+    terms raise :class:`~glraster.errors.ArgumentError` naming ``argument``.
 
     Use::
 
@@ -193,7 +223,7 @@ class FixedPointSum:
     def __init__(self, ctx: Context, name: str, groups: int, size: int, terms: int,
                  argument: str):
         self.ctx, self.name, self.groups, self.size = ctx, name, int(groups), int(size)
-        self.terms, self.argument = int(terms), argument
+        self.terms, self.argument = max(int(terms), 1), argument
         guess = self._guesses.get(name)
         if guess is None or len(guess) != self.groups:
             guess = [fixed_point_exponent(1.0, self.terms)] * self.groups
@@ -212,7 +242,7 @@ class FixedPointSum:
             header = np.zeros(head, np.uint32)
             header[self.groups:] = np.ldexp(np.float32(1), self.exponents
                                             ).astype(np.float32).view(np.uint32)
-            buffer.clear(size=max(16, 4 * words))
+            fixed_point_clear(self.ctx, buffer, 4 * words)     # then the header
             buffer.write(header.tobytes())
             buffer.bind_to_storage_buffer(binding)
             self.passes_run += 1
@@ -239,6 +269,7 @@ class FixedPointSum:
         # (low, high) word pairs in memory order are little-endian int64 two's complement
         # (GL and NumPy share the host's byte order; |exact| < 2^63)
         exact = np.ascontiguousarray(words).view("<i8").reshape(self.groups, self.size)
+        exact = exact - FIXED_BIAS          # the bias off (|sum| < 2^63 - 2^31: no wrap)
         # 2^-k is exact in float64 (k in [-126, 127]), so the product is ldexp's
         scale = np.ldexp(1.0, -np.asarray(self.exponents, np.int64))[:, None]
         return (exact * scale).astype(np.float32).reshape(-1)

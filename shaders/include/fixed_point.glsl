@@ -6,9 +6,13 @@
 //                        non-negative floats the uint order is the float order, GLSL 4.50
 //                        section 8.4, so atomicMax on the bits keeps the maximum; NaN > inf)
 //   buf[groups + g]      group g's scale 2^k (float bits, written by the host)
-//   buf[2 groups + 2 n]  value n as a 64-bit two's-complement integer: low word, high word
+//   buf[2 groups + 2 n]  value n as a 64-bit two's-complement integer: low word, high word,
+//                        plus 2^31 (the host fills each pair with (2^31, 0))
 // A term t becomes q = roundEven(t 2^k); q is added with one atomicAdd on the low word and,
 // when the high part or the carry out of the low word is not zero, one on the high word.
+// FixedPointSum's k keeps every |q| <= 2^31, so the high part of a term is 0 or all ones
+// and cancels the carry unless the low word's running sum crosses +-2^31 from the bias:
+// one atomic a term as a rule. (texture.comp uses the same words without the bias.)
 // Integer addition is associative and commutative, so every word ends with the same bits
 // whatever the order of the additions. Macros only (no declarations) apart from
 // fixed_point_words, so the shader declares `buf` with its own binding.

@@ -27,18 +27,20 @@ def fresh_guesses(monkeypatch):
     monkeypatch.setattr(compute.FixedPointSum, "_guesses", {})
 
 
-def test_exponent_is_the_largest_that_keeps_sums_below_2_63():
-    """largest 2^k < 2^L and largest 2^(k+1) >= 2^L, L = 63 - ceil(log2 terms), so terms
-    terms of magnitude <= largest 2^k sum below 2^63."""
-    assert compute.fixed_point_exponent(1.0, 1) == 62
-    assert compute.fixed_point_exponent(0.75, 3 * 4096) == 63 - 14 - 0
+def test_exponent_is_the_largest_that_keeps_every_term_below_2_31():
+    """largest 2^k < 2^31 <= largest 2^(k+1): every rounded term fits the biased low word
+    (one atomic a term), and fewer than 2^32 - 1 terms sum below 2^63 with the bias."""
+    assert compute.fixed_point_exponent(1.0, 1) == 30
+    assert compute.fixed_point_exponent(0.75, 3 * 4096) == 31
     rng = np.random.default_rng(0)
-    for largest, terms in zip(np.exp(rng.uniform(-60, 60, 200)), rng.integers(1, 1 << 33, 200)):
+    for largest, terms in zip(np.exp(rng.uniform(-60, 60, 200)), rng.integers(1, 1 << 32, 200)):
         k = compute.fixed_point_exponent(largest, int(terms))
-        headroom = 63 - int(np.ceil(np.log2(int(terms)))) if terms > 1 else 63
-        assert largest * 2.0 ** k < 2.0 ** headroom <= largest * 2.0 ** (k + 1)
-        assert int(terms) * np.floor(largest * 2.0 ** k + 0.5) < 2.0 ** 63
+        assert largest * 2.0 ** k < 2.0 ** 31 <= largest * 2.0 ** (k + 1)
+        assert int(terms) * int(np.floor(largest * 2.0 ** k + 0.5)) + (1 << 31) < 1 << 63
     assert compute.fixed_point_exponent(1e-35, 4) == 127, "2^k stays a normal float32"
+    assert compute.fixed_point_exponent(np.finfo(np.float32).max) == -97
+    with pytest.raises(ValueError, match="terms per value"):
+        compute.fixed_point_exponent(1.0, (1 << 32) - 1)
 
 
 def test_deterministic_is_the_fixed_point_accumulation_of_the_three_ops(ctx):
@@ -94,6 +96,24 @@ def test_interpolate_sum_within_the_stated_bound_of_the_exact_sum(ctx, interp_sc
     assert np.abs(exact).max() > 1 and (err <= bound).all(), (err / bound).max()
     # the stated bound is tight enough to matter: below a float32 ulp of the largest sum
     assert (n * 2.0 ** -(k + 1)).max() < U32 * np.abs(exact).max()
+
+
+def test_interpolate_sum_is_the_float32_of_the_exact_integer_sum(ctx, interp_scene):
+    """Every value is float32(2^-k sum roundEven(t 2^k)) bit for bit (the integer sum
+    exact, in Python integers): the bias and the carries between the words lose nothing,
+    for sums of both signs crossing zero (random upstream gradients) and for sums of many
+    terms crossing +-2^31 (a vertex shared by many pixels)."""
+    attr, rast, tri, go = interp_scene
+    _, _, saved = forward(attr, rast, tri, ctx=ctx)
+    got = ip.backward(saved, go, deterministic=True)[0]
+    terms, rows = _interpolate_terms(rast, tri, go)
+    k = compute.fixed_point_exponent(np.abs(terms).max(), 3 * rast[..., 0].size)
+    q = np.rint(np.ldexp(terms.astype(np.float64), k)).astype(np.int64)   # |q| < 2^31
+    sums = np.zeros(attr.shape, object)
+    np.add.at(sums, rows.ravel(), q.reshape(-1, attr.shape[1]).astype(object))
+    assert max(abs(int(v)) for v in sums.ravel()) > 1 << 31, "some sums cross 2^31"
+    want = np.array([[float(v) for v in row] for row in sums]) * 2.0 ** -k
+    assert bits(got).tolist() == bits(want.astype(np.float32)).tolist()
 
 
 def test_interpolate_bit_identical_for_shuffled_pixels_and_chunks(ctx, interp_scene,
