@@ -38,7 +38,7 @@ import numpy as np
 
 from glraster import validate
 from glraster.diff import buffer_views
-from glraster.diff.compute import LOCAL_SIZE, accumulation
+from glraster.diff.compute import LOCAL_SIZE, accumulation, fixed_point_clear
 from glraster.diff.compute import chunks as _chunks
 from glraster.diff.compute import read as _read
 from glraster.diff.compute import run as _run
@@ -304,18 +304,20 @@ def forward(tex, uv, uv_da=None, mip_level_bias=None, *mip, filter_mode="auto",
 # read in the invocation, and send each texel's sum once (texture.comp, "Held")
 BACKWARD_RUN = 8
 
-# the deterministic mode's accumulators are signed 64-bit integers; sums stay below 2^62
-_FIXED_TOTAL_BITS = 62
-
-
 def fixed_point_shift(max_abs_g: float, pixels: int) -> int:
-    """k such that the deterministic backward adds a contribution v as round(v 2^k): the
-    largest with 8 pixels x max |g| 2^k <= 2^62, i.e. every texel's sum of at most 8 taps
-    per pixel fits a signed 64-bit integer. Resolution 2^-k per contribution, at most 2^-38
-    of max |g| for a million pixels."""
-    head = int(np.ceil(np.log2(8 * max(pixels, 1))))
+    """k such that the deterministic backward adds a contribution v = w g (|w| <= 1) as
+    round(v 2^k): the largest with max |g| 2^k < 2^28. The texel sums' low words are
+    biased by 2^31 (:func:`glraster.diff.compute.fixed_point_clear`, as
+    :class:`glraster.diff.compute.FixedPointSum`'s), so a contribution costs one atomic
+    until a texel's running sum crosses +-2^31, after at least 8 max |g| of them (several
+    pixels' w = 1 taps of nearest or magnified filtering sum on one texel: the 3 bits of
+    headroom keep those carries rare); a texel's sum of at most 8 a pixel stays below
+    2^63 for fewer than 2^28 pixels. Each contribution is off by at most
+    2^-(k+1) <= 2^-28 max |g| (2^-5 of a float32 ulp of max |g|)."""
+    if pixels >= 1 << 28:
+        raise ValueError(f"deterministic texture sums take fewer than 2^28 pixels, got {pixels}")
     top = int(np.frexp(max_abs_g)[1]) if max_abs_g > 0 else 0   # max |g| < 2^top
-    return _FIXED_TOTAL_BITS - head - top
+    return 28 - top
 
 
 def fixed_point_values(ctx: Context, words, count: int, shift: int):
@@ -345,7 +347,7 @@ class _TexelGradients:
     """Where the backward sums the texel gradients (inside ``with ctx``; made only when tex
     or a mip level wants one): a zeroed storage buffer the shader adds into, float32 with
     float atomics or a compare-and-swap loop, or (``per_pixel``, deterministic) signed
-    64-bit fixed-point integers (:func:`fixed_point_shift`) with integer atomics, whose sum
+    64-bit fixed-point integers (:func:`fixed_point_shift`, biased by 2^31) with integer atomics, whose sum
     does not depend on the order of the additions."""
 
     def __init__(self, ctx: Context, mode: str, total: int, channels: int, program,
@@ -354,7 +356,11 @@ class _TexelGradients:
         # per_pixel: two words a value, whole groups of 4 values (fixed_point_values)
         nbytes = -(-total * channels // 4) * 32 if mode == "per_pixel" else total * channels * 4
         _storage_limit(ctx, nbytes, "the texel gradients")
-        self.buffer = _cleared(ctx, "texture.grad_tex", nbytes)
+        if mode == "per_pixel":      # sums of 0 with the fixed-point bias
+            self.buffer = ctx.scratch_buffer("texture.grad_tex", nbytes)
+            fixed_point_clear(ctx, self.buffer, nbytes)
+        else:
+            self.buffer = _cleared(ctx, "texture.grad_tex", nbytes)
         self.buffer.bind_to_storage_buffer(9)
         self.top = None
         if mipmapped:

@@ -1,6 +1,6 @@
 #version 450
 // The deterministic texture backward's last step on the GPU: each 64-bit fixed-point sum
-// (include/fixed_point.glsl's words: low, high, two's complement) to the float32
+// (include/fixed_point.glsl's words: low, high, two's complement, plus 2^31) to the float32
 // round(q 2^-k), four values per invocation (wide loads and stores: half the time of one),
 // the words read through a buffer texture over them (RGBA32UI, unit WORDS_UNIT: llvmpipe's
 // texel fetches are several times faster than its storage-buffer loads).
@@ -20,7 +20,8 @@ uniform double unit;      // 2^-k (a double uniform: exact)
 
 // not ldexp: llvmpipe gives ldexp(0, -k) != 0 in double
 float value(uvec2 w) {
-    return float((double(int(w.y)) * 4294967296.0lf + double(w.x)) * unit);
+    // the low word's bias 2^31 off: w.x - 2^31 as a signed int is w.x with its top bit flipped
+    return float((double(int(w.y)) * 4294967296.0lf + double(int(w.x ^ 0x80000000u))) * unit);
 }
 
 void main() {
