@@ -8,8 +8,8 @@
 // Accumulation into dL/da as in backward_rasterize.comp: ACCUM_ATOMIC_FLOAT | ACCUM_CAS |
 // ACCUM_FIXED_POINT, the terms of the invocation's pixels on one triangle summed locally
 // (N_ATTR: the attribute count, so the 3 N_ATTR local sums are an array) and each sum
-// added with one atomic (fixed point: one pair of word atomics). NO_GRAD_ATTR: dL/da not
-// wanted (no accumulation at all), NO_GRAD_RAST: grad_rast and grad_rast_db not wanted
+// added with one atomic (fixed point: one word atomic, two where it reaches the high
+// word). NO_GRAD_ATTR: dL/da not wanted (no accumulation at all), NO_GRAD_RAST: grad_rast and grad_rast_db not wanted
 // (not written). The gathered inputs (attributes, triangles, rast, rast_db, dL/d out,
 // dL/d out_da) are read through buffer textures (include/interpolate_views.glsl).
 #ifdef ACCUM_ATOMIC_FLOAT

@@ -193,7 +193,7 @@ void pixel_terms(Pixel px, vec4 p[3], out vec3 terms[3]) {
 // the chunk's rows: the B H image rows stacked), one run per invocation, so an invocation
 // stays in one image (one fixed-point group: one scale, one FIXED_TRACK). The terms of a
 // stretch of a run's pixels on one triangle are summed locally and added with one atomic
-// per vertex coordinate (fixed point: one pair of word atomics; 64-bit integer sums are
+// per vertex coordinate (fixed point: one or two word atomics; 64-bit integer sums are
 // associative, so the same bits), instead of one per pixel.
 #define TILE_ROWS (64 / TILE_RUNS)
 #define TILE_WIDTH (TILE_RUNS * RUN)

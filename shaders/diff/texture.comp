@@ -337,7 +337,7 @@ float g_pixel[CHANNELS];  // this pixel's dL/d out, read once
 
 #ifdef ACCUM_FIXED_POINT
 // the texel sums are 64-bit fixed-point integers (include/fixed_point.glsl, one group and no
-// header: value n at words 2n, 2n + 1); integer addition is associative, so the total is the
+// header: value n at words 2n, 2n + 1, biased by 2^31; each |term| < 2^31: one atomic as a rule); integer addition is associative, so the total is the
 // same whatever order the invocations reach it (bit-identical runs), and adding terms in
 // the invocation first (fixed_point_add) gives the same words as adding each on its own
 #include "include/fixed_point.glsl"

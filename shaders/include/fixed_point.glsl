@@ -12,7 +12,7 @@
 // when the high part or the carry out of the low word is not zero, one on the high word.
 // FixedPointSum's k keeps every |q| <= 2^31, so the high part of a term is 0 or all ones
 // and cancels the carry unless the low word's running sum crosses +-2^31 from the bias:
-// one atomic a term as a rule. (texture.comp uses the same words without the bias.)
+// one atomic a term as a rule. (texture.comp: the same words and bias, without the header.)
 // Integer addition is associative and commutative, so every word ends with the same bits
 // whatever the order of the additions. Macros only (no declarations) apart from
 // fixed_point_words, so the shader declares `buf` with its own binding.
