@@ -25,7 +25,9 @@ Fit: the true material is fixed (kd = (0.60, 0.28, 0.16), ks = (0.30, 0.32, 0.36
 p = 60); the start draws kd uniformly in [0.05, 0.95]³, ks in [0.05, 0.6]³ and p
 log-uniformly in [4, 600] (seeded). Every iteration draws ``views`` random rotations (two by
 default: one instanced draw), renders the true and the current material in them and takes
-one Adam step on the mean squared difference over the covered pixels; the parameters are
+one Adam step on the mean squared difference over the covered pixels (:func:`envmap_loss`:
+the material enters after the GL ops, so both renders share one rasterize, interpolate and
+pair of lookups); the parameters are
 kd, ks (clamped to [0, 1] after each step; learning rate ``lr``) and log p (learning rate
 ``exponent_lr``: the start may be a factor of 15 off, log 15 = 2.7), the learning rates
 falling exponentially to ``lr_decay`` times their start over the run. Reported per
@@ -44,6 +46,7 @@ together, the image error falls while the colour and exponent errors grow.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -55,13 +58,15 @@ from glraster.torch.fitting.common import quaternion_matrices, random_quaternion
 from glraster.torch.ops import interpolate, rasterize
 from glraster.torch.texture import texture, texture_construct_mip
 
-__all__ = ["DISTANCE", "EnvmapFit", "FOVY", "TRUE_MATERIAL", "Scene", "fit_envmap",
-           "make_scene", "render_envmap", "view_setup"]
+__all__ = ["DISTANCE", "EnvmapFit", "FOVY", "TRUE_MATERIAL", "Scene", "Views", "envmap_loss",
+           "fit_envmap", "lookups", "make_scene", "render_envmap", "shade", "view_setup",
+           "views_of"]
 
 DISTANCE = 3.6
 FOVY = 40.0
 TRUE_MATERIAL = {"diffuse": (0.60, 0.28, 0.16), "specular": (0.30, 0.32, 0.36),
                  "exponent": 60.0}
+_TRUE = tuple(torch.tensor(v, dtype=torch.float32) for v in TRUE_MATERIAL.values())
 
 
 class Scene:
@@ -97,13 +102,27 @@ def view_setup(quaternions):
     return (torch.tensor(mvp, dtype=torch.float32), torch.tensor(eye, dtype=torch.float32))
 
 
-def render_envmap(glctx, scene: Scene, mvp, eye, diffuse, specular, exponent,
-                  resolution: int, *, env=None):
-    """(N, R, R, 3) images of the material (``diffuse`` (3,), ``specular`` (3,),
-    ``exponent`` scalar tensor) under the (N, 4, 4) ``mvp`` with eyes (N, 3), and the
-    (N, R, R) coverage. env: a cube map (1, 6, N, N, 3) instead of the scene's (its
-    pyramid built in every call, so that the gradient reaches it). Differentiable in the
-    material and ``env``."""
+class Views(NamedTuple):
+    """What the GL ops give for N views, before any lookup or material: ``covered`` (N, R, R)
+    bool, the interpolated normals ``n`` and reflections ``r`` (N, R, R, 3) with their
+    screen derivatives ``n_da``, ``r_da`` (N, R, R, 6; (dA/dX, dA/dY) per component), the
+    diffuse lookup's mip ``bias`` (N, R, R) and ``log_cos`` (N, R, R, 1): log max(r.l / |r|,
+    1e-6), the Phong lobe's log before the exponent. No gradient flows into any of them (the
+    geometry and the views are fixed), so one :func:`views_of` serves the target, the
+    current material and a cube map being fitted."""
+
+    covered: torch.Tensor
+    n: torch.Tensor
+    n_da: torch.Tensor
+    r: torch.Tensor
+    r_da: torch.Tensor
+    bias: torch.Tensor
+    log_cos: torch.Tensor
+
+
+def views_of(glctx, scene: Scene, mvp, eye, resolution: int) -> Views:
+    """:class:`Views` of the (N, 4, 4) ``mvp`` with eyes (N, 3) at ``resolution``²:
+    rasterize (with rast_db) and interpolate (diff_attrs="all")."""
     clip = clip_positions(mvp, scene.verts)
     rast, rast_db = rasterize(glctx, clip, scene.tri, (resolution, resolution), grad_db=True)
     n = scene.normals
@@ -117,21 +136,62 @@ def render_envmap(glctx, scene: Scene, mvp, eye, diffuse, specular, exponent,
     n_pix, r_pix = pix[..., :3].contiguous(), pix[..., 3:].contiguous()
     n_da, r_da = pix_da[..., :6].contiguous(), pix_da[..., 6:].contiguous()
     bias = torch.full(n_pix.shape[:-1], math.log2(scene.env_size) - 2.0)
-    env, mip = (scene.env, scene.mip) if env is None else (env, None)
-    env_diffuse = texture(env, n_pix, n_da, bias, mip=mip,
-                          filter_mode="linear-mipmap-linear", boundary_mode="cube",
-                          glctx=glctx)
-    env_mirror = texture(env, r_pix, r_da, mip=mip,
-                         filter_mode="linear-mipmap-linear", boundary_mode="cube",
-                         glctx=glctx)
     sun = torch.tensor(SUN_DIRECTION, dtype=torch.float32)
     cos = (r_pix * sun).sum(-1, keepdim=True) / r_pix.norm(dim=-1, keepdim=True).clamp_min(
         1e-12)
     # x^p as exp(p log x), x kept >= 1e-6: pow's gradient in p (x^p log x) is NaN at x = 0
-    lobe = torch.exp(exponent * torch.log(cos.clamp_min(1e-6)))
+    return Views(covered=rast[..., 3] > 0, n=n_pix, n_da=n_da, r=r_pix, r_da=r_da,
+                 bias=bias, log_cos=torch.log(cos.clamp_min(1e-6)))
+
+
+def lookups(glctx, scene: Scene, views: Views, env=None):
+    """(E(n; coarse), E(r)), each (N, R, R, 3): the diffuse and mirror lookups of the
+    scene's cube map, or of ``env`` (1, 6, N, N, 3; its pyramid built in every call, so
+    that the gradient reaches it)."""
+    env, mip = (scene.env, scene.mip) if env is None else (env, None)
+    lookup = dict(mip=mip, filter_mode="linear-mipmap-linear", boundary_mode="cube",
+                  glctx=glctx)
+    return (texture(env, views.n, views.n_da, views.bias, **lookup),
+            texture(env, views.r, views.r_da, **lookup))
+
+
+def shade(views: Views, light, diffuse, specular, exponent):
+    """(N, R, R, 3) images of the material (``diffuse`` (3,), ``specular`` (3,),
+    ``exponent`` scalar tensor) lit by ``light`` (:func:`lookups`), 0 where the blob does
+    not cover the pixel."""
+    env_diffuse, env_mirror = light
+    lobe = torch.exp(exponent * views.log_cos)
     image = diffuse * env_diffuse + specular * (env_mirror + lobe)
-    covered = rast[..., 3] > 0
-    return image * covered[..., None], covered
+    return image * views.covered[..., None]
+
+
+def render_envmap(glctx, scene: Scene, mvp, eye, diffuse, specular, exponent,
+                  resolution: int, *, env=None):
+    """(N, R, R, 3) images of the material (``diffuse`` (3,), ``specular`` (3,),
+    ``exponent`` scalar tensor) under the (N, 4, 4) ``mvp`` with eyes (N, 3), and the
+    (N, R, R) coverage: :func:`views_of`, :func:`lookups` (of ``env`` when given) and
+    :func:`shade`. Differentiable in the material and ``env``."""
+    views = views_of(glctx, scene, mvp, eye, resolution)
+    return shade(views, lookups(glctx, scene, views, env), diffuse, specular,
+                 exponent), views.covered
+
+
+def envmap_loss(glctx, scene: Scene, mvp, eye, material, resolution: int, *, env=None,
+                timer=None):
+    """The masked MSE of one step: the views rendered once (:func:`views_of`), the target
+    shaded under the true material without autograd, the ``material`` (diffuse, specular,
+    exponent) under the scene's cube map or ``env`` with it. timer: a
+    :class:`glraster.torch.fitting.common.Timer`, charged "target" (views and target) and
+    "forward"."""
+    timer = timer or Timer()
+    with timer("target"), torch.no_grad():
+        views = views_of(glctx, scene, mvp, eye, resolution)
+        light = lookups(glctx, scene, views)
+        target = shade(views, light, *_TRUE)
+    with timer("forward"):
+        if env is not None:
+            light = lookups(glctx, scene, views, env)
+        return _masked_mse(shade(views, light, *material), target, views.covered)
 
 
 def _masked_mse(image, target, mask):
@@ -201,13 +261,8 @@ def fit_envmap(glctx, seed: int, *, resolution: int = 256, iterations: int = 300
     for it in range(iterations):
         measure()
         mvp, eye = view_setup(random_quaternions(rng, views))
-        with timer("target"), torch.no_grad():
-            target, covered = render_envmap(glctx, scene, mvp, eye, true["diffuse"],
-                                            true["specular"], true["exponent"], resolution)
-        with timer("forward"):
-            image, _ = render_envmap(glctx, scene, mvp, eye, kd, ks, torch.exp(log_p),
-                                     resolution, env=env)
-            loss = _masked_mse(image, target, covered)
+        loss = envmap_loss(glctx, scene, mvp, eye, (kd, ks, torch.exp(log_p)), resolution,
+                           env=env, timer=timer)
         descend(timer, loss, opt, schedule, project=project)
         rmse.append(math.sqrt(float(loss.detach())))
         if progress is not None:
