@@ -18,8 +18,8 @@ direction d with ``boundary_mode="cube"``, ``linear-mipmap-linear`` and the dire
 screen derivatives (``uv_da`` from :func:`glraster.torch.interpolate` with
 ``diff_attrs="all"`` and ``rast_db``). The diffuse lookup adds a mip bias of
 log2(env_size) - 2 (a 4² level or coarser: a blurred environment standing in for the
-irradiance); the Phong lobe is around the sun direction l, with r normalized per pixel.
-Pixels the blob does not cover are 0.
+irradiance); the Phong lobe is around the sun direction l, with r normalized per pixel
+(and taken as 0 below e^-40: :data:`LOBE_FLOOR`). Pixels the blob does not cover are 0.
 
 Fit: the true material is fixed (kd = (0.60, 0.28, 0.16), ks = (0.30, 0.32, 0.36),
 p = 60); the start draws kd uniformly in [0.05, 0.95]³, ks in [0.05, 0.6]³ and p
@@ -27,13 +27,12 @@ log-uniformly in [4, 600] (seeded). Every iteration draws ``views`` random rotat
 default: one instanced draw), renders the true and the current material in them and takes
 one Adam step on the mean squared difference over the covered pixels (:func:`envmap_loss`:
 the material enters after the GL ops, so both renders share one rasterize, interpolate and
-pair of lookups); the parameters are
-kd, ks (clamped to [0, 1] after each step; learning rate ``lr``) and log p (learning rate
-``exponent_lr``: the start may be a factor of 15 off, log 15 = 2.7), the learning rates
-falling exponentially to ``lr_decay`` times their start over the run. Reported per
-iteration: the image RMSE of the step's views (covered pixels), the colour error (mean
-|c - c_true| over the 6 colour channels) and the relative exponent error
-|p - p_true| / p_true.
+pair of lookups); the parameters are kd, ks (clamped to [0, 1] after each step; learning
+rate ``lr``) and log p (learning rate ``exponent_lr``: the start may be a factor of 15
+off, log 15 = 2.7), the learning rates falling exponentially to ``lr_decay`` times their
+start over the run. Reported per iteration: the image RMSE of the step's views (covered
+pixels), the colour error (mean |c - c_true| over the 6 colour channels) and the relative
+exponent error |p - p_true| / p_true.
 
 With ``fit_env`` the cube map is the parameter instead (from a uniform grey start, the
 material known): the lighting from the images, each step's backward then running through
@@ -58,9 +57,9 @@ from glraster.torch.fitting.common import quaternion_matrices, random_quaternion
 from glraster.torch.ops import interpolate, rasterize
 from glraster.torch.texture import texture, texture_construct_mip
 
-__all__ = ["DISTANCE", "EnvmapFit", "FOVY", "TRUE_MATERIAL", "Scene", "Views", "envmap_loss",
-           "fit_envmap", "lookups", "make_scene", "render_envmap", "shade", "view_setup",
-           "views_of"]
+__all__ = ["DISTANCE", "EnvmapFit", "FOVY", "LOBE_FLOOR", "TRUE_MATERIAL", "Scene", "Views",
+           "envmap_loss", "fit_envmap", "lookups", "make_scene", "render_envmap", "shade",
+           "view_setup", "views_of"]
 
 DISTANCE = 3.6
 FOVY = 40.0
@@ -112,10 +111,11 @@ def view_setup(quaternions):
 
 class Views(NamedTuple):
     """What the GL ops give for N views, before any lookup or material: ``covered`` (N, R, R)
-    bool and as a float32 ``mask`` (N, R, R, 1) of 0 and 1, the interpolated normals ``n`` and reflections ``r`` (N, R, R, 3) with their
-    screen derivatives ``n_da``, ``r_da`` (N, R, R, 6; (dA/dX, dA/dY) per component), the
-    diffuse lookup's mip ``bias`` (N, R, R) and ``log_cos`` (N, R, R, 1): log max(r.l / |r|,
-    1e-6), the Phong lobe's log before the exponent. No gradient flows into any of them (the
+    bool and as a float32 ``mask`` (N, R, R, 1) of 0 and 1, the interpolated normals ``n``
+    and reflections ``r`` (N, R, R, 3) with their screen derivatives ``n_da``, ``r_da``
+    (N, R, R, 6; (dA/dX, dA/dY) per component), the diffuse lookup's mip ``bias``
+    (N, R, R) and ``log_cos`` (N, R, R, 1): log max(r.l / |r|, 1e-6), the Phong lobe's log
+    before the exponent. No gradient flows into any of them (the
     geometry and the views are fixed), so one :func:`views_of` serves the target, the
     current material and a cube map being fitted."""
 
@@ -148,10 +148,11 @@ def views_of(glctx, scene: Scene, mvp, eye, resolution: int) -> Views:
     sun = torch.tensor(SUN_DIRECTION, dtype=torch.float32)
     cos = (r_pix * sun).sum(-1, keepdim=True) / r_pix.norm(dim=-1, keepdim=True).clamp_min(
         1e-12)
-    # x^p as exp(p log x), x kept >= 1e-6: pow's gradient in p (x^p log x) is NaN at x = 0
     covered = rast[..., 3] > 0
-    return Views(covered=covered, mask=covered[..., None].to(torch.float32), n=n_pix, n_da=n_da, r=r_pix, r_da=r_da,
-                 bias=bias, log_cos=torch.log(cos.clamp_min(1e-6)))
+    # x^p as exp(p log x), x kept >= 1e-6: pow's gradient in p (x^p log x) is NaN at x = 0
+    return Views(covered=covered, mask=covered[..., None].to(torch.float32), n=n_pix,
+                 n_da=n_da, r=r_pix, r_da=r_da, bias=bias,
+                 log_cos=torch.log(cos.clamp_min(1e-6)))
 
 
 def lookups(glctx, scene: Scene, views: Views, env=None):
