@@ -79,7 +79,9 @@ _TRUE = tuple(torch.tensor(v, dtype=torch.float32) for v in TRUE_MATERIAL.values
 class Scene:
     """The blob and the environment as float32 torch tensors: ``verts`` (V, 3), ``tri``
     (T, 3) int32, ``normals`` (V, 3), ``env`` (1, 6, N, N, 3); ``mip``: the environment's
-    pyramid, built once (it never changes during a fit)."""
+    pyramid, built once (it never changes during a fit); :meth:`bias`: the diffuse
+    lookup's mip bias image, the same tensor while its shape is (so neither uploaded nor
+    validated again)."""
 
     def __init__(self, glctx, *, mesh=(128, 120), env_size: int = 512):
         verts, faces, normals = blob(*mesh)
@@ -89,6 +91,13 @@ class Scene:
         self.env = torch.tensor(studio_cube_map(env_size)[None], dtype=torch.float32)
         self.env_size, self.mesh = env_size, tuple(mesh)
         self.mip = texture_construct_mip(self.env, cube_mode=True, glctx=glctx)
+        self._bias = torch.zeros(0)
+
+    def bias(self, shape) -> torch.Tensor:
+        """(N, R, R) float32 of log2(env_size) - 2 for images of ``shape`` (N, R, R)."""
+        if self._bias.shape != shape or self._bias._version:  # (changed in place: anew)
+            self._bias = torch.full(shape, math.log2(self.env_size) - 2.0)
+        return self._bias
 
 
 def make_scene(glctx, *, mesh=(128, 120), env_size: int = 512) -> Scene:
@@ -144,7 +153,7 @@ def views_of(glctx, scene: Scene, mvp, eye, resolution: int) -> Views:
     # pix_da: (dA/dX, dA/dY) per attribute; the normal's 3 pairs, then the reflection's
     n_pix, r_pix = pix[..., :3].contiguous(), pix[..., 3:].contiguous()
     n_da, r_da = pix_da[..., :6].contiguous(), pix_da[..., 6:].contiguous()
-    bias = torch.full(n_pix.shape[:-1], math.log2(scene.env_size) - 2.0)
+    bias = scene.bias(n_pix.shape[:-1])
     sun = torch.tensor(SUN_DIRECTION, dtype=torch.float32)
     cos = (r_pix * sun).sum(-1, keepdim=True) / r_pix.norm(dim=-1, keepdim=True).clamp_min(
         1e-12)
@@ -203,11 +212,11 @@ def envmap_loss(glctx, scene: Scene, mvp, eye, material, resolution: int, *, env
     with timer("target"), torch.no_grad():
         views = views_of(glctx, scene, mvp, eye, resolution)
         light = lookups(glctx, scene, views)
-        target = shade(views, light, *_TRUE)
+        target = _unmasked(views, light, *_TRUE)
     with timer("forward"):
         if env is not None:
             light = lookups(glctx, scene, views, env)
-        # the image unmasked: the loss masks it (x m - t)^2 m = (x - t)^2 m for m in {0, 1}
+        # both unmasked: the loss masks them, (x m - t m)^2 m = (x - t)^2 m for m in {0, 1}
         return _masked_mse(_unmasked(views, light, *material), target, views.mask)
 
 
