@@ -120,7 +120,9 @@ def view_setup(quaternions):
 
 class Views(NamedTuple):
     """What the GL ops give for N views, before any lookup or material: ``covered`` (N, R, R)
-    bool and as a float32 ``mask`` (N, R, R, 1) of 0 and 1, the interpolated normals ``n``
+    bool and as a float32 ``mask`` (N, R, R, 3) of 0 and 1 (one per colour channel: a
+    product with it is a plain elementwise one, not a slower broadcast), the interpolated
+    normals ``n``
     and reflections ``r`` (N, R, R, 3) with their screen derivatives ``n_da``, ``r_da``
     (N, R, R, 6; (dA/dX, dA/dY) per component), the diffuse lookup's mip ``bias``
     (N, R, R) and ``log_cos`` (N, R, R, 1): log max(r.l / |r|, 1e-6), the Phong lobe's log
@@ -159,7 +161,8 @@ def views_of(glctx, scene: Scene, mvp, eye, resolution: int) -> Views:
         1e-12)
     covered = rast[..., 3] > 0
     # x^p as exp(p log x), x kept >= 1e-6: pow's gradient in p (x^p log x) is NaN at x = 0
-    return Views(covered=covered, mask=covered[..., None].to(torch.float32), n=n_pix,
+    mask = covered[..., None].expand(*covered.shape, 3).to(torch.float32)
+    return Views(covered=covered, mask=mask, n=n_pix,
                  n_da=n_da, r=r_pix, r_da=r_da, bias=bias,
                  log_cos=torch.log(cos.clamp_min(1e-6)))
 
@@ -221,9 +224,10 @@ def envmap_loss(glctx, scene: Scene, mvp, eye, material, resolution: int, *, env
 
 
 def _masked_mse(image, target, m):
-    """The mean of m (image - target)^2 over the pixels where the (N, R, R, 1) ``m`` is 1
-    and their channels."""
-    return torch.sum(m * (image - target) ** 2) / (torch.sum(m).clamp_min(1.0) * image.shape[-1])
+    """The mean of m (image - target)^2 over the pixels and channels where the (N, R, R, C)
+    ``m`` is 1."""
+    # sum(m) counts exactly (integers below 2^24): max(sum(m), C) = max(pixels, 1) C
+    return torch.sum(m * (image - target) ** 2) / torch.sum(m).clamp_min(image.shape[-1])
 
 
 def fit_envmap(glctx, seed: int, *, resolution: int = 256, iterations: int = 300,
