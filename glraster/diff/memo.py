@@ -5,7 +5,8 @@ runs no GL work.
 The case it serves is the fitting loop that renders its target under ``torch.no_grad()``
 and then the same views again with the parameters being fitted, where those parameters
 enter only after the GL ops (a material, a light): the second render's rasterize,
-interpolate and texture calls repeat the first's exactly. The ops are deterministic
+interpolate and texture calls repeat the first's exactly (as a user's nvdiffrast-style
+loop does; glraster's own envmap fit shares those calls itself). The ops are deterministic
 functions of their inputs and keyword arguments, so a remembered result is the result.
 
 A front end (:mod:`glraster.torch.bridge`) decides which calls no gradient flows through

@@ -122,13 +122,12 @@ class Views(NamedTuple):
     """What the GL ops give for N views, before any lookup or material: ``covered`` (N, R, R)
     bool and as a float32 ``mask`` (N, R, R, 3) of 0 and 1 (one per colour channel: a
     product with it is a plain elementwise one, not a slower broadcast), the interpolated
-    normals ``n``
-    and reflections ``r`` (N, R, R, 3) with their screen derivatives ``n_da``, ``r_da``
-    (N, R, R, 6; (dA/dX, dA/dY) per component), the diffuse lookup's mip ``bias``
-    (N, R, R) and ``log_cos`` (N, R, R, 1): log max(r.l / |r|, 1e-6), the Phong lobe's log
-    before the exponent. No gradient flows into any of them (the
-    geometry and the views are fixed), so one :func:`views_of` serves the target, the
-    current material and a cube map being fitted."""
+    normals ``n`` and reflections ``r`` (N, R, R, 3) with their screen derivatives
+    ``n_da``, ``r_da`` (N, R, R, 6; (dA/dX, dA/dY) per component), the diffuse lookup's
+    mip ``bias`` (N, R, R) and ``log_cos`` (N, R, R, 1): log max(r.l / |r|, 1e-6), the
+    Phong lobe's log before the exponent. No gradient flows into any of them (the geometry
+    and the views are fixed), so one :func:`views_of` serves the target, the current
+    material and a cube map being fitted."""
 
     covered: torch.Tensor
     mask: torch.Tensor
@@ -160,11 +159,10 @@ def views_of(glctx, scene: Scene, mvp, eye, resolution: int) -> Views:
     cos = (r_pix * sun).sum(-1, keepdim=True) / r_pix.norm(dim=-1, keepdim=True).clamp_min(
         1e-12)
     covered = rast[..., 3] > 0
-    # x^p as exp(p log x), x kept >= 1e-6: pow's gradient in p (x^p log x) is NaN at x = 0
     mask = covered[..., None].expand(*covered.shape, 3).to(torch.float32)
-    return Views(covered=covered, mask=mask, n=n_pix,
-                 n_da=n_da, r=r_pix, r_da=r_da, bias=bias,
-                 log_cos=torch.log(cos.clamp_min(1e-6)))
+    # x^p as exp(p log x), x kept >= 1e-6: pow's gradient in p (x^p log x) is NaN at x = 0
+    return Views(covered=covered, mask=mask, n=n_pix, n_da=n_da, r=r_pix, r_da=r_da,
+                 bias=bias, log_cos=torch.log(cos.clamp_min(1e-6)))
 
 
 def lookups(glctx, scene: Scene, views: Views, env=None):
