@@ -16,6 +16,8 @@ true ones.
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import torch
 
@@ -84,9 +86,11 @@ def fit_cube(glctx, resolution: int, seed: int, *, iterations: int = 1000, views
     with glctx.context:
         for it, mvp in enumerate(mvps):
             if it % TARGET_BATCH == 0:
-                with timer("target"):
-                    targets = _targets(glctx, mvps[it:it + TARGET_BATCH], true_pos, true_col,
-                                       tri, resolution, antialias, topology)
+                start = time.perf_counter()
+                targets = _targets(glctx, mvps[it:it + TARGET_BATCH], true_pos, true_col,
+                                   tri, resolution, antialias, topology)
+                count = len(targets) // views  # (the time shared among their iterations)
+                timer.times["target"] += [(time.perf_counter() - start) / count] * count
             target = targets[(it % TARGET_BATCH) * views:][:views]
             with timer("forward"):
                 image = render_cube(glctx, mvp, pos, col, tri, resolution,
