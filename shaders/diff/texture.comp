@@ -50,7 +50,12 @@ layout(binding = TEXEL_UNIT + 2) uniform samplerBuffer uv_da_view;
 layout(binding = TEXEL_UNIT + 3) uniform samplerBuffer bias;
 #endif
 #ifndef BACKWARD
+// out as whole texels where they are 4 floats (one store a pixel, not one a channel)
+#if CHANNELS == 4
+layout(std430, binding = 5) writeonly buffer Out { vec4 out_tex[]; };
+#else
 layout(std430, binding = 5) writeonly buffer Out { float out_tex[]; };
+#endif
 #else
 layout(binding = TEXEL_UNIT + 4) uniform samplerBuffer grad_out;
 layout(std430, binding = 6) writeonly buffer GradUv { float grad_uv[]; };
@@ -105,6 +110,17 @@ int major_face_i(ivec3 d) {
     return 2 * axis + (d[axis] >= 0 ? 0 : 1);
 }
 
+// a / b for 0 <= a, 0 < b (integer division, truncating): the quotient in float
+// (vectorises, unlike integer division; llvmpipe runs a masked branch's division for
+// every lane), then one step of correction each way: exact for a / b < 2^22 (float's
+// two roundings then err by less than 1; here a / b <= n) and (a / b + 1) b in int range
+int quotient(int a, int b) {
+    int q = int(float(a) / float(b));
+    if (q * b > a) q -= 1;
+    if ((q + 1) * b <= a) q += 1;
+    return q;
+}
+
 // the texel that continues `face` beyond its edge (one of i, j is -1 or n): the direction
 // of the texel centre, in half texels, projected onto the face of its major axis
 ivec3 cube_neighbour(int face, int i, int j, int n) {
@@ -117,7 +133,7 @@ ivec3 cube_neighbour(int face, int i, int j, int n) {
     ivec3 ax2 = FACE_AXIS[f2], sg2 = FACE_SIGN[f2];
     int m = sg2.z * d[ax2.z];
     int s2 = sg2.x * d[ax2.x], t2 = sg2.y * d[ax2.y];
-    return ivec3(f2, ((s2 + m) * n) / (2 * m), ((t2 + m) * n) / (2 * m));
+    return ivec3(f2, quotient((s2 + m) * n, 2 * m), quotient((t2 + m) * n, 2 * m));
 }
 
 // i mod n in [0, n): the quotient in float (vectorises, unlike integer division), then at
@@ -531,7 +547,11 @@ void main() {
     for (int c = 0; c < channels; ++c) v[c] = v[c] + p.frac * (v1[c] - v[c]);
 #endif
 #endif
+#if CHANNELS == 4
+    out_tex[i] = p.ok ? vec4(v[0], v[1], v[2], v[3]) : vec4(0.0);
+#else
     for (int c = 0; c < channels; ++c) out_tex[i * uint(channels) + uint(c)] = p.ok ? v[c] : 0.0;
+#endif
 #else
     // RUN consecutive pixels (along a row of the image) per invocation
     uint first = gl_GlobalInvocationID.x * uint(RUN);
