@@ -302,7 +302,7 @@ def forward(tex, uv, uv_da=None, mip_level_bias=None, *mip, filter_mode="auto",
 
 # pixels per backward invocation: consecutive pixels add their terms for a texel they both
 # read in the invocation, and send each texel's sum once (texture.comp, "Held")
-BACKWARD_RUN = 8
+BACKWARD_RUN = 16
 
 # the deterministic mode's accumulators are signed 64-bit integers; sums stay below 2^62
 _FIXED_TOTAL_BITS = 62

@@ -58,9 +58,18 @@ layout(std430, binding = 5) writeonly buffer Out { float out_tex[]; };
 #endif
 #else
 layout(binding = TEXEL_UNIT + 4) uniform samplerBuffer grad_out;
+// 2-D: one store a pixel (vec2 uv, vec4 uv_da gradients), not one a float
+#if NCOORD == 2
+layout(std430, binding = 6) writeonly buffer GradUv { vec2 grad_uv[]; };
+#else
 layout(std430, binding = 6) writeonly buffer GradUv { float grad_uv[]; };
+#endif
 #ifdef HAS_DA
+#if NCOORD == 2
+layout(std430, binding = 7) writeonly buffer GradDa { vec4 grad_da[]; };
+#else
 layout(std430, binding = 7) writeonly buffer GradDa { float grad_da[]; };
+#endif
 #endif
 #ifdef HAS_BIAS
 layout(std430, binding = 8) writeonly buffer GradBias { float grad_bias[]; };
@@ -507,12 +516,15 @@ void backward_pixel(uint i, inout Held held0, inout Held held1) {
     vec3 gd = gs * p.ds_duv + gt * p.dt_duv + glevel * p.dlevel_duv;
     grad_uv[3u * i] = gd.x; grad_uv[3u * i + 1u] = gd.y; grad_uv[3u * i + 2u] = gd.z;
 #else
-    grad_uv[2u * i] = FILTER == 0 ? 0.0 : gs;
-    grad_uv[2u * i + 1u] = FILTER == 0 ? 0.0 : gt;
+    grad_uv[i] = vec2(gs, gt);   // nearest: no COORD_GRAD (texture.py fills zeros)
 #endif
 #ifdef HAS_DA
+#if NCOORD == 2
+    grad_da[i] = glevel * vec4(p.dlevel_da[0], p.dlevel_da[1], p.dlevel_da[2], p.dlevel_da[3]);
+#else
     for (int k = 0; k < 2 * NCOORD; ++k)
         grad_da[uint(2 * NCOORD) * i + uint(k)] = glevel * p.dlevel_da[k];
+#endif
 #endif
 #ifdef HAS_BIAS
     grad_bias[i] = glevel;
