@@ -101,11 +101,16 @@ uniform float fixed_scale_b;  // two power-of-two factors that each stay in floa
 #endif
 
 // cube faces +x, -x, +y, -y, +z, -z (GL table 8.19): s_c = sigma_s d[axis_s],
-// t_c = sigma_t d[axis_t], m = sigma_m d[axis_m] > 0
-const ivec3 FACE_AXIS[6] = ivec3[6](ivec3(2, 1, 0), ivec3(2, 1, 0), ivec3(0, 2, 1),
-                                     ivec3(0, 2, 1), ivec3(0, 1, 2), ivec3(0, 1, 2));
-const ivec3 FACE_SIGN[6] = ivec3[6](ivec3(-1, -1, 1), ivec3(1, -1, -1), ivec3(1, 1, 1),
-                                     ivec3(1, -1, -1), ivec3(1, -1, 1), ivec3(-1, -1, -1));
+// t_c = sigma_t d[axis_t], m = sigma_m d[axis_m] > 0, with per face
+//   (axis_s, axis_t, axis_m)    (2, 1, 0) (2, 1, 0) (0, 2, 1) (0, 2, 1) (0, 1, 2) (0, 1, 2)
+//   (sigma_s, sigma_t, sigma_m) (-1, -1, 1) (1, -1, -1) (1, 1, 1) (1, -1, -1) (1, -1, 1)
+//                               (-1, -1, -1)
+// read from bit masks (2 bits a face for the axes, 1 for a negative sign): shifts
+// vectorise, where indexing a constant table by a per-pixel face is a gather
+ivec3 face_axes(int f) { return ivec3((10 >> (2 * f)) & 3, (1445 >> (2 * f)) & 3, f >> 1); }
+ivec3 face_signs(int f) {
+    return ivec3(1 - 2 * ((33 >> f) & 1), 1 - 2 * ((59 >> f) & 1), 1 - 2 * (f & 1));
+}
 
 int major_face(vec3 d) {
     vec3 a = abs(d);
@@ -133,13 +138,13 @@ int quotient(int a, int b) {
 // the texel that continues `face` beyond its edge (one of i, j is -1 or n): the direction
 // of the texel centre, in half texels, projected onto the face of its major axis
 ivec3 cube_neighbour(int face, int i, int j, int n) {
-    ivec3 ax = FACE_AXIS[face], sg = FACE_SIGN[face];
+    ivec3 ax = face_axes(face), sg = face_signs(face);
     ivec3 d = ivec3(0);
     d[ax.x] = sg.x * (2 * i + 1 - n);
     d[ax.y] = sg.y * (2 * j + 1 - n);
     d[ax.z] = sg.z * n;
     int f2 = major_face_i(d);
-    ivec3 ax2 = FACE_AXIS[f2], sg2 = FACE_SIGN[f2];
+    ivec3 ax2 = face_axes(f2), sg2 = face_signs(f2);
     int m = sg2.z * d[ax2.z];
     int s2 = sg2.x * d[ax2.x], t2 = sg2.y * d[ax2.y];
     return ivec3(f2, quotient((s2 + m) * n, 2 * m), quotient((t2 + m) * n, 2 * m));
@@ -248,7 +253,7 @@ Pixel setup(uint i, int image) {
 #if BOUNDARY == 3
     vec3 d = texelFetch(uv, int(i)).xyz;
     face = major_face(d);
-    ivec3 ax = FACE_AXIS[face], sg = FACE_SIGN[face];
+    ivec3 ax = face_axes(face), sg = face_signs(face);
     float m = float(sg.z) * d[ax.z];
     p.ok = m > 0.0;
     if (!p.ok) m = 1.0;
