@@ -459,7 +459,7 @@ float tap_gradient(int index) {
 // pixel i's gradients to uv, uv_da, the bias (written), its texel terms passed on to the
 // held ones of its levels (level 0 only for the filters without a second level)
 void backward_pixel(uint i, inout Held held0, inout Held held1) {
-    int image = tex_batch == 1 ? 0 : int((first_pixel + i) / pixels_per_image);
+    int image = tex_batch == 1 ? 0 : quotient(int(first_pixel + i), int(pixels_per_image));
     Pixel p = setup(i, image);
     for (int q = 0; q < CHANNELS / TEXEL_VEC; ++q) {
         vec4 f = texelFetch(grad_out, int(i) * (CHANNELS / TEXEL_VEC) + q);
@@ -542,7 +542,7 @@ void main() {
 #ifndef BACKWARD
     uint i = gl_GlobalInvocationID.x;
     if (i >= n_pixels) return;
-    int image = tex_batch == 1 ? 0 : int((first_pixel + i) / pixels_per_image);
+    int image = tex_batch == 1 ? 0 : quotient(int(first_pixel + i), int(pixels_per_image));
     Pixel p = setup(i, image);
     // the same products and sums, in the same order, as channel by channel
     float v[CHANNELS], t[CHANNELS];
