@@ -5,7 +5,8 @@ runs no GL work.
 The case it serves is the fitting loop that renders its target under ``torch.no_grad()``
 and then the same views again with the parameters being fitted, where those parameters
 enter only after the GL ops (a material, a light): the second render's rasterize,
-interpolate and texture calls repeat the first's exactly. The ops are deterministic
+interpolate and texture calls repeat the first's exactly (as a user's nvdiffrast-style
+loop does; glraster's own envmap fit shares those calls itself). The ops are deterministic
 functions of their inputs and keyword arguments, so a remembered result is the result.
 
 A front end (:mod:`glraster.torch.bridge`) decides which calls no gradient flows through
@@ -35,6 +36,7 @@ __all__ = ["ENTRIES", "MAX_BYTES", "forget", "lookup", "remember"]
 
 ENTRIES = 8              # remembered calls per context
 MAX_BYTES = 64 << 20     # inputs + outputs of a remembered call, bytes
+PROBE = 64               # elements of an array compared first (:func:`_same_bits`)
 
 _lock = threading.Lock()
 _by_context: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()  # ctx -> [_Entry]
@@ -62,7 +64,7 @@ def _same(a, b) -> bool:
     if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
         return (isinstance(a, np.ndarray) and isinstance(b, np.ndarray)
                 and a.shape == b.shape and a.dtype == b.dtype
-                and (_same_memory(a, b) or np.array_equal(_bits(a), _bits(b))))
+                and (_same_memory(a, b) or _same_bits(a, b)))
     if isinstance(a, (str, int, float, bool, tuple, type(None))):
         return type(a) is type(b) and a == b
     return a is b
@@ -71,6 +73,22 @@ def _same(a, b) -> bool:
 def _same_memory(a: np.ndarray, b: np.ndarray) -> bool:
     # a view of the memory the entry holds (alive, unchanged by its stamp): the same bits
     return address(a) == address(b) and a.strides == b.strides
+
+
+def _same_bits(a: np.ndarray, b: np.ndarray) -> bool:
+    """a and b (of one shape and dtype) hold the same bits: where both are C-contiguous, a
+    sample of PROBE elements spread over them first (unequal arrays in a fit's loop differ
+    almost everywhere, and a sample that differs decides), then all their bytes as 8-byte
+    words (measured 1.6x faster than 4-byte ones on 3 MB); else element by element."""
+    if a.flags.c_contiguous and b.flags.c_contiguous and a.ndim:
+        a, b = a.reshape(-1), b.reshape(-1)
+        if a.size > PROBE:
+            step = a.size // PROBE
+            if not np.array_equal(_bits(a[::step]), _bits(b[::step])):
+                return False
+        if a.nbytes % 8 == 0:
+            return np.array_equal(a.view(np.uint64), b.view(np.uint64))
+    return np.array_equal(_bits(a), _bits(b))
 
 
 def _bits(a: np.ndarray) -> np.ndarray:

@@ -136,7 +136,8 @@ class _Forward:
         self.colors = {"drawn": (1, "i4")}
         self._items = [self._item(b) for b in range(self.batch)]
         self._per_row = RECORDS_PER_ROW
-        self._records = [self._setup(pos, tri) for pos, tri, _, _ in self._items]
+        self._records, self._offsets = self._setup()
+        self._draw = None  # the raster pass's Draw (without a previous layer)
         defines = {"RECORDS_PER_ROW": self._per_row}
         if grad_db:
             defines["OUT_RAST_DB"] = 1
@@ -144,14 +145,15 @@ class _Forward:
             defines["SPACE_SCREEN"] = 1
         self._resolve_defines = defines
 
-    def _setup(self, pos, tri) -> np.ndarray:
-        """The records of ``tri`` in whole rows of the record texture: (R RECORDS_PER_ROW,
-        RECORD_STRIDE) float32, the first len(tri) set (:func:`setup_records`), the rest
-        never read."""
-        rows = -(-len(tri) // self._per_row)
-        records = np.empty((rows * self._per_row, RECORD_STRIDE), np.float32)
-        setup_records(pos, tri, (self.height, self.width), out=records[:len(tri)])
-        return records
+    def _setup(self) -> tuple[np.ndarray, list[int]]:
+        """The setup records of every item's drawn triangles, one item after the other:
+        (sum T_b, RECORD_STRIDE) float32 (:func:`setup_records`), and the first record of
+        each item (B + 1 offsets, the last the total)."""
+        offsets = np.cumsum([0] + [len(tri) for _, tri, _, _ in self._items]).tolist()
+        records = np.empty((offsets[-1], RECORD_STRIDE), np.float32)
+        for (pos, tri, _, _), first, end in zip(self._items, offsets, offsets[1:]):
+            setup_records(pos, tri, (self.height, self.width), out=records[first:end])
+        return records, offsets
 
     def _item(self, b):
         """(pos, drawn tri, caller ids of the drawn triangles or None, id_base) of item b."""
@@ -175,6 +177,8 @@ class _Forward:
     def spec(self, b, prev_depth=None) -> tuple[pipeline.Draw, np.ndarray, np.ndarray]:
         """The raster pass of item b: (Draw, pos, drawn tri)."""
         pos, tri, _, _ = self._items[b]
+        if prev_depth is None and self._draw is not None:
+            return self._draw, pos, tri
         defines = {"PEEL": 1} if prev_depth is not None else {}
         with self.ctx:
             program, vao = self.ctx.program(_shader_path(VERT), _shader_path(FRAG), defines)
@@ -182,9 +186,11 @@ class _Forward:
         if prev_depth is not None:
             textures["prev_depth"] = prev_depth
             if len(tri):
-                per_triangle[2] = self._records[b][:len(tri)]
+                per_triangle[2] = self._records[self._offsets[b]:self._offsets[b + 1]]
         spec = pipeline.Draw(program, vao, self.colors, per_triangle=per_triangle,
                              textures=textures, indexed=True)
+        if prev_depth is None:
+            self._draw = spec  # (the same for every item)
         return spec, pos, tri
 
     def new_outputs(self):
@@ -199,7 +205,7 @@ class _Forward:
         texture and their outputs one storage block, else one by one."""
         per_block = self._per_row * RECORD_TEXTURE_ROWS
         tris = [len(self._items[b][1]) for b in items]
-        rows = sum(-(-t // self._per_row) for t in tris)
+        rows = -(-sum(tris) // self._per_row)  # (consecutive records)
         nbytes = 16 * len(items) * self.height * self.width
         if (len(items) > 1 and max(tris) <= per_block and rows <= RECORD_TEXTURE_ROWS
                 and nbytes <= self.ctx.max_storage_block_size):
@@ -248,8 +254,8 @@ class _Forward:
                 counts = tuple(min(per_block, max(len(tri) - start, 0))
                                for _, tri, _, _ in parts)
                 if first_row == 0 or len(blocks) > 1:
-                    record_rows = self._upload_records(items, start, per_block)
-                    compute.set_uniform(program, "record_row", record_rows + pad)
+                    bases = self._upload_records(items, start, per_block)
+                    compute.set_uniform(program, "record_base", bases + pad)
                 if remap:
                     ids = [kept[start:start + count] if kept is not None
                            else np.arange(first + start, first + start + count, dtype=np.int32)
@@ -269,14 +275,16 @@ class _Forward:
                                  size=nbytes)
 
     def _upload_records(self, items, start: int, count: int) -> tuple:
-        """Records start .. start + count - 1 (whole rows) of each of ``items`` into the
-        context's record texture, one after the other, bound to texture unit 0; the first
-        row of each."""
-        ctx = self.ctx
-        width = self._per_row * RECORD_VEC4S
-        parts = [self._records[b][start:start + count] for b in items]
-        heights = [len(part) // self._per_row for part in parts]
-        rows = max(1, sum(heights))
+        """Records start .. start + count - 1 of each of ``items`` (one block: several items
+        only when each has at most ``count`` records, and then start is 0) into the
+        context's record texture, bound to texture unit 0: consecutive in the host array,
+        so written at once, only their own texels (the whole rows, then the part of the
+        last); the texture index of each item's first record."""
+        ctx, offsets, per_row = self.ctx, self._offsets, self._per_row
+        first = offsets[items[0]] + start
+        end = offsets[items[-1] + 1] if len(items) > 1 else \
+            min(first + count, offsets[items[0] + 1])
+        width, rows = per_row * RECORD_VEC4S, max(1, -(-(end - first) // per_row))
         texture = _RECORD_TEXTURES.get(ctx)
         if texture is None or texture.width != width or texture.height < rows:
             if texture is not None:
@@ -285,14 +293,16 @@ class _Forward:
                                                   1 << (rows - 1).bit_length())), 4, dtype="f4")
             texture.filter = (ctx.mgl.NEAREST, ctx.mgl.NEAREST)
             _RECORD_TEXTURES[ctx] = texture
-        first_rows, row = [], 0
-        for part, height in zip(parts, heights):
-            first_rows.append(row)
-            if height:
-                texture.write(memoryview(part).cast("B"), viewport=(0, row, width, height))
-            row += height
+        full, rest = divmod(end - first, per_row)
+        records = self._records
+        if full:
+            texture.write(memoryview(records[first:first + full * per_row]).cast("B"),
+                          viewport=(0, 0, width, full))
+        if rest:
+            texture.write(memoryview(records[first + full * per_row:end]).cast("B"),
+                          viewport=(0, full, rest * RECORD_VEC4S, 1))
         texture.use(location=0)
-        return tuple(first_rows)
+        return tuple(offsets[b] + start - first for b in items)
 
     def draw(self, b, rast, rast_db, prev_depth=None):
         """Item b into ``rast``, ``rast_db`` (``prev_depth``: the peeler's texture)."""

@@ -302,7 +302,7 @@ def forward(tex, uv, uv_da=None, mip_level_bias=None, *mip, filter_mode="auto",
 
 # pixels per backward invocation: consecutive pixels add their terms for a texel they both
 # read in the invocation, and send each texel's sum once (texture.comp, "Held")
-BACKWARD_RUN = 8
+BACKWARD_RUN = 16
 
 def fixed_point_shift(max_abs_g: float, pixels: int) -> int:
     """k such that the deterministic backward adds a contribution v = w g (|w| <= 1) as
@@ -426,6 +426,8 @@ def backward(saved: TextureSaved, grad_out, *, needs=None, deterministic: bool =
             (nothing spread, read back or pulled through the pyramid); without uv, uv_da
             and the bias, without their gradients (no texel reads for them, nothing written);
             each is read back only where wanted; nothing runs when nothing is wanted.
+            "nearest" has zero coordinate gradients: they are filled with zeros on the
+            host, never computed (no pass at all when only they are wanted).
         deterministic: bit-identical results from run to run (accumulation "per_pixel":
             the texel gradients summed on the GPU as 64-bit fixed-point integers, whose sum
             does not depend on the order of the additions, rounded once to float32; the
@@ -442,22 +444,28 @@ def backward(saved: TextureSaved, grad_out, *, needs=None, deterministic: bool =
     want = wanted(needs, 4 + mips)
     want[2] &= args.uv_da is not None
     want[3] &= args.bias is not None
+    # nearest is piecewise constant in uv (and reads no level): its coordinate gradients
+    # are zeros, filled here without a pass for them
+    coord = any(want[1:4]) and args.filter_mode != "nearest"
     texels = want[0] or (args.mipmapped and any(want[4:4 + len(args.user_mips)]))
     mode = accumulation(ctx, deterministic, accumulate)
     shape = args.uv.shape[:3] + (args.channels,)
     grad_out = (np.zeros(shape, np.float32) if grad_out is None
                 else validate.image("grad_out", grad_out, shape=shape, dtype=np.float32))
-    if not (texels or any(want[1:4])):
-        return (None,) * (4 + mips)
+    if not (texels or coord):
+        zeros = [np.zeros(a.shape, np.float32) if w else None
+                 for a, w in zip((args.uv, args.uv_da, args.bias), want[1:4])]
+        return (None, *zeros, *(None,) * mips)
     n, uv_f, da, bias = _pixel_inputs(args)
     channels, coords = args.channels, uv_f.shape[1]
     g_flat = grad_out.reshape(n, channels)
     defines = dict(_defines(args), BACKWARD=None, RUN=BACKWARD_RUN)
     if texels:   # else the shader spreads nothing (no texel buffer, no accumulation)
         defines.update({"TEX_GRAD": None, _ACCUM_DEFINES[mode]: None})
-    if any(want[1:4]):   # else no texel reads for them and no per-pixel outputs
+    if coord:   # else no texel reads for them and no per-pixel outputs
         defines["COORD_GRAD"] = None
-    grad_uv = np.empty((n, coords), np.float32) if want[1] else None
+    grad_uv = np.empty((n, coords), np.float32) if want[1] and coord else (
+        np.zeros((n, coords), np.float32) if want[1] else None)
     grad_da = np.zeros((n, 2 * coords), np.float32) if want[2] else None
     grad_bias = np.zeros(n, np.float32) if want[3] else None
     per_pixel = 4 * (3 * coords + 1 + 2 * channels + 3 * coords + 1)

@@ -77,6 +77,49 @@ def _split(out, t, start, i, value):
 
 
 @_compiled
+def _window(pos, v, half_w, half_h):
+    """Vertex v as float64 (x_w, y_w, w, z): x_w = (x + w) width / 2, y_w likewise (the
+    window coordinates times w)."""
+    w = np.float64(pos[v, 3])
+    return ((np.float64(pos[v, 0]) + w) * half_w, (np.float64(pos[v, 1]) + w) * half_h, w,
+            np.float64(pos[v, 2]))
+
+
+@_compiled
+def _clamped(x, y, w, wf, hf):
+    """(cx, cy, moved): the vertex's window position clamped into the viewport and the
+    L1 distance it moved (inf behind the eye or for NaN; DBL_MAX for an infinite one)."""
+    if w > 0:
+        vx = x / w
+        vy = y / w
+    else:
+        vx = np.nan
+        vy = np.nan
+    cx = _clip(vx, 0.0, wf)
+    cy = _clip(vy, 0.0, hf)
+    d = abs(cx - vx) + abs(cy - vy)
+    if math.isnan(d):
+        d = np.inf
+    elif d == np.inf:
+        d = _DBL_MAX
+    return cx, cy, d
+
+
+@_compiled
+def _edge(out, t, i, a, b, w, e, scale, k):
+    """Columns of edge i: (A, B, e) x scale as hi/lo pairs, w_i / k."""
+    _split(out, t, 2, i, a * scale)
+    _split(out, t, 8, i, b * scale)
+    _split(out, t, 14, i, e * scale)
+    wk = w / k
+    if math.isnan(wk):
+        wk = 0.0
+    elif math.isinf(wk):
+        wk = _DBL_MAX if wk > 0 else -_DBL_MAX
+    out[t, 20 + i] = np.float32(wk)
+
+
+@_compiled
 def records(pos, tri, width, height, out, depth):
     """Write the records of T triangles into ``out``.
 
@@ -86,98 +129,71 @@ def records(pos, tri, width, height, out, depth):
     out   : (T, S) float32, S >= 24 (S >= 28 with ``depth``): every value of the first 24
             (28) columns is written
     depth : also write columns 24..27: z_j / k for j = 0, 1, 2 (k = max_j |w_j|), then 0
+
+    Scalars throughout (no scratch arrays), so that the values stay in registers.
     """
-    X = np.empty(3)
-    Y = np.empty(3)
-    W = np.empty(3)
-    Z = np.empty(3)
-    A = np.empty(3)
-    B = np.empty(3)
-    C = np.empty(3)
-    moved = np.empty(3)
-    cx = np.empty(3)
-    cy = np.empty(3)
     half_w = width / 2
     half_h = height / 2
     wf = np.float64(width)
     hf = np.float64(height)
     for t in range(tri.shape[0]):
-        for j in range(3):
-            v = tri[t, j]
-            w = np.float64(pos[v, 3])
-            X[j] = (np.float64(pos[v, 0]) + w) * half_w
-            Y[j] = (np.float64(pos[v, 1]) + w) * half_h
-            W[j] = w
-            Z[j] = np.float64(pos[v, 2])
-        for i in range(3):
-            a = (i + 1) % 3
-            b = (i + 2) % 3
-            A[i] = Y[a] * W[b] - W[a] * Y[b]
-            B[i] = W[a] * X[b] - X[a] * W[b]
-            C[i] = X[a] * Y[b] - Y[a] * X[b]
-        s1 = 0.0
-        s2 = 0.0
-        s3 = 0.0
-        for i in range(3):
-            s1 += A[i] * X[i]
-        for i in range(3):
-            s2 += B[i] * Y[i]
-        for i in range(3):
-            s3 += C[i] * W[i]
+        x0, y0, w0, z0 = _window(pos, tri[t, 0], half_w, half_h)
+        x1, y1, w1, z1 = _window(pos, tri[t, 1], half_w, half_h)
+        x2, y2, w2, z2 = _window(pos, tri[t, 2], half_w, half_h)
+        # edge i from vertex i+1 to i+2: (A_i, B_i, C_i) = vertex i+1 x vertex i+2
+        a0 = y1 * w2 - w1 * y2
+        b0 = w1 * x2 - x1 * w2
+        c0 = x1 * y2 - y1 * x2
+        a1 = y2 * w0 - w2 * y0
+        b1 = w2 * x0 - x2 * w0
+        c1 = x2 * y0 - y2 * x0
+        a2 = y0 * w1 - w0 * y1
+        b2 = w0 * x1 - x0 * w1
+        c2 = x0 * y1 - y0 * x1
+        s1 = ((0.0 + a0 * x0) + a1 * x1) + a2 * x2
+        s2 = ((0.0 + b0 * y0) + b1 * y1) + b2 * y2
+        s3 = ((0.0 + c0 * w0) + c1 * w1) + c2 * w2
         det = (s1 + s2 + s3) / 3
 
         # anchor: the vertex in front of the eye nearest the viewport, clamped into it
-        for j in range(3):
-            if W[j] > 0:
-                vx = X[j] / W[j]
-                vy = Y[j] / W[j]
-            else:
-                vx = np.nan
-                vy = np.nan
-            cx[j] = _clip(vx, 0.0, wf)
-            cy[j] = _clip(vy, 0.0, hf)
-            d = abs(cx[j] - vx) + abs(cy[j] - vy)
-            if math.isnan(d):
-                d = np.inf
-            elif d == np.inf:
-                d = _DBL_MAX
-            moved[j] = d
-        m = 0
-        for j in range(1, 3):
-            if moved[j] < moved[m]:
-                m = j
-        has_vertex = math.isfinite(moved[m])
+        cx, cy, moved = _clamped(x0, y0, w0, wf, hf)
+        m, wm, xm, ym = 0, w0, x0, y0
+        cx1, cy1, moved1 = _clamped(x1, y1, w1, wf, hf)
+        if moved1 < moved:
+            cx, cy, moved, m, wm, xm, ym = cx1, cy1, moved1, 1, w1, x1, y1
+        cx2, cy2, moved2 = _clamped(x2, y2, w2, wf, hf)
+        if moved2 < moved:
+            cx, cy, moved, m, wm, xm, ym = cx2, cy2, moved2, 2, w2, x2, y2
+        has_vertex = math.isfinite(moved)
         if has_vertex:
-            ax, ay = cx[m], cy[m]
+            ax, ay = cx, cy
         else:
             ax, ay = half_w, half_h
         ax = np.rint(ax * ANCHOR_GRID) / ANCHOR_GRID
         ay = np.rint(ay * ANCHOR_GRID) / ANCHOR_GRID
 
-        k = _max3(abs(W[0]), abs(W[1]), abs(W[2]))
+        k = _max3(abs(w0), abs(w1), abs(w2))
         scale = k / det
         if not math.isfinite(scale):
             scale = 0.0
         out[t, 0] = np.float32(ax)
         out[t, 1] = np.float32(ay)
-        wm, xm, ym = W[m], X[m], Y[m]
-        for i in range(3):
-            if has_vertex:
-                delta = 1.0 if i == m else 0.0
-                e = (A[i] * (ax * wm - xm) + B[i] * (ay * wm - ym) + delta * det) / wm
-            else:
-                e = A[i] * ax + B[i] * ay + C[i]
-            _split(out, t, 2, i, A[i] * scale)
-            _split(out, t, 8, i, B[i] * scale)
-            _split(out, t, 14, i, e * scale)
-            wk = W[i] / k
-            if math.isnan(wk):
-                wk = 0.0
-            elif math.isinf(wk):
-                wk = _DBL_MAX if wk > 0 else -_DBL_MAX
-            out[t, 20 + i] = np.float32(wk)
+        if has_vertex:
+            dx = ax * wm - xm
+            dy = ay * wm - ym
+            e0 = (a0 * dx + b0 * dy + (1.0 if m == 0 else 0.0) * det) / wm
+            e1 = (a1 * dx + b1 * dy + (1.0 if m == 1 else 0.0) * det) / wm
+            e2 = (a2 * dx + b2 * dy + (1.0 if m == 2 else 0.0) * det) / wm
+        else:
+            e0 = a0 * ax + b0 * ay + c0
+            e1 = a1 * ax + b1 * ay + c1
+            e2 = a2 * ax + b2 * ay + c2
+        _edge(out, t, 0, a0, b0, w0, e0, scale, k)
+        _edge(out, t, 1, a1, b1, w1, e1, scale, k)
+        _edge(out, t, 2, a2, b2, w2, e2, scale, k)
         out[t, 23] = 0.0
         if depth:
-            for j in range(3):
-                out[t, 24 + j] = np.float32(_finite_or_zero(Z[j] / k))
+            out[t, 24] = np.float32(_finite_or_zero(z0 / k))
+            out[t, 25] = np.float32(_finite_or_zero(z1 / k))
+            out[t, 26] = np.float32(_finite_or_zero(z2 / k))
             out[t, 27] = 0.0

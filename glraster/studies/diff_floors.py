@@ -377,19 +377,14 @@ def _texture(glctx, resolution: int = 128, texture_size: int = 256, views: int =
 def _envmap(glctx, resolution: int = 256, views: int = 2, mesh=(128, 120),
             env_size: int = 512):
     """The environment-map fit (material under the cube-map sky, ``fit envmap``'s
-    defaults: 2 views at 256², the 30,720-triangle blob, a 6 x 512² cube map), built from
-    :mod:`glraster.torch.fitting.envmap`'s ``make_scene``, ``view_setup`` and
-    ``render_envmap``."""
+    defaults: 2 views at 256², the 30,720-triangle blob, a 6 x 512² cube map), its step
+    :func:`glraster.torch.fitting.envmap.envmap_loss` as ``fit_envmap`` runs it."""
     import torch
 
+    from glraster.torch.fitting import envmap
     from glraster.torch.fitting.common import random_quaternions
 
-    from glraster.torch.fitting import envmap
-
-    make_scene, view_setup = envmap.make_scene, envmap.view_setup
-    render, material = envmap.render_envmap, envmap.TRUE_MATERIAL
-    scene = make_scene(glctx, mesh=mesh, env_size=env_size)
-    true = {k: torch.tensor(v, dtype=torch.float32) for k, v in material.items()}
+    scene = envmap.make_scene(glctx, mesh=mesh, env_size=env_size)
     rng = np.random.default_rng(0)
     kd = torch.tensor(rng.uniform(0.05, 0.95, 3), dtype=torch.float32, requires_grad=True)
     ks = torch.tensor(rng.uniform(0.05, 0.6, 3), dtype=torch.float32, requires_grad=True)
@@ -402,13 +397,9 @@ def _envmap(glctx, resolution: int = 256, views: int = 2, mesh=(128, 120),
         ks.clamp_(0.0, 1.0)
 
     def iteration() -> float:
-        mvp, eye = view_setup(random_quaternions(rng, views))
-        with torch.no_grad():
-            target, covered = render(glctx, scene, mvp, eye, true["diffuse"],
-                                     true["specular"], true["exponent"], resolution)
-        image, _ = render(glctx, scene, mvp, eye, kd, ks, torch.exp(log_p), resolution)
-        m = covered[..., None].to(image.dtype)
-        loss = torch.sum(m * (image - target) ** 2) / (torch.sum(m).clamp_min(1.0) * 3)
+        mvp, eye = envmap.view_setup(random_quaternions(rng, views))
+        loss = envmap.envmap_loss(glctx, scene, mvp, eye, (kd, ks, torch.exp(log_p)),
+                                  resolution)
         return _descend(loss, opt, schedule, project=project)
 
     return iteration

@@ -22,10 +22,10 @@
 // there, from the triangle's setup record (rasterize_record.glsl): the derivatives are
 // the exact closed form at the centre, not a 2x2-quad difference.
 //
-// Item k's bound records (in the texture ``records`` from row record_row[k]) are those of
-// its drawn triangles record_first .. record_first + record_count[k] - 1 (one texture's
-// worth); a pixel of another triangle is left to the dispatch of its own records, an
-// empty one is written by the dispatch with write_empty.
+// Item k's bound records (in the texture ``records``, from record record_base[k]) are
+// those of its drawn triangles record_first .. record_first + record_count[k] - 1 (one
+// texture's worth); a pixel of another triangle is left to the dispatch of its own
+// records, an empty one is written by the dispatch with write_empty.
 //
 // Host defines: RECORDS_PER_ROW (the record texture's layout); OUT_RAST_DB; SPACE_SCREEN;
 // REMAP (ids[ids_first[k] + t] at binding 5 holds the caller's triangle index of item k's
@@ -53,7 +53,7 @@ uniform int ids_first[GROUP_ITEMS];
 uniform ivec2 size;        // (W, rows of the band)
 uniform int first_row;     // the band's first row
 uniform int record_first;  // drawn index of the bound records' first triangle
-uniform int record_row[GROUP_ITEMS];
+uniform int record_base[GROUP_ITEMS];  // texture index of item k's record 0
 uniform int record_count[GROUP_ITEMS];
 uniform int write_empty;   // 1: also write the empty pixels
 uniform int id_base[GROUP_ITEMS];  // index in the caller's tri of the draw's first triangle
@@ -92,7 +92,7 @@ void main() {
         return;
     }
     float r[RECORD_STRIDE];
-    load_record(record_row[item] * RECORDS_PER_ROW + t, r);
+    load_record(record_base[item] + t, r);
     vec3 s = scaled_coordinates(r, vec2(pixel) + 0.5);
     float z = depth_of(r, s);
     vec3 gx = vec3(r[2], r[3], r[4]);

@@ -50,12 +50,26 @@ layout(binding = TEXEL_UNIT + 2) uniform samplerBuffer uv_da_view;
 layout(binding = TEXEL_UNIT + 3) uniform samplerBuffer bias;
 #endif
 #ifndef BACKWARD
+// out as whole texels where they are 4 floats (one store a pixel, not one a channel)
+#if CHANNELS == 4
+layout(std430, binding = 5) writeonly buffer Out { vec4 out_tex[]; };
+#else
 layout(std430, binding = 5) writeonly buffer Out { float out_tex[]; };
+#endif
 #else
 layout(binding = TEXEL_UNIT + 4) uniform samplerBuffer grad_out;
+// 2-D: one store a pixel (vec2 uv, vec4 uv_da gradients), not one a float
+#if NCOORD == 2
+layout(std430, binding = 6) writeonly buffer GradUv { vec2 grad_uv[]; };
+#else
 layout(std430, binding = 6) writeonly buffer GradUv { float grad_uv[]; };
+#endif
 #ifdef HAS_DA
+#if NCOORD == 2
+layout(std430, binding = 7) writeonly buffer GradDa { vec4 grad_da[]; };
+#else
 layout(std430, binding = 7) writeonly buffer GradDa { float grad_da[]; };
+#endif
 #endif
 #ifdef HAS_BIAS
 layout(std430, binding = 8) writeonly buffer GradBias { float grad_bias[]; };
@@ -87,11 +101,16 @@ uniform float fixed_scale_b;  // two power-of-two factors that each stay in floa
 #endif
 
 // cube faces +x, -x, +y, -y, +z, -z (GL table 8.19): s_c = sigma_s d[axis_s],
-// t_c = sigma_t d[axis_t], m = sigma_m d[axis_m] > 0
-const ivec3 FACE_AXIS[6] = ivec3[6](ivec3(2, 1, 0), ivec3(2, 1, 0), ivec3(0, 2, 1),
-                                     ivec3(0, 2, 1), ivec3(0, 1, 2), ivec3(0, 1, 2));
-const ivec3 FACE_SIGN[6] = ivec3[6](ivec3(-1, -1, 1), ivec3(1, -1, -1), ivec3(1, 1, 1),
-                                     ivec3(1, -1, -1), ivec3(1, -1, 1), ivec3(-1, -1, -1));
+// t_c = sigma_t d[axis_t], m = sigma_m d[axis_m] > 0, with per face
+//   (axis_s, axis_t, axis_m)    (2, 1, 0) (2, 1, 0) (0, 2, 1) (0, 2, 1) (0, 1, 2) (0, 1, 2)
+//   (sigma_s, sigma_t, sigma_m) (-1, -1, 1) (1, -1, -1) (1, 1, 1) (1, -1, -1) (1, -1, 1)
+//                               (-1, -1, -1)
+// read from bit masks (2 bits a face for the axes, 1 for a negative sign): shifts
+// vectorise, where indexing a constant table by a per-pixel face is a gather
+ivec3 face_axes(int f) { return ivec3((10 >> (2 * f)) & 3, (1445 >> (2 * f)) & 3, f >> 1); }
+ivec3 face_signs(int f) {
+    return ivec3(1 - 2 * ((33 >> f) & 1), 1 - 2 * ((59 >> f) & 1), 1 - 2 * (f & 1));
+}
 
 int major_face(vec3 d) {
     vec3 a = abs(d);
@@ -105,19 +124,30 @@ int major_face_i(ivec3 d) {
     return 2 * axis + (d[axis] >= 0 ? 0 : 1);
 }
 
+// a / b for 0 <= a, 0 < b (integer division, truncating): the quotient in float
+// (vectorises, unlike integer division; llvmpipe runs a masked branch's division for
+// every lane), then one step of correction each way: exact for a / b < 2^22 (float's
+// two roundings then err by less than 1; here a / b <= n) and (a / b + 1) b in int range
+int quotient(int a, int b) {
+    int q = int(float(a) / float(b));
+    if (q * b > a) q -= 1;
+    if ((q + 1) * b <= a) q += 1;
+    return q;
+}
+
 // the texel that continues `face` beyond its edge (one of i, j is -1 or n): the direction
 // of the texel centre, in half texels, projected onto the face of its major axis
 ivec3 cube_neighbour(int face, int i, int j, int n) {
-    ivec3 ax = FACE_AXIS[face], sg = FACE_SIGN[face];
+    ivec3 ax = face_axes(face), sg = face_signs(face);
     ivec3 d = ivec3(0);
     d[ax.x] = sg.x * (2 * i + 1 - n);
     d[ax.y] = sg.y * (2 * j + 1 - n);
     d[ax.z] = sg.z * n;
     int f2 = major_face_i(d);
-    ivec3 ax2 = FACE_AXIS[f2], sg2 = FACE_SIGN[f2];
+    ivec3 ax2 = face_axes(f2), sg2 = face_signs(f2);
     int m = sg2.z * d[ax2.z];
     int s2 = sg2.x * d[ax2.x], t2 = sg2.y * d[ax2.y];
-    return ivec3(f2, ((s2 + m) * n) / (2 * m), ((t2 + m) * n) / (2 * m));
+    return ivec3(f2, quotient((s2 + m) * n, 2 * m), quotient((t2 + m) * n, 2 * m));
 }
 
 // i mod n in [0, n): the quotient in float (vectorises, unlike integer division), then at
@@ -223,7 +253,7 @@ Pixel setup(uint i, int image) {
 #if BOUNDARY == 3
     vec3 d = texelFetch(uv, int(i)).xyz;
     face = major_face(d);
-    ivec3 ax = FACE_AXIS[face], sg = FACE_SIGN[face];
+    ivec3 ax = face_axes(face), sg = face_signs(face);
     float m = float(sg.z) * d[ax.z];
     p.ok = m > 0.0;
     if (!p.ok) m = 1.0;
@@ -429,7 +459,7 @@ float tap_gradient(int index) {
 // pixel i's gradients to uv, uv_da, the bias (written), its texel terms passed on to the
 // held ones of its levels (level 0 only for the filters without a second level)
 void backward_pixel(uint i, inout Held held0, inout Held held1) {
-    int image = tex_batch == 1 ? 0 : int((first_pixel + i) / pixels_per_image);
+    int image = tex_batch == 1 ? 0 : quotient(int(first_pixel + i), int(pixels_per_image));
     Pixel p = setup(i, image);
     for (int q = 0; q < CHANNELS / TEXEL_VEC; ++q) {
         vec4 f = texelFetch(grad_out, int(i) * (CHANNELS / TEXEL_VEC) + q);
@@ -491,12 +521,15 @@ void backward_pixel(uint i, inout Held held0, inout Held held1) {
     vec3 gd = gs * p.ds_duv + gt * p.dt_duv + glevel * p.dlevel_duv;
     grad_uv[3u * i] = gd.x; grad_uv[3u * i + 1u] = gd.y; grad_uv[3u * i + 2u] = gd.z;
 #else
-    grad_uv[2u * i] = FILTER == 0 ? 0.0 : gs;
-    grad_uv[2u * i + 1u] = FILTER == 0 ? 0.0 : gt;
+    grad_uv[i] = vec2(gs, gt);   // nearest: no COORD_GRAD (texture.py fills zeros)
 #endif
 #ifdef HAS_DA
+#if NCOORD == 2
+    grad_da[i] = glevel * vec4(p.dlevel_da[0], p.dlevel_da[1], p.dlevel_da[2], p.dlevel_da[3]);
+#else
     for (int k = 0; k < 2 * NCOORD; ++k)
         grad_da[uint(2 * NCOORD) * i + uint(k)] = glevel * p.dlevel_da[k];
+#endif
 #endif
 #ifdef HAS_BIAS
     grad_bias[i] = glevel;
@@ -509,7 +542,7 @@ void main() {
 #ifndef BACKWARD
     uint i = gl_GlobalInvocationID.x;
     if (i >= n_pixels) return;
-    int image = tex_batch == 1 ? 0 : int((first_pixel + i) / pixels_per_image);
+    int image = tex_batch == 1 ? 0 : quotient(int(first_pixel + i), int(pixels_per_image));
     Pixel p = setup(i, image);
     // the same products and sums, in the same order, as channel by channel
     float v[CHANNELS], t[CHANNELS];
@@ -531,7 +564,11 @@ void main() {
     for (int c = 0; c < channels; ++c) v[c] = v[c] + p.frac * (v1[c] - v[c]);
 #endif
 #endif
+#if CHANNELS == 4
+    out_tex[i] = p.ok ? vec4(v[0], v[1], v[2], v[3]) : vec4(0.0);
+#else
     for (int c = 0; c < channels; ++c) out_tex[i * uint(channels) + uint(c)] = p.ok ? v[c] : 0.0;
+#endif
 #else
     // RUN consecutive pixels (along a row of the image) per invocation
     uint first = gl_GlobalInvocationID.x * uint(RUN);

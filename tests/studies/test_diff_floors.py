@@ -129,9 +129,9 @@ def test_study_runs_small(gl_backend, tmp_path, capsys):
 
 
 def test_envmap_iteration_runs_small(ctx):
-    """One iteration of the environment-map fit: the fitted render repeats the target's
-    GL calls bit for bit (the material enters after them), so they run once
-    (glraster.diff.memo), texture's twice (the diffuse and the mirror lookups)."""
+    """One iteration of the environment-map fit: the material enters after the GL calls, so
+    the target and the fitted render share them (envmap_loss): rasterize and interpolate
+    run once, texture twice (the diffuse and the mirror lookups)."""
     from glraster.torch.context import RasterizeGLContext
 
     iteration = diff_floors._envmap(RasterizeGLContext(context=ctx), resolution=8, views=1,

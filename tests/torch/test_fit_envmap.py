@@ -78,6 +78,33 @@ def test_render_of_the_true_material_is_deterministic_and_covers_the_blob(glctx)
     assert torch.isfinite(a).all()
 
 
+@pytest.mark.parametrize("exponent", [4.0, 60.0, 600.0])
+def test_the_lobe_floor_keeps_the_image_and_the_exponent_gradient(glctx, exponent):
+    # shade takes exp(p log x) below e^LOBE_FLOOR as 0 (subnormal arithmetic is slow): the
+    # image is the plain formula's bit for bit (the sky is >= 0.1, the lobe is below half an
+    # ulp of it), the gradient in log p the same up to the lost terms (measured: equal)
+    scene = envmap.make_scene(glctx, **SMALL)
+    mvp, eye = envmap.view_setup(scenes.DISPLAY_QUATERNIONS)
+    views = envmap.views_of(glctx, scene, mvp, eye, 64)
+    light = envmap.lookups(glctx, scene, views)
+    kd, ks = (torch.tensor(v, dtype=torch.float32) for v in ((0.5, 0.4, 0.3), (0.3, 0.3, 0.4)))
+    floored = views.covered[..., None] & (exponent * views.log_cos < envmap.LOBE_FLOOR)
+    assert floored.any() or exponent == 4.0
+    images, grads = [], []
+    for plain in (False, True):
+        log_p = torch.tensor(np.log(exponent), dtype=torch.float32, requires_grad=True)
+        if plain:
+            lobe = torch.exp(torch.exp(log_p) * views.log_cos)
+            image = (kd * light[0] + ks * (light[1] + lobe)) * views.covered[..., None]
+        else:
+            image = envmap.shade(views, light, kd, ks, torch.exp(log_p))
+        (grad,) = torch.autograd.grad(torch.sum((image - 0.3) ** 2 * views.mask), log_p)
+        images.append(image.detach())
+        grads.append(float(grad))
+    assert torch.equal(images[0], images[1])
+    assert grads[0] == pytest.approx(grads[1], rel=1e-6, abs=0.0)
+
+
 def test_cube_map_directions_follow_the_lookup_convention_of_cube_textures(glctx):
     # a cube map that stores each texel's own direction, looked up (nearest) at the
     # directions, gives them back exactly: cube_map_directions inverts GL table 8.19 as

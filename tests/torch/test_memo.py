@@ -158,3 +158,19 @@ def test_a_call_larger_than_max_bytes_is_not_held(glctx, core_runs, monkeypatch)
         dr.rasterize(glctx, _pos(), TRI, (16, 12))
         dr.rasterize(glctx, _pos(), TRI, (16, 12))
     assert len(core_runs) == 2
+
+
+def test_arrays_match_only_when_every_bit_is_the_same():
+    # _same_bits: a spread sample first, then 8-byte words where both arrays are
+    # C-contiguous, element by element otherwise (a strided view against a copy)
+    np = pytest.importorskip("numpy")
+    a = np.random.default_rng(0).uniform(-1, 1, (2, 64, 64, 3)).astype(np.float32)
+    assert memo._same(a, a.copy()) and memo._same(a, np.asfortranarray(a))
+    for index in [(0, 0, 0, 0), (1, 63, 63, 2), (1, 20, 7, 1)]:  # off the sample too
+        b = a.copy()
+        b[index] = np.nextafter(b[index], np.float32(2))
+        assert not memo._same(a, b) and not memo._same(np.asfortranarray(a), b)
+    zeros = np.zeros(10, np.float32)
+    assert not memo._same(zeros, -zeros) and memo._same(zeros[::2], zeros[::2].copy())
+    odd = np.arange(3, dtype=np.int32)  # 12 bytes: no whole number of 8-byte words
+    assert memo._same(odd, odd.copy()) and not memo._same(odd, odd[::-1].copy())

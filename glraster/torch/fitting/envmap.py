@@ -18,20 +18,21 @@ direction d with ``boundary_mode="cube"``, ``linear-mipmap-linear`` and the dire
 screen derivatives (``uv_da`` from :func:`glraster.torch.interpolate` with
 ``diff_attrs="all"`` and ``rast_db``). The diffuse lookup adds a mip bias of
 log2(env_size) - 2 (a 4² level or coarser: a blurred environment standing in for the
-irradiance); the Phong lobe is around the sun direction l, with r normalized per pixel.
-Pixels the blob does not cover are 0.
+irradiance); the Phong lobe is around the sun direction l, with r normalized per pixel
+(and taken as 0 below e^-40: :data:`LOBE_FLOOR`). Pixels the blob does not cover are 0.
 
 Fit: the true material is fixed (kd = (0.60, 0.28, 0.16), ks = (0.30, 0.32, 0.36),
 p = 60); the start draws kd uniformly in [0.05, 0.95]³, ks in [0.05, 0.6]³ and p
 log-uniformly in [4, 600] (seeded). Every iteration draws ``views`` random rotations (two by
 default: one instanced draw), renders the true and the current material in them and takes
-one Adam step on the mean squared difference over the covered pixels; the parameters are
-kd, ks (clamped to [0, 1] after each step; learning rate ``lr``) and log p (learning rate
-``exponent_lr``: the start may be a factor of 15 off, log 15 = 2.7), the learning rates
-falling exponentially to ``lr_decay`` times their start over the run. Reported per
-iteration: the image RMSE of the step's views (covered pixels), the colour error (mean
-|c - c_true| over the 6 colour channels) and the relative exponent error
-|p - p_true| / p_true.
+one Adam step on the mean squared difference over the covered pixels (:func:`envmap_loss`:
+the material enters after the GL ops, so both renders share one rasterize, interpolate and
+pair of lookups); the parameters are kd, ks (clamped to [0, 1] after each step; learning
+rate ``lr``) and log p (learning rate ``exponent_lr``: the start may be a factor of 15
+off, log 15 = 2.7), the learning rates falling exponentially to ``lr_decay`` times their
+start over the run. Reported per iteration: the image RMSE of the step's views (covered
+pixels), the colour error (mean |c - c_true| over the 6 colour channels) and the relative
+exponent error |p - p_true| / p_true.
 
 With ``fit_env`` the cube map is the parameter instead (from a uniform grey start, the
 material known): the lighting from the images, each step's backward then running through
@@ -44,6 +45,7 @@ together, the image error falls while the colour and exponent errors grow.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -55,19 +57,31 @@ from glraster.torch.fitting.common import quaternion_matrices, random_quaternion
 from glraster.torch.ops import interpolate, rasterize
 from glraster.torch.texture import texture, texture_construct_mip
 
-__all__ = ["DISTANCE", "EnvmapFit", "FOVY", "TRUE_MATERIAL", "Scene", "fit_envmap",
-           "make_scene", "render_envmap", "view_setup"]
+__all__ = ["DISTANCE", "EnvmapFit", "FOVY", "LOBE_FLOOR", "TRUE_MATERIAL", "Scene", "Views",
+           "envmap_loss", "fit_envmap", "lookups", "make_scene", "render_envmap", "shade",
+           "view_setup", "views_of"]
 
 DISTANCE = 3.6
 FOVY = 40.0
 TRUE_MATERIAL = {"diffuse": (0.60, 0.28, 0.16), "specular": (0.30, 0.32, 0.36),
                  "exponent": 60.0}
+# exp(p log x) below e^LOBE_FLOOR (4.2e-18) is taken as 0: exp's results and the backward's
+# products of them would otherwise reach float32's subnormal range, whose arithmetic is
+# about 70x slower (measured: exp over 2 x 256² pixels 3.7 ms, 0.05 ms without subnormal
+# results). The image is unchanged bit for bit wherever E(r) >= 2^-33 (the lobe is then
+# below half an ulp of E(r) + lobe; the studio sky is >= 0.1 everywhere), elsewhere by less
+# than ks e^-40; the gradient in p loses terms below |dL/dlobe| e^-40 |log x| (|log x| <=
+# 13.9, x >= 1e-6) each (tests/torch/test_fit_envmap.py compares both).
+LOBE_FLOOR = -40.0
+_TRUE = tuple(torch.tensor(v, dtype=torch.float32) for v in TRUE_MATERIAL.values())
 
 
 class Scene:
     """The blob and the environment as float32 torch tensors: ``verts`` (V, 3), ``tri``
     (T, 3) int32, ``normals`` (V, 3), ``env`` (1, 6, N, N, 3); ``mip``: the environment's
-    pyramid, built once (it never changes during a fit)."""
+    pyramid, built once (it never changes during a fit); :meth:`bias`: the diffuse
+    lookup's mip bias image, the same tensor while its shape is (so neither uploaded nor
+    validated again)."""
 
     def __init__(self, glctx, *, mesh=(128, 120), env_size: int = 512):
         verts, faces, normals = blob(*mesh)
@@ -77,6 +91,13 @@ class Scene:
         self.env = torch.tensor(studio_cube_map(env_size)[None], dtype=torch.float32)
         self.env_size, self.mesh = env_size, tuple(mesh)
         self.mip = texture_construct_mip(self.env, cube_mode=True, glctx=glctx)
+        self._bias = torch.zeros(0)
+
+    def bias(self, shape) -> torch.Tensor:
+        """(N, R, R) float32 of log2(env_size) - 2 for images of ``shape`` (N, R, R)."""
+        if self._bias.shape != shape or self._bias._version:  # (changed in place: anew)
+            self._bias = torch.full(shape, math.log2(self.env_size) - 2.0)
+        return self._bias
 
 
 def make_scene(glctx, *, mesh=(128, 120), env_size: int = 512) -> Scene:
@@ -97,13 +118,30 @@ def view_setup(quaternions):
     return (torch.tensor(mvp, dtype=torch.float32), torch.tensor(eye, dtype=torch.float32))
 
 
-def render_envmap(glctx, scene: Scene, mvp, eye, diffuse, specular, exponent,
-                  resolution: int, *, env=None):
-    """(N, R, R, 3) images of the material (``diffuse`` (3,), ``specular`` (3,),
-    ``exponent`` scalar tensor) under the (N, 4, 4) ``mvp`` with eyes (N, 3), and the
-    (N, R, R) coverage. env: a cube map (1, 6, N, N, 3) instead of the scene's (its
-    pyramid built in every call, so that the gradient reaches it). Differentiable in the
-    material and ``env``."""
+class Views(NamedTuple):
+    """What the GL ops give for N views, before any lookup or material: ``covered`` (N, R, R)
+    bool and as a float32 ``mask`` (N, R, R, 3) of 0 and 1 (one per colour channel: a
+    product with it is a plain elementwise one, not a slower broadcast), the interpolated
+    normals ``n`` and reflections ``r`` (N, R, R, 3) with their screen derivatives
+    ``n_da``, ``r_da`` (N, R, R, 6; (dA/dX, dA/dY) per component), the diffuse lookup's
+    mip ``bias`` (N, R, R) and ``log_cos`` (N, R, R, 1): log max(r.l / |r|, 1e-6), the
+    Phong lobe's log before the exponent. No gradient flows into any of them (the geometry
+    and the views are fixed), so one :func:`views_of` serves the target, the current
+    material and a cube map being fitted."""
+
+    covered: torch.Tensor
+    mask: torch.Tensor
+    n: torch.Tensor
+    n_da: torch.Tensor
+    r: torch.Tensor
+    r_da: torch.Tensor
+    bias: torch.Tensor
+    log_cos: torch.Tensor
+
+
+def views_of(glctx, scene: Scene, mvp, eye, resolution: int) -> Views:
+    """:class:`Views` of the (N, 4, 4) ``mvp`` with eyes (N, 3) at ``resolution``²:
+    rasterize (with rast_db) and interpolate (diff_attrs="all")."""
     clip = clip_positions(mvp, scene.verts)
     rast, rast_db = rasterize(glctx, clip, scene.tri, (resolution, resolution), grad_db=True)
     n = scene.normals
@@ -116,27 +154,78 @@ def render_envmap(glctx, scene: Scene, mvp, eye, diffuse, specular, exponent,
     # pix_da: (dA/dX, dA/dY) per attribute; the normal's 3 pairs, then the reflection's
     n_pix, r_pix = pix[..., :3].contiguous(), pix[..., 3:].contiguous()
     n_da, r_da = pix_da[..., :6].contiguous(), pix_da[..., 6:].contiguous()
-    bias = torch.full(n_pix.shape[:-1], math.log2(scene.env_size) - 2.0)
-    env, mip = (scene.env, scene.mip) if env is None else (env, None)
-    env_diffuse = texture(env, n_pix, n_da, bias, mip=mip,
-                          filter_mode="linear-mipmap-linear", boundary_mode="cube",
-                          glctx=glctx)
-    env_mirror = texture(env, r_pix, r_da, mip=mip,
-                         filter_mode="linear-mipmap-linear", boundary_mode="cube",
-                         glctx=glctx)
+    bias = scene.bias(n_pix.shape[:-1])
     sun = torch.tensor(SUN_DIRECTION, dtype=torch.float32)
     cos = (r_pix * sun).sum(-1, keepdim=True) / r_pix.norm(dim=-1, keepdim=True).clamp_min(
         1e-12)
-    # x^p as exp(p log x), x kept >= 1e-6: pow's gradient in p (x^p log x) is NaN at x = 0
-    lobe = torch.exp(exponent * torch.log(cos.clamp_min(1e-6)))
-    image = diffuse * env_diffuse + specular * (env_mirror + lobe)
     covered = rast[..., 3] > 0
-    return image * covered[..., None], covered
+    mask = covered[..., None].expand(*covered.shape, 3).to(torch.float32)
+    # x^p as exp(p log x), x kept >= 1e-6: pow's gradient in p (x^p log x) is NaN at x = 0
+    return Views(covered=covered, mask=mask, n=n_pix, n_da=n_da, r=r_pix, r_da=r_da,
+                 bias=bias, log_cos=torch.log(cos.clamp_min(1e-6)))
 
 
-def _masked_mse(image, target, mask):
-    m = mask[..., None].to(image.dtype)
-    return torch.sum(m * (image - target) ** 2) / (torch.sum(m).clamp_min(1.0) * image.shape[-1])
+def lookups(glctx, scene: Scene, views: Views, env=None):
+    """(E(n; coarse), E(r)), each (N, R, R, 3): the diffuse and mirror lookups of the
+    scene's cube map, or of ``env`` (1, 6, N, N, 3; its pyramid built in every call, so
+    that the gradient reaches it)."""
+    env, mip = (scene.env, scene.mip) if env is None else (env, None)
+    lookup = dict(mip=mip, filter_mode="linear-mipmap-linear", boundary_mode="cube",
+                  glctx=glctx)
+    return (texture(env, views.n, views.n_da, views.bias, **lookup),
+            texture(env, views.r, views.r_da, **lookup))
+
+
+def shade(views: Views, light, diffuse, specular, exponent):
+    """(N, R, R, 3) images of the material (``diffuse`` (3,), ``specular`` (3,),
+    ``exponent`` scalar tensor) lit by ``light`` (:func:`lookups`), 0 where the blob does
+    not cover the pixel."""
+    return _unmasked(views, light, diffuse, specular, exponent) * views.mask
+
+
+def _unmasked(views: Views, light, diffuse, specular, exponent):
+    # the Phong lobe exp(p log x) taken as 0 where p log x < LOBE_FLOOR (see its note)
+    env_diffuse, env_mirror = light
+    power = exponent * views.log_cos
+    lobe = torch.exp(power.clamp_min(LOBE_FLOOR)) * (power >= LOBE_FLOOR)
+    return diffuse * env_diffuse + specular * (env_mirror + lobe)
+
+
+def render_envmap(glctx, scene: Scene, mvp, eye, diffuse, specular, exponent,
+                  resolution: int, *, env=None):
+    """(N, R, R, 3) images of the material (``diffuse`` (3,), ``specular`` (3,),
+    ``exponent`` scalar tensor) under the (N, 4, 4) ``mvp`` with eyes (N, 3), and the
+    (N, R, R) coverage: :func:`views_of`, :func:`lookups` (of ``env`` when given) and
+    :func:`shade`. Differentiable in the material and ``env``."""
+    views = views_of(glctx, scene, mvp, eye, resolution)
+    return shade(views, lookups(glctx, scene, views, env), diffuse, specular,
+                 exponent), views.covered
+
+
+def envmap_loss(glctx, scene: Scene, mvp, eye, material, resolution: int, *, env=None,
+                timer=None):
+    """The masked MSE of one step: the views rendered once (:func:`views_of`), the target
+    shaded under the true material without autograd, the ``material`` (diffuse, specular,
+    exponent) under the scene's cube map or ``env`` with it. timer: a
+    :class:`glraster.torch.fitting.common.Timer`, charged "target" (views and target) and
+    "forward"."""
+    timer = timer or Timer()
+    with timer("target"), torch.no_grad():
+        views = views_of(glctx, scene, mvp, eye, resolution)
+        light = lookups(glctx, scene, views)
+        target = _unmasked(views, light, *_TRUE)
+    with timer("forward"):
+        if env is not None:
+            light = lookups(glctx, scene, views, env)
+        # both unmasked: the loss masks them, (x m - t m)^2 m = (x - t)^2 m for m in {0, 1}
+        return _masked_mse(_unmasked(views, light, *material), target, views.mask)
+
+
+def _masked_mse(image, target, m):
+    """The mean of m (image - target)^2 over the pixels and channels where the (N, R, R, C)
+    ``m`` is 1."""
+    # sum(m) counts exactly (integers below 2^24): max(sum(m), C) = max(pixels, 1) C
+    return torch.sum(m * (image - target) ** 2) / torch.sum(m).clamp_min(image.shape[-1])
 
 
 def fit_envmap(glctx, seed: int, *, resolution: int = 256, iterations: int = 300,
@@ -201,13 +290,8 @@ def fit_envmap(glctx, seed: int, *, resolution: int = 256, iterations: int = 300
     for it in range(iterations):
         measure()
         mvp, eye = view_setup(random_quaternions(rng, views))
-        with timer("target"), torch.no_grad():
-            target, covered = render_envmap(glctx, scene, mvp, eye, true["diffuse"],
-                                            true["specular"], true["exponent"], resolution)
-        with timer("forward"):
-            image, _ = render_envmap(glctx, scene, mvp, eye, kd, ks, torch.exp(log_p),
-                                     resolution, env=env)
-            loss = _masked_mse(image, target, covered)
+        loss = envmap_loss(glctx, scene, mvp, eye, (kd, ks, torch.exp(log_p)), resolution,
+                           env=env, timer=timer)
         descend(timer, loss, opt, schedule, project=project)
         rmse.append(math.sqrt(float(loss.detach())))
         if progress is not None:

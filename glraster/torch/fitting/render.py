@@ -31,7 +31,7 @@ def shade(glctx, clip: torch.Tensor, tri: torch.Tensor, colors: torch.Tensor, re
     (:func:`glraster.torch.antialias`), which gives the positions their visibility
     gradient. Returns (image, rast)."""
     rast, _ = rasterize(_without_db(glctx), clip, tri, resolution, grad_db=False)
-    image, _ = interpolate(colors[None] if colors.ndim == 2 else colors, rast, tri, glctx=glctx)
+    image, _ = interpolate(colors, rast, tri, glctx=glctx)
     if antialias:
         image = _antialias(image, rast, clip, tri, topology, glctx=glctx)
     return image, rast
