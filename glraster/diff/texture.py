@@ -296,7 +296,7 @@ def forward(tex, uv, uv_da=None, mip_level_bias=None, *mip, filter_mode="auto",
             result = ctx.scratch_buffer("texture.out", count * channels * 4)
             result.bind_to_storage_buffer(5)
             _run(ctx, program, count)
-            out[part] = _read(result, count * channels).reshape(count, channels)
+            result.read_into(out[part], size=count * channels * 4)   # no bytes, no copy
     return (out.reshape(args.uv.shape[:3] + (channels,)),), TextureSaved(args, None, ctx, mark)
 
 
@@ -485,8 +485,8 @@ def backward(saved: TextureSaved, grad_out, *, needs=None, deterministic: bool =
                     if "COORD_GRAD" in defines else ())
             _run(ctx, program, -(-count // BACKWARD_RUN))
             for target, (buffer, width) in zip((grad_uv, grad_da, grad_bias), outs):
-                if target is not None and buffer is not None:
-                    target[part] = _read(buffer, count * width).reshape(target[part].shape)
+                if target is not None and buffer is not None:   # straight into its rows
+                    buffer.read_into(target[part], size=count * width * 4)
         flat = sums.levels(args, firsts, images) if texels else None
     grad_tex, grad_mip = (_split_levels(args, flat, firsts, total, want) if texels
                           else (None, [None] * mips))
