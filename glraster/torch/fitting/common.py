@@ -8,6 +8,7 @@ an object at the origin ``distance`` in front of a perspective camera looking do
 from __future__ import annotations
 
 import math
+import threading
 from contextlib import contextmanager
 
 import numpy as np
@@ -84,14 +85,21 @@ def psnr(a, b, mask=None, peak: float = 1.0) -> float:
 class _MeanSquares(torch.autograd.Function):
     """Per image, the mean of (image - target)^2 over its other axes, the operations of
     ``torch.mean((image - target) ** 2, dim=(1, ...))``, with a backward of one pass over
-    the pixels instead of the four of autograd's mean, pow and sub backward."""
+    the pixels instead of the four of autograd's mean, pow and sub backward. The squares,
+    read by the mean only, go to a buffer of this thread's kept from call to call (a new
+    image-sized array costs its page faults: 1 ms of 3 for the forward at 8 x 256²)."""
+
+    _squares = threading.local()
 
     @staticmethod
     def forward(fctx, image, target):
         d = image - target
         fctx.save_for_backward(d)
         fctx.shapes = image.shape, target.shape
-        return torch.mean(d ** 2, dim=tuple(range(1, d.ndim)))
+        squares = getattr(_MeanSquares._squares, "buffer", None)
+        if squares is None or squares.shape != d.shape or squares.dtype != d.dtype:
+            squares = _MeanSquares._squares.buffer = torch.empty_like(d)
+        return torch.mean(torch.pow(d, 2, out=squares), dim=tuple(range(1, d.ndim)))
 
     @staticmethod
     def backward(fctx, g):
