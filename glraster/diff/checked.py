@@ -18,11 +18,16 @@ same key. Without declarations (glraster.jax, NumPy callers) every check runs.
 
 Entries are ``(region, key, owner)`` as in :mod:`glraster.gpu.uploads`: the owner is
 held weakly, so a raster whose tensor was collected is never vouched for.
+
+:func:`made` also hands the key to the upload cache whose buffer a core left the raster's
+bytes in (:func:`produced`, :meth:`glraster.gpu.uploads.UploadCache.adopt`): the ops that
+read the raster next bind that buffer instead of uploading it again.
 """
 
 from __future__ import annotations
 
 import threading
+import weakref
 
 import numpy as np
 
@@ -39,10 +44,30 @@ LIMIT = 64
 _local = threading.local()
 
 
+def produced(array: np.ndarray | None, uploads, name: str) -> None:
+    """A core read ``array`` (its output) back whole from its buffer ``name`` of the
+    upload cache ``uploads`` (``UploadCache.produced``); the next :func:`made` of this
+    thread for the array hands the array's key there (only the last such array of a
+    thread is kept). None: the buffer holds no such array (the last one is dropped)."""
+    if array is None:
+        _local.produced = None
+        uploads.forget(name)
+        return
+    region = (address(array), array.nbytes)
+    uploads.produced(name, region)
+    _local.produced = (region, weakref.ref(uploads))
+
+
 def made(entry, triangles: int) -> None:
     """``entry``'s array is a raster whose ids index ``triangles`` triangles (as made)."""
     if entry is None:
         return
+    pending = getattr(_local, "produced", None)
+    if pending is not None and pending[0] == entry[0]:
+        _local.produced = None
+        uploads = pending[1]()
+        if uploads is not None:
+            uploads.adopt(entry)
     _make_room(_made, lambda value: value[0])
     _made[entry[1]] = (entry[2], int(triangles))
 

@@ -60,7 +60,7 @@ import numpy as np
 
 from glraster.errors import ArgumentError, GLError
 from glraster import validate
-from glraster.diff import buffer_views, compute, layout
+from glraster.diff import buffer_views, checked, compute, layout
 from glraster.diff.saved import RasterizeSaved
 from glraster.gpu import cull as _cull
 from glraster.gpu import homogeneous_kernel
@@ -144,6 +144,14 @@ class _Forward:
         if space == "screen":
             defines["SPACE_SCREEN"] = 1
         self._resolve_defines = defines
+        # the resolve writes each band at its place in one buffer holding the whole
+        # output (when it fits a chunk and every place is at a whole number of 256-byte
+        # steps, GL 4.5's largest SHADER_STORAGE_BUFFER_OFFSET_ALIGNMENT): read back
+        # whole, that buffer then holds rast for the ops that read it next
+        whole = 16 * self.batch * self.height * self.width
+        self._whole = whole if (whole <= compute.MAX_CHUNK_BYTES
+                                and self.height * self.width % 16 == 0) else 0
+        self._placed = set()  # the items resolved at their place since hand_over
 
     def _setup(self) -> tuple[np.ndarray, list[int]]:
         """The setup records of every item's drawn triangles, one item after the other:
@@ -221,6 +229,7 @@ class _Forward:
         ctx, width, height = self.ctx, self.width, self.height
         parts = [self._items[b] for b in items]
         if len(items) == 1 and not len(parts[0][1]):
+            self._placed.discard(items[0])  # (its place in the buffer is not written)
             rast[items[0]] = 0.0
             if self.grad_db:
                 rast_db[items[0]] = 0.0
@@ -243,11 +252,12 @@ class _Forward:
         for first_row in range(0, height, band):
             rows = min(band, height - first_row)
             nbytes = 16 * len(items) * rows * width
-            outputs = [ctx.scratch_buffer("rasterize.rast", nbytes)]
+            offset = 16 * width * (first_item * height + first_row) if self._whole else 0
+            outputs = [ctx.scratch_buffer("rasterize.rast", self._whole or nbytes)]
             if self.grad_db:
-                outputs.append(ctx.scratch_buffer("rasterize.rast_db", nbytes))
+                outputs.append(ctx.scratch_buffer("rasterize.rast_db", self._whole or nbytes))
             for binding, buffer in enumerate(outputs, 3):
-                buffer.bind_to_storage_buffer(binding)
+                buffer.bind_to_storage_buffer(binding, offset=offset, size=nbytes)
             compute.set_uniform(program, "size", (width, rows))
             compute.set_uniform(program, "first_row", first_row)
             for start in blocks:
@@ -272,7 +282,17 @@ class _Forward:
             ctx.mgl.memory_barrier()
             for buffer, out in zip(outputs, (rast, rast_db)):
                 buffer.read_into(out[first_item:last_item, first_row:first_row + rows],
-                                 size=nbytes)
+                                 size=nbytes, offset=offset)
+        if self._whole:
+            self._placed.update(items)
+
+    def hand_over(self, rast) -> None:
+        """When every item of ``rast`` was resolved at its place in buffer
+        "rasterize.rast" (since the last call), tell the upload cache that the buffer
+        holds rast's bytes (:func:`glraster.diff.checked.produced`)."""
+        whole = len(self._placed) == self.batch
+        checked.produced(rast if whole else None, self.ctx.uploads, "rasterize.rast")
+        self._placed = set()
 
     def _upload_records(self, items, start: int, count: int) -> tuple:
         """Records start .. start + count - 1 of each of ``items`` (one block: several items
@@ -367,6 +387,7 @@ def forward(pos, *, tri, resolution, ranges=None, grad_db: bool = True, space: s
     job = _Forward(pos, tri, resolution, ranges, grad_db, space, ctx)
     rast, rast_db = job.new_outputs()
     job.draw_all(rast, rast_db)
+    job.hand_over(rast)
     return (rast, rast_db), job.saved(rast)
 
 
@@ -569,6 +590,7 @@ class DepthPeeler:
                 with self.ctx:
                     texture.write(self._prev[b])
                 job.draw(b, rast, rast_db, prev_depth=texture)
+        job.hand_over(rast)
         self._prev = np.where(rast[..., 3] != 0, rast[..., 2], np.float32(np.inf))
         self.layer += 1
         return (rast, rast_db), job.saved(rast)

@@ -19,6 +19,13 @@ a NumPy view or ``.data``) leaves a stale buffer in place.
 Only buffers that shaders read are cached this way: :meth:`UploadCache.forget` drops a
 buffer's entry (a shader may write it: ``Context.scratch_buffer``), and an entry is
 replaced by every write.
+
+A buffer a shader wrote can also hold a declared array: an output a core read back whole
+from it (rasterize's rast), whose bytes are then the buffer's. The core says so
+(:meth:`UploadCache.produced`, the array's region); once the front end knows the output by
+its key (:meth:`UploadCache.adopt`, before anything else writes the buffer), the buffer
+holds that key as if it had been uploaded, and the next op reading the array binds it
+instead of uploading the same bytes again.
 """
 
 from __future__ import annotations
@@ -42,6 +49,7 @@ class UploadCache:
         self._sizes: dict = {}      # nbytes -> number of declared regions of that size
         self._holds: dict = {}      # buffer name -> (key, owner ref) of its bytes
         self._where: dict = {}      # key -> buffer name
+        self._made: dict = {}       # buffer name -> region read back whole from it (no key)
         self.skipped = 0
         self.written = 0
 
@@ -101,6 +109,7 @@ class UploadCache:
 
     def wrote(self, name: str, entry) -> None:
         """Buffer ``name`` received the bytes of ``entry`` (None: of undeclared data)."""
+        self._made.pop(name, None)
         old = self._holds.pop(name, None)
         if old is not None and self._where.get(old[0]) == name:
             del self._where[old[0]]
@@ -109,10 +118,35 @@ class UploadCache:
             self._where[entry[0]] = name
             self.written += 1
 
+    def produced(self, name: str, region) -> None:
+        """Buffer ``name`` (a shader's output) holds exactly the bytes now at ``region``
+        (address, nbytes): a core's output array, read back whole from it, that nothing
+        has written since; :meth:`adopt` gives the buffer that array's key."""
+        self._made[name] = region
+
+    def adopt(self, entry) -> bool:
+        """The array of ``entry`` ``(region, key, owner)`` (a front end's key for a core's
+        output, made just now) is held by the buffer that :meth:`produced` it, if any and
+        not written since: that buffer then holds ``entry`` as if uploaded (not counted in
+        ``written``). True when one did."""
+        if entry is None:
+            return False
+        for name, region in self._made.items():
+            if region == entry[0]:
+                del self._made[name]
+                old = self._holds.pop(name, None)
+                if old is not None and self._where.get(old[0]) == name:
+                    del self._where[old[0]]
+                self._holds[name] = entry[1:]
+                self._where[entry[1]] = name
+                return True
+        return False
+
     def forget(self, name: str) -> None:
         """Buffer ``name`` may now hold anything (a shader writes it, or it was remade)."""
         self.wrote(name, None)
 
     def clear(self) -> None:
+        self._made.clear()
         self._holds.clear()
         self._where.clear()

@@ -327,7 +327,7 @@ def _pose(glctx, resolution: int = 256, restarts: int = 8):
     import torch
 
     from glraster.fitting.scenes import cube
-    from glraster.torch.fitting.common import random_quaternions
+    from glraster.torch.fitting.common import mean_squares, random_quaternions
     from glraster.torch.fitting.pose import render_pose
     from glraster.torch.fitting.render import topology_hash
 
@@ -342,7 +342,7 @@ def _pose(glctx, resolution: int = 256, restarts: int = 8):
 
     def iteration() -> float:
         image = render_pose(glctx, q, resolution, topology=topology)
-        loss = torch.mean((image - target) ** 2, dim=(1, 2, 3)).sum()
+        loss = mean_squares(image, target).sum()
         return _descend(loss, opt, schedule,
                         project=lambda: q.div_(q.norm(dim=1, keepdim=True)))
 

@@ -122,3 +122,54 @@ def test_scratch_buffers_and_undeclared_data_are_always_written(ctx):
     with ctx:
         np.testing.assert_array_equal(
             np.frombuffer(ctx.storage_buffer("test.a", data).read(size=2048), np.float32), data)
+
+
+def _interpolate_rast_writes(ctx, glctx, pos, tri, colors, change=None):
+    """Rasterize then interpolate (no grad), ``change(rast)`` in between: the output
+    and the name of the buffer that held rast for interpolate."""
+    with torch.no_grad():
+        rast, _ = dr.rasterize(glctx, pos, tri, (16, 16))
+        if change is not None:
+            change(rast)
+        out, _ = dr.interpolate(colors, rast, tri, glctx=glctx)
+    return out, ctx.uploads._where.get(dr.bridge.upload_entry(rast)[1])
+
+
+def test_a_raster_stays_in_the_buffer_it_was_resolved_in(ctx):
+    """rast read back whole from the resolve pass's buffer is not uploaded for the next
+    op (that buffer holds its bytes), and the result is that of an upload; changed in
+    place, it is uploaded again."""
+    glctx = dr.RasterizeGLContext(context=ctx, output_db=False)
+    pos, tri, colors = _scene()
+    batch = torch.stack([pos, pos * torch.tensor([1.0, 0.9, 1.0, 1.0])])
+    out, holder = _interpolate_rast_writes(ctx, glctx, batch, tri, colors)
+    assert holder == "rasterize.rast"
+    want = _fresh_interpolate(batch, tri, colors)
+    assert out.equal(want)
+
+    def flip(rast):
+        rast[:] = rast.flip(1)                           # in place: a new version
+    out, holder = _interpolate_rast_writes(ctx, glctx, batch, tri, colors, flip)
+    assert holder == "interpolate.rast"                 # (uploaded)
+    own = Context()
+    try:
+        other = dr.RasterizeGLContext(context=own, output_db=False)
+        with torch.no_grad():
+            rast, _ = dr.rasterize(other, batch, tri, (16, 16))
+            want, _ = dr.interpolate(colors, rast.flip(1).contiguous(), tri, glctx=other)
+    finally:
+        own.release()
+    assert out.equal(want)
+
+
+def _fresh_interpolate(pos, tri, colors):
+    """Rasterize -> interpolate on a context of its own, rast a copy (uploaded)."""
+    own = Context()
+    try:
+        glctx = dr.RasterizeGLContext(context=own, output_db=False)
+        with torch.no_grad():
+            rast, _ = dr.rasterize(glctx, pos, tri, (16, 16))
+            out, _ = dr.interpolate(colors, rast.clone(), tri, glctx=glctx)
+        return out
+    finally:
+        own.release()

@@ -33,6 +33,7 @@ from glraster.torch.fitting.common import (
     Timer,
     angle_degrees,
     descend,
+    mean_squares,
     normalized,
     quaternion_matrices,
     random_quaternions,
@@ -104,7 +105,7 @@ def fit_pose(glctx, seed: int, *, resolution: int = 32, restarts: int = 8,
         angles.append(angle_degrees(q.detach().double().numpy(), target_q))
         with timer("forward"):
             image = render_pose(glctx, q, resolution, antialias=antialias, topology=topology)
-            per_restart = torch.mean((image - target) ** 2, dim=(1, 2, 3))
+            per_restart = mean_squares(image, target)
             loss = per_restart.sum()
         if it == iterations:  # the loss at the final parameters: no step
             timer.times["forward"].pop()
