@@ -139,9 +139,11 @@ class Views(NamedTuple):
     log_cos: torch.Tensor
 
 
-def views_of(glctx, scene: Scene, mvp, eye, resolution: int) -> Views:
-    """:class:`Views` of the (N, 4, 4) ``mvp`` with eyes (N, 3) at ``resolution``²:
-    rasterize (with rast_db) and interpolate (diff_attrs="all")."""
+def _gl_views(glctx, scene: Scene, mvp, eye, resolution: int):
+    """(rast, pix, pix_da) of the views: rasterize (with rast_db) and interpolate
+    (diff_attrs="all") of the normals and the reflections (N, R, R, 6) and their screen
+    derivatives (N, R, R, 12; the normal's 3 (dA/dX, dA/dY) pairs, then the
+    reflection's)."""
     clip = clip_positions(mvp, scene.verts)
     rast, rast_db = rasterize(glctx, clip, scene.tri, (resolution, resolution), grad_db=True)
     n = scene.normals
@@ -151,18 +153,24 @@ def views_of(glctx, scene: Scene, mvp, eye, resolution: int) -> Views:
     attrs = torch.cat([n.expand_as(refl), refl], dim=-1).contiguous()
     pix, pix_da = interpolate(attrs, rast, scene.tri, rast_db=rast_db, diff_attrs="all",
                               glctx=glctx)
-    # pix_da: (dA/dX, dA/dY) per attribute; the normal's 3 pairs, then the reflection's
-    n_pix, r_pix = pix[..., :3].contiguous(), pix[..., 3:].contiguous()
-    n_da, r_da = pix_da[..., :6].contiguous(), pix_da[..., 6:].contiguous()
-    bias = scene.bias(n_pix.shape[:-1])
+    return rast, pix, pix_da
+
+
+def _log_cos(r):
+    """log max(r.l / |r|, 1e-6) (..., 1) of the reflections ``r`` (..., 3)."""
     sun = torch.tensor(SUN_DIRECTION, dtype=torch.float32)
-    cos = (r_pix * sun).sum(-1, keepdim=True) / r_pix.norm(dim=-1, keepdim=True).clamp_min(
-        1e-12)
-    covered = rast[..., 3] > 0
-    mask = covered[..., None].expand(*covered.shape, 3).to(torch.float32)
+    cos = (r * sun).sum(-1, keepdim=True) / r.norm(dim=-1, keepdim=True).clamp_min(1e-12)
     # x^p as exp(p log x), x kept >= 1e-6: pow's gradient in p (x^p log x) is NaN at x = 0
-    return Views(covered=covered, mask=mask, n=n_pix, n_da=n_da, r=r_pix, r_da=r_da,
-                 bias=bias, log_cos=torch.log(cos.clamp_min(1e-6)))
+    return torch.log(cos.clamp_min(1e-6))
+
+
+def views_of(glctx, scene: Scene, mvp, eye, resolution: int) -> Views:
+    """:class:`Views` of the (N, 4, 4) ``mvp`` with eyes (N, 3) at ``resolution``²:
+    rasterize (with rast_db) and interpolate (diff_attrs="all")."""
+    views = _lookup_views(glctx, scene, mvp, eye, resolution)
+    covered = views.covered
+    mask = covered[..., None].expand(*covered.shape, 3).to(torch.float32)
+    return views._replace(mask=mask, log_cos=_log_cos(views.r))
 
 
 def lookups(glctx, scene: Scene, views: Views, env=None):
@@ -202,30 +210,53 @@ def render_envmap(glctx, scene: Scene, mvp, eye, diffuse, specular, exponent,
                  exponent), views.covered
 
 
+class _Covered(NamedTuple):
+    """The covered pixels of :func:`views_of`'s images, K of them, as one flat (K, ...)
+    list: ``index`` (K,) int64 into the (N R R) pixels, ``log_cos`` (K, 1)."""
+
+    index: torch.Tensor
+    log_cos: torch.Tensor
+
+
+def _covered_lookups(glctx, scene: Scene, views: Views, index, env=None):
+    """:func:`lookups` gathered to the pixels ``index``: two (K, 3)."""
+    return tuple(x.reshape(-1, 3).index_select(0, index)
+                 for x in lookups(glctx, scene, views, env))
+
+
 def envmap_loss(glctx, scene: Scene, mvp, eye, material, resolution: int, *, env=None,
                 timer=None):
     """The masked MSE of one step: the views rendered once (:func:`views_of`), the target
     shaded under the true material without autograd, the ``material`` (diffuse, specular,
-    exponent) under the scene's cube map or ``env`` with it. timer: a
+    exponent) under the scene's cube map or ``env`` with it; both shaded on the covered
+    pixels only, gathered once after the lookups (their values are :func:`shade`'s of
+    those pixels; the sums run over them alone). timer: a
     :class:`glraster.torch.fitting.common.Timer`, charged "target" (views and target) and
     "forward"."""
     timer = timer or Timer()
     with timer("target"), torch.no_grad():
-        views = views_of(glctx, scene, mvp, eye, resolution)
-        light = lookups(glctx, scene, views)
-        target = _unmasked(views, light, *_TRUE)
+        views = _lookup_views(glctx, scene, mvp, eye, resolution)
+        index = views.covered.reshape(-1).nonzero().squeeze(1)
+        covered = _Covered(index=index, log_cos=_log_cos(
+            views.r.reshape(-1, 3).index_select(0, index)))
+        light = _covered_lookups(glctx, scene, views, index)
+        target = _unmasked(covered, light, *_TRUE)
     with timer("forward"):
         if env is not None:
-            light = lookups(glctx, scene, views, env)
-        # both unmasked: the loss masks them, (x m - t m)^2 m = (x - t)^2 m for m in {0, 1}
-        return _masked_mse(_unmasked(views, light, *material), target, views.mask)
+            light = _covered_lookups(glctx, scene, views, index, env)
+        image = _unmasked(covered, light, *material)
+        # the mean over the K covered pixels' 3 channels (0 when none is covered)
+        return torch.sum((image - target) ** 2) / float(3 * max(len(index), 1))
 
 
-def _masked_mse(image, target, m):
-    """The mean of m (image - target)^2 over the pixels and channels where the (N, R, R, C)
-    ``m`` is 1."""
-    # sum(m) counts exactly (integers below 2^24): max(sum(m), C) = max(pixels, 1) C
-    return torch.sum(m * (image - target) ** 2) / torch.sum(m).clamp_min(image.shape[-1])
+def _lookup_views(glctx, scene: Scene, mvp, eye, resolution: int) -> Views:
+    """:class:`Views` with what :func:`lookups` reads (``covered`` (N, R, R), the normals
+    and reflections, their derivatives and the bias); ``mask`` and ``log_cos`` None."""
+    rast, pix, pix_da = _gl_views(glctx, scene, mvp, eye, resolution)
+    n_pix, r_pix = pix[..., :3].contiguous(), pix[..., 3:].contiguous()
+    n_da, r_da = pix_da[..., :6].contiguous(), pix_da[..., 6:].contiguous()
+    return Views(covered=rast[..., 3] > 0, mask=None, n=n_pix, n_da=n_da, r=r_pix,
+                 r_da=r_da, bias=scene.bias(n_pix.shape[:-1]), log_cos=None)
 
 
 def fit_envmap(glctx, seed: int, *, resolution: int = 256, iterations: int = 300,
