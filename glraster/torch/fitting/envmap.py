@@ -47,6 +47,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+import numba
 import numpy as np
 import torch
 
@@ -74,6 +75,9 @@ TRUE_MATERIAL = {"diffuse": (0.60, 0.28, 0.16), "specular": (0.30, 0.32, 0.36),
 # 13.9, x >= 1e-6) each (tests/torch/test_fit_envmap.py compares both).
 LOBE_FLOOR = -40.0
 _TRUE = tuple(torch.tensor(v, dtype=torch.float32) for v in TRUE_MATERIAL.values())
+_TRUE_VECTOR = np.array([*TRUE_MATERIAL["diffuse"], *TRUE_MATERIAL["specular"],
+                         TRUE_MATERIAL["exponent"]], np.float32)
+_SUN = np.asarray(SUN_DIRECTION, np.float32)
 
 
 class Scene:
@@ -139,9 +143,11 @@ class Views(NamedTuple):
     log_cos: torch.Tensor
 
 
-def views_of(glctx, scene: Scene, mvp, eye, resolution: int) -> Views:
-    """:class:`Views` of the (N, 4, 4) ``mvp`` with eyes (N, 3) at ``resolution``²:
-    rasterize (with rast_db) and interpolate (diff_attrs="all")."""
+def _gl_views(glctx, scene: Scene, mvp, eye, resolution: int):
+    """(rast, pix, pix_da) of the views: rasterize (with rast_db) and interpolate
+    (diff_attrs="all") of the normals and the reflections (N, R, R, 6) and their screen
+    derivatives (N, R, R, 12; the normal's 3 (dA/dX, dA/dY) pairs, then the
+    reflection's)."""
     clip = clip_positions(mvp, scene.verts)
     rast, rast_db = rasterize(glctx, clip, scene.tri, (resolution, resolution), grad_db=True)
     n = scene.normals
@@ -151,18 +157,24 @@ def views_of(glctx, scene: Scene, mvp, eye, resolution: int) -> Views:
     attrs = torch.cat([n.expand_as(refl), refl], dim=-1).contiguous()
     pix, pix_da = interpolate(attrs, rast, scene.tri, rast_db=rast_db, diff_attrs="all",
                               glctx=glctx)
-    # pix_da: (dA/dX, dA/dY) per attribute; the normal's 3 pairs, then the reflection's
-    n_pix, r_pix = pix[..., :3].contiguous(), pix[..., 3:].contiguous()
-    n_da, r_da = pix_da[..., :6].contiguous(), pix_da[..., 6:].contiguous()
-    bias = scene.bias(n_pix.shape[:-1])
+    return rast, pix, pix_da
+
+
+def _log_cos(r):
+    """log max(r.l / |r|, 1e-6) (..., 1) of the reflections ``r`` (..., 3)."""
     sun = torch.tensor(SUN_DIRECTION, dtype=torch.float32)
-    cos = (r_pix * sun).sum(-1, keepdim=True) / r_pix.norm(dim=-1, keepdim=True).clamp_min(
-        1e-12)
-    covered = rast[..., 3] > 0
-    mask = covered[..., None].expand(*covered.shape, 3).to(torch.float32)
+    cos = (r * sun).sum(-1, keepdim=True) / r.norm(dim=-1, keepdim=True).clamp_min(1e-12)
     # x^p as exp(p log x), x kept >= 1e-6: pow's gradient in p (x^p log x) is NaN at x = 0
-    return Views(covered=covered, mask=mask, n=n_pix, n_da=n_da, r=r_pix, r_da=r_da,
-                 bias=bias, log_cos=torch.log(cos.clamp_min(1e-6)))
+    return torch.log(cos.clamp_min(1e-6))
+
+
+def views_of(glctx, scene: Scene, mvp, eye, resolution: int) -> Views:
+    """:class:`Views` of the (N, 4, 4) ``mvp`` with eyes (N, 3) at ``resolution``²:
+    rasterize (with rast_db) and interpolate (diff_attrs="all")."""
+    views = _lookup_views(glctx, scene, mvp, eye, resolution)
+    covered = views.covered
+    mask = covered[..., None].expand(*covered.shape, 3).to(torch.float32)
+    return views._replace(mask=mask, log_cos=_log_cos(views.r))
 
 
 def lookups(glctx, scene: Scene, views: Views, env=None):
@@ -202,30 +214,120 @@ def render_envmap(glctx, scene: Scene, mvp, eye, diffuse, specular, exponent,
                  exponent), views.covered
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _loss_kernel(covered, t_diffuse, t_mirror, e_diffuse, e_mirror, r, sun, true, material,
+                 grads, image_grads):
+    """The loss of :func:`envmap_loss` and its gradients in one pass over the P pixels.
+
+    covered (P,) bool; t_diffuse, t_mirror, e_diffuse, e_mirror, r (P, 3) float32: the
+    lookups (E(n), E(r)) of the target and of the fit, and the interpolated reflections; sun (3,), true and material (7,) float32: (kd, ks, p);
+    grads (7,) float64: written, d loss / d (kd, ks, p); image_grads (2, P, 3) float32 or
+    (0, 0, 3): written when not empty, d loss / d (e_diffuse, e_mirror) (0 off the blob).
+    Each pixel in float32 as :func:`_unmasked` (and :func:`_log_cos`); the sums in float64
+    in pixel order (serial: deterministic). Returns (loss, K)."""
+    floor = np.float32(LOBE_FLOOR)
+    # first pass: the count, for the mean's 1 / (3 K)
+    k = 0
+    for i in range(covered.shape[0]):
+        if covered[i]:
+            k += 1
+    scale = 2.0 / (3.0 * max(k, 1))
+    total = 0.0
+    for j in range(7):
+        grads[j] = 0.0
+    want_images = image_grads.shape[1] > 0
+    if want_images:
+        image_grads[:] = 0.0
+    for i in range(covered.shape[0]):
+        if not covered[i]:
+            continue
+        x, y, z = r[i, 0], r[i, 1], r[i, 2]
+        norm = np.float32(math.sqrt(x * x + y * y + z * z))
+        cos = (x * sun[0] + y * sun[1] + z * sun[2]) / max(norm, np.float32(1e-12))
+        log_cos = np.float32(math.log(max(cos, np.float32(1e-6))))
+        power_t = true[6] * log_cos
+        lobe_t = np.float32(math.exp(power_t)) if power_t >= floor else np.float32(0.0)
+        power = material[6] * log_cos
+        lobe = np.float32(math.exp(power)) if power >= floor else np.float32(0.0)
+        dlobe = 0.0
+        for c in range(3):
+            target = true[c] * t_diffuse[i, c] + true[3 + c] * (t_mirror[i, c] + lobe_t)
+            ed, em = e_diffuse[i, c], e_mirror[i, c]
+            spec = em + lobe
+            d = np.float64((material[c] * ed + material[3 + c] * spec) - target)
+            total += d * d
+            grads[c] += d * ed
+            grads[3 + c] += d * spec
+            dlobe += d * material[3 + c]
+            if want_images:
+                image_grads[0, i, c] = np.float32(scale * d * material[c])
+                image_grads[1, i, c] = np.float32(scale * d * material[3 + c])
+        grads[6] += dlobe * lobe * log_cos
+    for j in range(7):
+        grads[j] *= scale
+    return total / (3.0 * max(k, 1)), k
+
+
+class _EnvmapLoss(torch.autograd.Function):
+    """:func:`_loss_kernel` as an autograd function of (kd, ks, p, E(n), E(r)) (and of
+    nothing else: ``true_light``, the target's lookups, ``r`` and ``covered``
+    are constants): the forward computes the gradients too (every call is
+    differentiated), the backward scales them."""
+
+    @staticmethod
+    def forward(ctx, kd, ks, p, e_diffuse, e_mirror, true_light, r, covered):
+        material = torch.cat([kd.detach(), ks.detach(), p.detach().reshape(1)])
+        pixels = covered.numel()
+        want_images = any(ctx.needs_input_grad[3:5])
+        grads = np.empty(7, np.float64)
+        image_grads = np.empty((2, pixels, 3) if want_images else (0, 0, 3), np.float32)
+        loss, _ = _loss_kernel(covered.reshape(-1).numpy(),
+                               *(x.reshape(-1, 3).numpy() for x in true_light),
+                               e_diffuse.detach().reshape(-1, 3).numpy(),
+                               e_mirror.detach().reshape(-1, 3).numpy(),
+                               r.reshape(-1, 3).numpy(), _SUN, _TRUE_VECTOR,
+                               material.numpy(), grads, image_grads)
+        ctx.grads, ctx.shape = torch.from_numpy(grads.astype(np.float32)), e_diffuse.shape
+        ctx.image_grads = torch.from_numpy(image_grads) if want_images else None
+        return torch.tensor(loss, dtype=torch.float32)
+
+    @staticmethod
+    def backward(ctx, grad):
+        g = ctx.grads * grad
+        images = (None, None) if ctx.image_grads is None else \
+            tuple((x * grad).reshape(ctx.shape) for x in ctx.image_grads)
+        return g[:3], g[3:6], g[6], *images, None, None, None
+
+
 def envmap_loss(glctx, scene: Scene, mvp, eye, material, resolution: int, *, env=None,
                 timer=None):
     """The masked MSE of one step: the views rendered once (:func:`views_of`), the target
-    shaded under the true material without autograd, the ``material`` (diffuse, specular,
-    exponent) under the scene's cube map or ``env`` with it. timer: a
-    :class:`glraster.torch.fitting.common.Timer`, charged "target" (views and target) and
-    "forward"."""
+    shaded under the true material, the ``material`` (diffuse, specular, exponent) under
+    the scene's cube map or ``env``: after the lookups one compiled pass over the pixels
+    shades both on the covered ones and sums the loss and its gradients
+    (:func:`_loss_kernel`; each pixel's values as :func:`shade`'s in float32, the sums in
+    float64). timer: a :class:`glraster.torch.fitting.common.Timer`, charged "target"
+    (views and the target's lookups) and "forward"."""
     timer = timer or Timer()
     with timer("target"), torch.no_grad():
-        views = views_of(glctx, scene, mvp, eye, resolution)
+        views = _lookup_views(glctx, scene, mvp, eye, resolution)
         light = lookups(glctx, scene, views)
-        target = _unmasked(views, light, *_TRUE)
     with timer("forward"):
+        true_light = light
         if env is not None:
             light = lookups(glctx, scene, views, env)
-        # both unmasked: the loss masks them, (x m - t m)^2 m = (x - t)^2 m for m in {0, 1}
-        return _masked_mse(_unmasked(views, light, *material), target, views.mask)
+        kd, ks, p = material
+        return _EnvmapLoss.apply(kd, ks, p, *light, true_light, views.r, views.covered)
 
 
-def _masked_mse(image, target, m):
-    """The mean of m (image - target)^2 over the pixels and channels where the (N, R, R, C)
-    ``m`` is 1."""
-    # sum(m) counts exactly (integers below 2^24): max(sum(m), C) = max(pixels, 1) C
-    return torch.sum(m * (image - target) ** 2) / torch.sum(m).clamp_min(image.shape[-1])
+def _lookup_views(glctx, scene: Scene, mvp, eye, resolution: int) -> Views:
+    """:class:`Views` with what :func:`lookups` reads (``covered`` (N, R, R), the normals
+    and reflections, their derivatives and the bias); ``mask`` and ``log_cos`` None."""
+    rast, pix, pix_da = _gl_views(glctx, scene, mvp, eye, resolution)
+    n_pix, r_pix = pix[..., :3].contiguous(), pix[..., 3:].contiguous()
+    n_da, r_da = pix_da[..., :6].contiguous(), pix_da[..., 6:].contiguous()
+    return Views(covered=rast[..., 3] > 0, mask=None, n=n_pix, n_da=n_da, r=r_pix,
+                 r_da=r_da, bias=scene.bias(n_pix.shape[:-1]), log_cos=None)
 
 
 def fit_envmap(glctx, seed: int, *, resolution: int = 256, iterations: int = 300,
