@@ -17,10 +17,12 @@ the ``torch-overhead`` study (512 triangles) at N x N; interpolate with
 forward floor includes the mip pyramid build, the backward floor the pyramid's
 backward); antialias with a prebuilt topology hash. Every float input wants its gradient.
 
-**Fits.** One iteration of each fit as its ``fit_*`` loop runs it (target render without
-autograd where the fit has one, forward, loss, backward, Adam step and schedule): the cube
-at 4x4 and 16x16 (4 views), the pose fit at 256² (8 restarts) and the texture fit (128²,
-4 views, linear-mipmap-linear, 256² texture). Per fit:
+**Fits.** One iteration of each fit as its ``fit_*`` loop runs it (forward, loss,
+backward, Adam step and schedule): the cube at 4x4 and 16x16 (4 views; as ``fit_cube``,
+the context held current and the targets of 32 iterations rendered in one no-grad call
+of each op, each iteration charged 1/32 of that call's time and floors: "target OP.ROLE"),
+the pose fit at 256² (8 restarts) and the texture fit (128², 4 views,
+linear-mipmap-linear, 256² texture). Per fit:
 
 - the iteration's median (``--iterations`` per round, ``--rounds`` interleaved rounds);
 - per op call: calls per iteration, the core's time (inclusive) and its floor;

@@ -10,7 +10,6 @@ iteration are exact (the cube fit renders twice per iteration: target and fit).
 from __future__ import annotations
 
 import json
-import sys
 
 import moderngl
 import numpy as np
