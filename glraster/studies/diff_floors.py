@@ -17,10 +17,12 @@ the ``torch-overhead`` study (512 triangles) at N x N; interpolate with
 forward floor includes the mip pyramid build, the backward floor the pyramid's
 backward); antialias with a prebuilt topology hash. Every float input wants its gradient.
 
-**Fits.** One iteration of each fit as its ``fit_*`` loop runs it (target render without
-autograd where the fit has one, forward, loss, backward, Adam step and schedule): the cube
-at 4x4 and 16x16 (4 views), the pose fit at 256² (8 restarts) and the texture fit (128²,
-4 views, linear-mipmap-linear, 256² texture). Per fit:
+**Fits.** One iteration of each fit as its ``fit_*`` loop runs it (forward, loss,
+backward, Adam step and schedule): the cube at 4x4 and 16x16 (4 views; as ``fit_cube``,
+the context held current and the targets of 32 iterations rendered in one no-grad call
+of each op, each iteration charged 1/32 of that call's time and floors: "target OP.ROLE"),
+the pose fit at 256² (8 restarts) and the texture fit (128², 4 views,
+linear-mipmap-linear, 256² texture). Per fit:
 
 - the iteration's median (``--iterations`` per round, ``--rounds`` interleaved rounds);
 - per op call: calls per iteration, the core's time (inclusive) and its floor;
@@ -291,12 +293,18 @@ def _descend(loss, opt, schedule, project=None) -> float:
 
 
 def _cube(glctx, resolution: int, views: int = 4):
+    """The cube fit's iteration as :func:`glraster.torch.fitting.cube.fit_cube` runs it:
+    the OpenGL context held current, the target images taken from a batch of
+    :data:`~glraster.torch.fitting.cube.TARGET_BATCH` iterations' rendered in one no-grad
+    call of each op by the fit's own ``_targets``. That batch call is the iteration's
+    ``batched`` = (render the next batch, its iteration count): :func:`measure_fits`
+    times it apart and charges each iteration its share (time and floors / count)."""
     import torch
 
     from glraster.fitting.scenes import DISTANCE, FOVY, cube
     from glraster.torch.fitting.common import (quaternion_matrices, random_quaternions,
                                                view_matrices)
-    from glraster.torch.fitting.cube import render_cube
+    from glraster.torch.fitting.cube import TARGET_BATCH, _targets, render_cube
     from glraster.torch.fitting.render import topology_hash
 
     vertices, triangles, colors = cube()
@@ -310,16 +318,30 @@ def _cube(glctx, resolution: int, views: int = 4):
     col = torch.tensor(rng.uniform(0, 1, colors.shape), dtype=torch.float32,
                        requires_grad=True)
     opt, schedule = _adam([pos, col], 1e-2)
+    batch = {}
+
+    def render_batch() -> None:
+        """The next TARGET_BATCH iterations' views and their targets (fit_cube's call)."""
+        mvps = torch.tensor(view_matrices(quaternion_matrices(random_quaternions(
+            rng, views * TARGET_BATCH)), distance=DISTANCE, fovy=FOVY),
+            dtype=torch.float32).reshape(TARGET_BATCH, views, 4, 4)
+        with glctx.context:
+            targets = _targets(glctx, mvps, true_pos, true_col, tri, resolution, True,
+                               topology)
+        batch.update(mvps=mvps, targets=targets, next=0)
 
     def iteration() -> float:
-        mvp = torch.tensor(view_matrices(quaternion_matrices(random_quaternions(rng, views)),
-                                         distance=DISTANCE, fovy=FOVY), dtype=torch.float32)
-        with torch.no_grad():
-            target = render_cube(glctx, mvp, true_pos, true_col, tri, resolution,
-                                 topology=topology)
-        image = render_cube(glctx, mvp, pos, col, tri, resolution, topology=topology)
-        return _descend(torch.mean((image - target) ** 2), opt, schedule)
+        it = batch["next"] % TARGET_BATCH  # (past the batch: its views again, same work)
+        batch["next"] += 1
+        target = batch["targets"][it * views:][:views]
+        with glctx.context:
+            image = render_cube(glctx, batch["mvps"][it], pos, col, tri, resolution,
+                                topology=topology)
+            loss = torch.mean((image - target) ** 2)
+            return _descend(loss, opt, schedule)
 
+    render_batch()
+    iteration.batched = (render_batch, TARGET_BATCH)
     return iteration
 
 
@@ -525,49 +547,84 @@ def measure_fits(glctx, names, rounds: int, iterations: int, profile_iterations:
     """{fit: {"iteration", "step", "floors": {segment: s}, "core": {segment: s},
     "calls": {segment: n}, "clocked": s, "phases": {phase: s}, "host": [...]}} (seconds
     per iteration, medians; "clocked" and "phases" from iterations under
-    :func:`phase_clock`, interleaved with the plain ones)."""
+    :func:`phase_clock`, interleaved with the plain ones). A fit whose iteration has
+    ``batched`` = (function, count) (work its loop runs once for ``count`` iterations)
+    has that function timed, recorded and clocked once a round, and each iteration
+    charged a ``1/count`` share of it: its segments are "target OP.ROLE"."""
     ctx = glctx.context
     fits = {name: BUILDERS[name](glctx) for name in names}
     out = {}
     samples = {name: {"iteration": [], "step": [], "floors": [], "core": [], "phases": [],
-                      "clocked": []}
+                      "clocked": [], "shared": [], "shared clocked": []}
                for name in fits}
     calls = {}
     for _ in range(rounds):
         for name, iteration in fits.items():
+            batched, count = getattr(iteration, "batched", (None, 1))
+            s = samples[name]
             iteration()                                   # warm
             with recording() as rec:
                 iteration()
             calls[name] = rec.trace.counts()
-            samples[name]["floors"].append(floors_of(rec.trace, ctx))
+            floors = floors_of(rec.trace, ctx)
+            if batched is not None:
+                with recording() as rec:
+                    batched()
+                calls[name].update({f"target {k}": n / count
+                                    for k, n in rec.trace.counts().items()})
+                floors.update({f"target {k}": f / count
+                               for k, f in floors_of(rec.trace, ctx).items()})
+                totals = {}
+                with core_timer(totals):
+                    start = time.perf_counter()
+                    batched()
+                    elapsed = time.perf_counter() - start
+                s["shared"].append((elapsed / count,
+                                    {f"target {k}": t / count for k, t in totals.items()}))
+            s["floors"].append(floors)
             for _ in range(iterations):
                 totals = {}
                 with core_timer(totals):
                     start = time.perf_counter()
                     step = iteration()
                     elapsed = time.perf_counter() - start
-                samples[name]["iteration"].append(elapsed)
-                samples[name]["step"].append(step)
-                samples[name]["core"].append(totals)
+                s["iteration"].append(elapsed)
+                s["step"].append(step)
+                s["core"].append(totals)
             with phase_clock() as clock:
+                if batched is not None:
+                    clock.reset()
+                    start = time.perf_counter()
+                    batched()
+                    s["shared clocked"].append(
+                        ((time.perf_counter() - start) / count,
+                         {p: t / count for p, t in clock.read().items()}))
                 for _ in range(iterations):
                     clock.reset()
                     start = time.perf_counter()
                     iteration()
-                    samples[name]["clocked"].append(time.perf_counter() - start)
-                    samples[name]["phases"].append(clock.read())
+                    s["clocked"].append(time.perf_counter() - start)
+                    s["phases"].append(clock.read())
     for name, s in samples.items():
         segments = list(s["floors"][0])
+        shared = [t for t, _ in s["shared"]] or [0.0]
+        shared_core = [c for _, c in s["shared"]] or [{}]
+        shared_clocked = [t for t, _ in s["shared clocked"]] or [0.0]
+        shared_phases = [p for _, p in s["shared clocked"]] or [{}]
+        core = {k: statistics.median(c.get(k, 0.0) for c in s["core"]) for k in segments}
+        core.update({k: statistics.median(c.get(k, 0.0) for c in shared_core)
+                     for k in segments if k.startswith("target ")})
         out[name] = {
-            "iteration": statistics.median(s["iteration"]),
+            "iteration": statistics.median(s["iteration"]) + statistics.median(shared),
             "step": statistics.median(s["step"]),
             "floors": {k: statistics.median(f.get(k, 0.0) for f in s["floors"])
                        for k in segments},
-            "core": {k: statistics.median(c.get(k, 0.0) for c in s["core"])
-                     for k in segments if "/" not in k},
+            "core": {k: t for k, t in core.items() if "/" not in k},
             "calls": calls[name],
-            "clocked": statistics.median(s["clocked"]),
-            "phases": {p: statistics.median(t[p] for t in s["phases"]) for p in PHASES},
+            "clocked": statistics.median(s["clocked"]) + statistics.median(shared_clocked),
+            "phases": {p: statistics.median(t[p] for t in s["phases"])
+                       + statistics.median(t.get(p, 0.0) for t in shared_phases)
+                       for p in PHASES},
             "host": host_hotspots(fits[name], profile_iterations),
         }
     return {name: out[name] for name in names}
@@ -576,6 +633,11 @@ def measure_fits(glctx, names, rounds: int, iterations: int, profile_iterations:
 def floor_sum(fit: dict) -> float:
     """The sum of the iteration's op floors plus its optimizer step."""
     return sum(fit["floors"].values()) + fit["step"]
+
+
+def _calls(n: float) -> str:
+    """A call count per iteration: "2", or a batched call's share "1/32"."""
+    return str(round(n)) if n >= 1 or n == 0 else f"1/{round(1 / n)}"
 
 
 def fits_tables(result: dict) -> str:
@@ -592,7 +654,7 @@ def fits_tables(result: dict) -> str:
         for seg in sorted(fit["core"]):
             floor = op_floor(fit["floors"], seg)
             core = fit["core"][seg]
-            lines.append(f"| {name} | {seg} | {fit['calls'].get(seg, 0)} | "
+            lines.append(f"| {name} | {seg} | {_calls(fit['calls'].get(seg, 0))} | "
                          f"{1e3 * core:.3f} | {1e3 * floor:.3f} | "
                          f"{_ratio(core, floor)} |")
         lines.append(f"| {name} | optimizer step | 1 | {1e3 * fit['step']:.3f} | | |")
