@@ -109,6 +109,12 @@ class UploadCache:
 
     def wrote(self, name: str, entry) -> None:
         """Buffer ``name`` received the bytes of ``entry`` (None: of undeclared data)."""
+        self._hold(name, entry)
+        if entry is not None:
+            self.written += 1
+
+    def _hold(self, name: str, entry) -> None:
+        """Buffer ``name`` now holds ``entry`` ``(key, owner)`` (None: undeclared bytes)."""
         self._made.pop(name, None)
         old = self._holds.pop(name, None)
         if old is not None and self._where.get(old[0]) == name:
@@ -116,7 +122,6 @@ class UploadCache:
         if entry is not None:
             self._holds[name] = entry
             self._where[entry[0]] = name
-            self.written += 1
 
     def produced(self, name: str, region) -> None:
         """Buffer ``name`` (a shader's output) holds exactly the bytes now at ``region``
@@ -133,12 +138,7 @@ class UploadCache:
             return False
         for name, region in self._made.items():
             if region == entry[0]:
-                del self._made[name]
-                old = self._holds.pop(name, None)
-                if old is not None and self._where.get(old[0]) == name:
-                    del self._where[old[0]]
-                self._holds[name] = entry[1:]
-                self._where[entry[1]] = name
+                self._hold(name, entry[1:])
                 return True
         return False
 

@@ -220,7 +220,8 @@ def _loss_kernel(covered, t_diffuse, t_mirror, e_diffuse, e_mirror, r, sun, true
     """The loss of :func:`envmap_loss` and its gradients in one pass over the P pixels.
 
     covered (P,) bool; t_diffuse, t_mirror, e_diffuse, e_mirror, r (P, 3) float32: the
-    lookups (E(n), E(r)) of the target and of the fit, and the interpolated reflections; sun (3,), true and material (7,) float32: (kd, ks, p);
+    lookups (E(n), E(r)) of the target and of the fit, and the interpolated reflections;
+    sun (3,), true and material (7,) float32: (kd, ks, p);
     grads (7,) float64: written, d loss / d (kd, ks, p); image_grads (2, P, 3) float32 or
     (0, 0, 3): written when not empty, d loss / d (e_diffuse, e_mirror) (0 off the blob).
     Each pixel in float32 as :func:`_unmasked` (and :func:`_log_cos`); the sums in float64
