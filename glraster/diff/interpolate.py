@@ -29,6 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from glraster.diff import buffer_views, compute
+from glraster.diff.address import address
 from glraster.diff.saved import InterpolateSaved
 from glraster.gpu.context import Context, default_context
 from glraster.gpu.shaders import shader_path
@@ -262,6 +263,9 @@ class _Backward:
                 # straight into the outputs' rows (one copy, not bytes then array)
                 if grad_rast is not None:
                     out_rast.read_into(grad_rast[part], size=count * 16)
+                    if count == job.pixels:  # all of it: the buffer holds grad_rast's bytes
+                        ctx.uploads.produced("interpolate.grad_rast",
+                                             (address(grad_rast), grad_rast.nbytes))
                 if grad_db is not None:
                     out_db.read_into(grad_db[part], size=count * 16)
 

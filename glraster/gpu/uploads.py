@@ -58,7 +58,10 @@ class UploadCache:
         returned. An entry is ``(region, key, owner)``: ``region`` = (address, nbytes) of a
         C-contiguous array, ``key`` hashable, ``owner`` a weak reference to the object
         whose memory it is; a None entry, or one of no bytes, is left out. A region
-        declared already (an enclosing call) keeps its key."""
+        declared already (an enclosing call) keeps its key. What :meth:`produced` said
+        before and no :meth:`adopt` took is dropped: only a region the call now starting
+        produces can be adopted after it (memory freed since may hold another array)."""
+        self._made.clear()
         added = []
         for entry in entries:
             if entry is not None and entry[0][1] and entry[0] not in self._declared:

@@ -69,25 +69,25 @@ def context(glctx) -> RasterizeGLContext:
     return glctx
 
 
-def to_torch(array, dtype) -> torch.Tensor:
-    """A tensor sharing ``array``'s memory when it is contiguous, writable and of ``dtype``."""
-    array = np.asarray(array)
-    if array.dtype != dtype or not array.flags.c_contiguous or not array.flags.writeable:
-        array = np.array(array, dtype=dtype, order="C")
-    return torch.from_numpy(array)
+def to_torch(array, dtype, gl=None) -> torch.Tensor:
+    """A tensor sharing ``array``'s memory when it is contiguous, writable and of ``dtype``;
+    ``gl``'s upload cache adopts it if a buffer holds its bytes (owner: the array's life)."""
+    tensor = torch.from_numpy(array := np.require(array, dtype, "CW"))
+    if gl is not None:  # (autograd keeps a saved output's memory, not its Python object)
+        gl.uploads.adopt(upload_entry(tensor, array))
+    return tensor
 
 
-def upload_entry(value: torch.Tensor):
-    """``(region, key, owner)`` of a contiguous tensor of KEYED_BYTES or more (else None)
-    for :mod:`glraster.gpu.uploads`: the key names the tensor (a view's base: the owner,
-    held weakly), address, version counter (bumped by every in-place change, shared by
-    views), shape, dtype."""
+def upload_entry(value: torch.Tensor, owner=None):
+    """``(region, key, owner)`` of a contiguous tensor of KEYED_BYTES or more (else None) for
+    :mod:`glraster.gpu.uploads`: the key names the tensor (a view's base: the owner, held
+    weakly, or ``owner``), address, version (bumped in place, shared by views), shape, dtype."""
     if value is None or value.nbytes < KEYED_BYTES or not value.is_contiguous():
         return None
     base = value._base if value._base is not None else value
     address = value.data_ptr()
-    return ((address, value.nbytes),
-            (id(base), address, value._version, value.shape, value.dtype), weakref.ref(base))
+    return ((address, value.nbytes), (id(base), address, value._version, value.shape,
+            value.dtype), weakref.ref(base if owner is None else owner))
 
 
 class Call:
@@ -138,7 +138,7 @@ class Call:
         elif repeatable and (found := memo.lookup(gl, self.op, self.params, self.views)):
             outputs = tuple(map(torch.from_numpy, found))
         else:  # no gradient possible: no autograd node, nothing saved
-            outputs = tuple(to_torch(out, self.dtype) for out in _run(gl, entries, forward)[0])
+            outputs = tuple(to_torch(out, self.dtype, gl) for out in _run(gl, entries, forward)[0])
             if repeatable:
                 memo.remember(gl, self.op, self.params, self.views, [t.numpy() for t in outputs],
                               lambda ts=held + outputs: [t._version for t in ts if t is not None])
@@ -173,7 +173,7 @@ class _Function(torch.autograd.Function):
     def forward(fctx, how, forward, *tensors):
         fctx.core, fctx.dtype, fctx.frozen, fctx.gl, fctx.count, entries = how
         outputs, fctx.saved = _run(fctx.gl, entries, forward)
-        outputs = tuple(to_torch(out, fctx.dtype) for out in outputs)
+        outputs = tuple(to_torch(out, fctx.dtype, fctx.gl) for out in outputs)
         fctx.save_for_backward(*tensors, *outputs)
         fctx.entries = entries + [upload_entry(t) for t in outputs]  # valid while saved
         fctx.shapes = [None if t is None else t.shape for t in tensors[:fctx.count]]
@@ -188,11 +188,11 @@ class _Function(torch.autograd.Function):
         if not any(needs) or all(g is None for g in grads):
             return nothing
         fctx.saved_tensors  # raises if a saved tensor changed in place since (keys stay)
-        grads = [None if g is None or k in fctx.frozen else np.ascontiguousarray(g.numpy())
-                 for k, g in enumerate(grads)]
-        work = functools.partial(fctx.core.backward, fctx.saved, *grads, needs=needs)
-        result = tuple(_run(fctx.gl, fctx.entries, work))
+        arrays = [None if g is None or k in fctx.frozen else np.ascontiguousarray(g.numpy())
+                  for k, g in enumerate(grads)]
+        work = functools.partial(fctx.core.backward, fctx.saved, *arrays, needs=needs)
+        result = tuple(_run(fctx.gl, fctx.entries + [*map(upload_entry, grads)], work))
         result += (None,) * (len(needs) - len(result))  # own mips: no gradients of their own
-        grads = tuple(to_torch(g, fctx.dtype).sum_to_size(shape) if need and g is not None
-                      else None for g, shape, need in zip(result, fctx.shapes, needs))  # sum: broadcasts
+        grads = tuple(to_torch(g, fctx.dtype, fctx.gl).sum_to_size(shape) if need and g is not
+                      None else None for g, shape, need in zip(result, fctx.shapes, needs))
         return (None, None) + grads + nothing[2 + len(grads):]
