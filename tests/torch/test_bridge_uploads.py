@@ -173,3 +173,42 @@ def _fresh_interpolate(pos, tri, colors):
         return out
     finally:
         own.release()
+
+
+def _backward_uploads(ctx, monkeypatch, hook=None):
+    """Rasterize -> interpolate, forward and backward (``hook`` on rast's gradient): pos'
+    gradient and, per buffer rasterize's backward asked for, whether it was written."""
+    glctx = dr.RasterizeGLContext(context=ctx, output_db=False)
+    pos, tri, colors = _scene()
+    pos = torch.stack([pos, pos * torch.tensor([1.0, 0.9, 1.0, 1.0])]).requires_grad_()
+    asked, storage_buffer = {}, ctx.storage_buffer
+
+    def logged(name, data):
+        skipped = ctx.uploads.skipped
+        buffer = storage_buffer(name, data)
+        asked[name] = ctx.uploads.skipped == skipped
+        return buffer
+    monkeypatch.setattr(ctx, "storage_buffer", logged)
+    rast, _ = dr.rasterize(glctx, pos, tri, (16, 16))
+    if hook is not None:
+        rast.register_hook(hook)
+    out, _ = dr.interpolate(colors, rast, tri, glctx=glctx)
+    (out * torch.linspace(0.5, 1.5, out.numel()).reshape(out.shape)).sum().backward()
+    return pos.grad, {k: v for k, v in asked.items() if k.startswith("backward.")}
+
+
+def test_the_rasterize_backward_binds_rast_and_its_gradient_where_they_are(ctx, monkeypatch):
+    """rasterize's backward binds the buffers that hold rast (the resolve pass's) and
+    grad_rast (interpolate's backward's, read back whole) instead of uploading them; a
+    gradient that is another tensor (a hook's copy) is uploaded, to the same result."""
+    grad, written = _backward_uploads(ctx, monkeypatch)
+    assert not written["backward.rast"] and not written["backward.grad_rast"]
+    want, written = _backward_uploads(ctx, monkeypatch, hook=lambda g: g.clone())
+    assert written["backward.grad_rast"] and not written["backward.rast"]
+    np.testing.assert_allclose(grad.numpy(), want.numpy(), rtol=1e-6, atol=1e-7)
+    own = Context()
+    try:
+        fresh, _ = _backward_uploads(own, monkeypatch, hook=lambda g: g.clone())
+    finally:
+        own.release()
+    np.testing.assert_allclose(grad.numpy(), fresh.numpy(), rtol=1e-6, atol=1e-7)
