@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from glraster.diff import compute as _gpu
+from glraster.diff import recycle
 from glraster import validate
 from glraster.diff.edge_lists import pair_lists, put_rows, take_rows
 from glraster.diff.antialias_args import AntialiasSaved, check, wanted
@@ -190,7 +191,8 @@ def forward(color, rast, pos, *, tri, topology_hash, pos_gradient_boost=1.0, con
     """
     ctx = ctx or default_context()
     passes = _Passes(ctx, color, rast, pos, tri, topology_hash)
-    out = color.copy()
+    out = recycle.empty(color.shape)    # (a copy of color: its memory used again)
+    np.copyto(out, color)
     flat_out = out.reshape(-1, passes.channels)
     kept = []
     with ctx:
@@ -296,7 +298,9 @@ def backward(saved: AntialiasSaved, grad_out, *, needs=None, deterministic: bool
         return None, None, None
     passes = _Passes(ctx, color, saved.rast, saved.pos, saved.tri, saved.topology_hash)
     hw, channels = passes.hw, passes.channels
-    grad_color = grad_out.copy() if want_color else None
+    grad_color = recycle.empty(color.shape) if want_color else None
+    if want_color:
+        np.copyto(grad_color, grad_out)
     listed = [passes.listed(chunk.first, chunk.pixels, grad_out) for chunk in saved.pairs]
     defines = {_gpu.DEFINES[mode]: None}
     if saved.convex:

@@ -13,6 +13,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from glraster.diff import recycle
+
 __all__ = ["pair_lists", "put_rows", "take_rows"]
 
 
@@ -23,16 +25,31 @@ def pair_lists(ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     pixel in some pair."""
     if ids.ndim != 3:
         raise ValueError(f"ids must have shape (B, H, W), got {ids.shape}")
-    ids = np.ascontiguousarray(ids)     # (rows the compares below vectorise over)
+    if not ids.flags.c_contiguous:      # (rows the compares below vectorise over)
+        ids = _copy(ids)
     n = ids.size
     padded = -(-n // 8) * 8             # whole 8-byte words for the scan
-    pairs = np.zeros(padded, np.uint8)
-    listed = np.zeros(padded, np.uint8)
+    pairs = _zeros(padded)
+    listed = _zeros(padded)
     _marks(ids, pairs[:n].reshape(ids.shape), listed[:n].reshape(ids.shape))
-    codes = np.empty(2 * n, np.uint32)
-    pixels = np.empty(n, np.uint32)
+    codes = recycle.empty(2 * n, np.uint32)
+    pixels = recycle.empty(n, np.uint32)
     n_codes, n_pixels = _lists(pairs, listed, codes, pixels)
     return codes[:n_codes], pixels[:n_pixels]
+
+
+def _copy(values: np.ndarray) -> np.ndarray:
+    """A C-contiguous copy of ``values`` (:func:`glraster.diff.recycle.empty`'s memory)."""
+    out = recycle.empty(values.shape, values.dtype)
+    np.copyto(out, values)
+    return out
+
+
+def _zeros(n: int) -> np.ndarray:
+    """(n,) uint8 zeros (:func:`glraster.diff.recycle.empty`'s memory)."""
+    out = recycle.empty(n, np.uint8)
+    out.fill(0)
+    return out
 
 
 def take_rows(values: np.ndarray, first: int, pixels: np.ndarray) -> np.ndarray:

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from glraster.diff import buffer_views, compute
+from glraster.diff import buffer_views, compute, recycle
 from glraster.diff.address import address
 from glraster.diff.saved import InterpolateSaved
 from glraster.gpu.context import Context, default_context
@@ -139,7 +139,7 @@ def _forward(job: _Pass, rast_db, diff_index: tuple):
     """out (B, H, W, A) and out_da (B, H, W, 2 D) of the distinct chosen attributes."""
     ctx, num_attr = job.ctx, job.num_attr
     n_diff = len(diff_index)
-    out = np.empty((job.pixels, num_attr), np.float32)
+    out = recycle.empty((job.pixels, num_attr))     # (every row read back below)
     out_da = np.empty((job.pixels, 2 * n_diff), np.float32)
     flat_rast = job.rast.reshape(-1, 4)
     flat_db = rast_db.reshape(-1, 4) if n_diff else None
@@ -246,7 +246,7 @@ class _Backward:
         flat = (job.rast.reshape(-1, 4), grad_out.reshape(job.pixels, num_attr),
                 self.saved.rast_db.reshape(-1, 4) if n_diff else None,
                 grad_out_da.reshape(job.pixels, 2 * n_diff) if n_diff else None)
-        grad_rast = np.empty((job.pixels, 4), np.float32) if want_rast else None
+        grad_rast = recycle.empty((job.pixels, 4)) if want_rast else None   # (all read back)
         grad_db = np.empty((job.pixels, 4), np.float32) if want_db and n_diff else None
         per_pixel = 4 * (num_attr + 2 * n_diff) + 48
         run = compute.RUN_PIXELS

@@ -60,7 +60,7 @@ import numpy as np
 
 from glraster.errors import ArgumentError, GLError
 from glraster import validate
-from glraster.diff import buffer_views, checked, compute, layout
+from glraster.diff import buffer_views, checked, compute, layout, recycle
 from glraster.diff.saved import RasterizeSaved
 from glraster.gpu import cull as _cull
 from glraster.gpu import homogeneous_kernel
@@ -203,8 +203,8 @@ class _Forward:
 
     def new_outputs(self):
         shape = (self.batch, self.height, self.width, 4)
-        rast = np.empty(shape, np.float32)
-        rast_db = np.empty(shape if self.grad_db else shape[:-1] + (0,), np.float32)
+        rast = recycle.empty(shape)  # (every pixel resolved: as np.empty, no page faults)
+        rast_db = recycle.empty(shape if self.grad_db else shape[:-1] + (0,))
         return rast, rast_db
 
     def _groups(self, items) -> list:

@@ -14,6 +14,7 @@ from contextlib import contextmanager
 import numpy as np
 import torch
 
+from glraster.diff import recycle
 from glraster.fitting.scenes import Timer, angle_degrees, random_quaternions, view_matrices
 
 __all__ = ["Timer", "angle_degrees", "clip_positions", "mean_squares", "normalized", "psnr",
@@ -93,7 +94,8 @@ class _MeanSquares(torch.autograd.Function):
 
     @staticmethod
     def forward(fctx, image, target):
-        d = image - target
+        d = torch.sub(image, target, out=_recycled(torch.broadcast_shapes(
+            image.shape, target.shape), torch.result_type(image, target)))
         fctx.save_for_backward(d)
         fctx.shapes = image.shape, target.shape
         squares = getattr(_MeanSquares._squares, "buffer", None)
@@ -108,9 +110,19 @@ class _MeanSquares(torch.autograd.Function):
         # are exact doublings of the same float32 values, so d * (2 (g / N)) rounds the
         # same exact product once: the same bits (while 2 d stays finite, as for images)
         scale = 2.0 * (g / (d.numel() // max(d.shape[0], 1)))
-        grad = d * scale.reshape((-1,) + (1,) * (d.ndim - 1))
+        grad = torch.mul(d, scale.reshape((-1,) + (1,) * (d.ndim - 1)),
+                         out=_recycled(d.shape, torch.result_type(d, scale)))
         return (grad.sum_to_size(image_shape) if fctx.needs_input_grad[0] else None,
                 -grad.sum_to_size(target_shape) if fctx.needs_input_grad[1] else None)
+
+
+def _recycled(shape, dtype) -> torch.Tensor:
+    """An empty tensor of ``shape``, float32 or float64 in memory of
+    :func:`glraster.diff.recycle.empty` (used again once free: no page faults), else new."""
+    if dtype not in (torch.float32, torch.float64):
+        return torch.empty(shape, dtype=dtype)
+    return torch.from_numpy(recycle.empty(tuple(shape), np.float32 if dtype == torch.float32
+                                          else np.float64))
 
 
 def mean_squares(image: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
