@@ -20,6 +20,7 @@ ordinary arrays), and only arrays of :data:`MIN_BYTES` or more go through the po
 
 from __future__ import annotations
 
+import math
 import sys
 import threading
 
@@ -39,8 +40,8 @@ def empty(shape, dtype=np.float32) -> np.ndarray:
     """A C-contiguous array of ``shape`` and ``dtype`` that nothing else references, its
     values arbitrary (as ``np.empty``'s)."""
     dtype = np.dtype(dtype)
-    shape = tuple(int(n) for n in (shape if isinstance(shape, (tuple, list)) else (shape,)))
-    if int(np.prod(shape, dtype=np.int64)) * dtype.itemsize < MIN_BYTES:
+    shape = tuple(map(int, shape)) if isinstance(shape, (tuple, list)) else (int(shape),)
+    if math.prod(shape) * dtype.itemsize < MIN_BYTES:
         return np.empty(shape, dtype)
     key = (shape, dtype.str)
     with _lock:
