@@ -88,7 +88,9 @@ class _MeanSquares(torch.autograd.Function):
     ``torch.mean((image - target) ** 2, dim=(1, ...))``, with a backward of one pass over
     the pixels instead of the four of autograd's mean, pow and sub backward. The squares,
     read by the mean only, go to a buffer of this thread's kept from call to call (a new
-    image-sized array costs its page faults: 1 ms of 3 for the forward at 8 x 256²)."""
+    image-sized array costs its page faults: 1 ms of 3 for the forward at 8 x 256²); the
+    difference and the gradient, which autograd holds, to memory used again once free
+    (:func:`glraster.diff.recycle.empty`), computed by the same torch kernels (``out=``)."""
 
     _squares = threading.local()
 
