@@ -136,7 +136,8 @@ class _Forward:
         self.colors = {"drawn": (1, "i4")}
         self._items = [self._item(b) for b in range(self.batch)]
         self._per_row = RECORDS_PER_ROW
-        self._records, self._offsets = self._setup()
+        self._offsets = np.cumsum([0] + [len(tri) for _, tri, _, _ in self._items]).tolist()
+        self._records = None  # (made by :meth:`records`: after the raster pass is issued)
         self._draw = None  # the raster pass's Draw (without a previous layer)
         defines = {"RECORDS_PER_ROW": self._per_row}
         if grad_db:
@@ -153,15 +154,17 @@ class _Forward:
                                 and self.height * self.width % 16 == 0) else 0
         self._placed = set()  # the items resolved at their place since hand_over
 
-    def _setup(self) -> tuple[np.ndarray, list[int]]:
+    def records(self) -> np.ndarray:
         """The setup records of every item's drawn triangles, one item after the other:
-        (sum T_b, RECORD_STRIDE) float32 (:func:`setup_records`), and the first record of
-        each item (B + 1 offsets, the last the total)."""
-        offsets = np.cumsum([0] + [len(tri) for _, tri, _, _ in self._items]).tolist()
-        records = np.empty((offsets[-1], RECORD_STRIDE), np.float32)
-        for (pos, tri, _, _), first, end in zip(self._items, offsets, offsets[1:]):
-            setup_records(pos, tri, (self.height, self.width), out=records[first:end])
-        return records, offsets
+        (sum T_b, RECORD_STRIDE) float32 (:func:`setup_records`; item b's from
+        ``_offsets[b]``), made on the first call."""
+        if self._records is None:
+            offsets = self._offsets
+            records = np.empty((offsets[-1], RECORD_STRIDE), np.float32)
+            for (pos, tri, _, _), first, end in zip(self._items, offsets, offsets[1:]):
+                setup_records(pos, tri, (self.height, self.width), out=records[first:end])
+            self._records = records
+        return self._records
 
     def _item(self, b):
         """(pos, drawn tri, caller ids of the drawn triangles or None, id_base) of item b."""
@@ -194,7 +197,7 @@ class _Forward:
         if prev_depth is not None:
             textures["prev_depth"] = prev_depth
             if len(tri):
-                per_triangle[2] = self._records[self._offsets[b]:self._offsets[b + 1]]
+                per_triangle[2] = self.records()[self._offsets[b]:self._offsets[b + 1]]
         spec = pipeline.Draw(program, vao, self.colors, per_triangle=per_triangle,
                              textures=textures, indexed=True)
         if prev_depth is None:
@@ -314,7 +317,7 @@ class _Forward:
             texture.filter = (ctx.mgl.NEAREST, ctx.mgl.NEAREST)
             _RECORD_TEXTURES[ctx] = texture
         full, rest = divmod(end - first, per_row)
-        records = self._records
+        records = self.records()
         if full:
             texture.write(memoryview(records[first:first + full * per_row]).cast("B"),
                           viewport=(0, 0, width, full))
@@ -341,6 +344,9 @@ class _Forward:
         with ctx:
             targets = pipeline.render_many(
                 ctx, [self.spec(b, prev_depth) for b in items], (self.height, self.width))
+            # the driver starts on the draws now (glFlush: GL 4.4 core section 2.3.2), while
+            # the host sets up the records that the resolve passes read
+            ctx.gl_function("glFlush", None)()
             slots = dict(zip(items, targets))
             for group in self._groups(items):
                 self._resolve(group, [slots[b] for b in group], rast, rast_db)
