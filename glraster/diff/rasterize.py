@@ -342,11 +342,11 @@ class _Forward:
     def _passes(self, items, rast, rast_db, prev_depth=None):
         ctx = self.ctx
         with ctx:
+            # each draw flushed: the driver rasterizes it while the host sets up the next
+            # one, then the records that the resolve passes read
             targets = pipeline.render_many(
-                ctx, [self.spec(b, prev_depth) for b in items], (self.height, self.width))
-            # the driver starts on the draws now (glFlush: GL 4.4 core section 2.3.2), while
-            # the host sets up the records that the resolve passes read
-            ctx.gl_function("glFlush", None)()
+                ctx, [self.spec(b, prev_depth) for b in items], (self.height, self.width),
+                flush=True)
             slots = dict(zip(items, targets))
             for group in self._groups(items):
                 self._resolve(group, [slots[b] for b in group], rast, rast_db)
