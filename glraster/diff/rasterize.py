@@ -137,7 +137,10 @@ class _Forward:
         self._items = [self._item(b) for b in range(self.batch)]
         self._per_row = RECORDS_PER_ROW
         self._offsets = np.cumsum([0] + [len(tri) for _, tri, _, _ in self._items]).tolist()
-        self._records = None  # (made by :meth:`records`: after the raster pass is issued)
+        # the records, item b's from _offsets[b], made per item by :meth:`records` when
+        # first read (after the item's raster pass is issued)
+        self._records = np.empty((self._offsets[-1], RECORD_STRIDE), np.float32)
+        self._made = set()
         self._draw = None  # the raster pass's Draw (without a previous layer)
         defines = {"RECORDS_PER_ROW": self._per_row}
         if grad_db:
@@ -154,16 +157,16 @@ class _Forward:
                                 and self.height * self.width % 16 == 0) else 0
         self._placed = set()  # the items resolved at their place since hand_over
 
-    def records(self) -> np.ndarray:
-        """The setup records of every item's drawn triangles, one item after the other:
+    def records(self, items) -> np.ndarray:
+        """The setup records of the items' drawn triangles, one item after the other:
         (sum T_b, RECORD_STRIDE) float32 (:func:`setup_records`; item b's from
-        ``_offsets[b]``), made on the first call."""
-        if self._records is None:
-            offsets = self._offsets
-            records = np.empty((offsets[-1], RECORD_STRIDE), np.float32)
-            for (pos, tri, _, _), first, end in zip(self._items, offsets, offsets[1:]):
-                setup_records(pos, tri, (self.height, self.width), out=records[first:end])
-            self._records = records
+        ``_offsets[b]``), those of ``items`` made now if not yet."""
+        for b in items:
+            if b not in self._made:
+                pos, tri, _, _ = self._items[b]
+                setup_records(pos, tri, (self.height, self.width),
+                              out=self._records[self._offsets[b]:self._offsets[b + 1]])
+                self._made.add(b)
         return self._records
 
     def _item(self, b):
@@ -197,7 +200,7 @@ class _Forward:
         if prev_depth is not None:
             textures["prev_depth"] = prev_depth
             if len(tri):
-                per_triangle[2] = self.records()[self._offsets[b]:self._offsets[b + 1]]
+                per_triangle[2] = self.records([b])[self._offsets[b]:self._offsets[b + 1]]
         spec = pipeline.Draw(program, vao, self.colors, per_triangle=per_triangle,
                              textures=textures, indexed=True)
         if prev_depth is None:
@@ -317,7 +320,7 @@ class _Forward:
             texture.filter = (ctx.mgl.NEAREST, ctx.mgl.NEAREST)
             _RECORD_TEXTURES[ctx] = texture
         full, rest = divmod(end - first, per_row)
-        records = self.records()
+        records = self.records(items)
         if full:
             texture.write(memoryview(records[first:first + full * per_row]).cast("B"),
                           viewport=(0, 0, width, full))
