@@ -134,15 +134,21 @@ def draw_many(ctx, draws, resolution, *, during: str = "rasterizing") -> list[di
     return values
 
 
-def render_many(ctx, draws, resolution) -> list:
+def render_many(ctx, draws, resolution, *, flush: bool = False) -> list:
     """Draw each ``(spec, pos, tri)`` of ``draws`` (single-sample specs, at most
     :data:`glraster.gpu.context.FRAMEBUFFER_SLOTS`) into framebuffer slot 0, 1, ... and
     read nothing back: the :class:`glraster.gpu.context.Targets` of each, whose textures
     later GL work of the caller reads (they hold the draw until the slot is drawn again).
+    ``flush``: glFlush after each draw (GL 4.4 core section 2.3.2), so that the driver
+    starts on it while the host sets up the next (and the caller what comes after).
     The caller checks for GL errors."""
     with ctx:
-        return [_render(ctx, spec, pos, tri, resolution, slot)
-                for slot, (spec, pos, tri) in enumerate(draws)]
+        targets = []
+        for slot, (spec, pos, tri) in enumerate(draws):
+            targets.append(_render(ctx, spec, pos, tri, resolution, slot))
+            if flush:
+                ctx.gl_function("glFlush", None)()
+        return targets
 
 
 def _render(ctx, spec: Draw, pos, tri, resolution, slot: int):

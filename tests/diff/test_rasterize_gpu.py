@@ -290,11 +290,15 @@ def test_range_batch_equals_separate_calls_with_ids_into_the_whole_tri(ctx):
     assert not rast[3].any() and not db[3].any()
 
 
-@pytest.mark.parametrize("small", [False, True])
-def test_host_culling_changes_no_bit(ctx, monkeypatch, small):
+@pytest.mark.parametrize("small, sampled", [(False, False), (True, False), (False, True)])
+def test_host_culling_changes_no_bit(ctx, monkeypatch, small, sampled):
     """An item whose triangles are half off-screen is drawn culled (ids remapped by the
     resolve pass), one with few dropped is drawn whole: both equal the unculled draw, also
-    as small images resolved by one dispatch together, and each equals its own call."""
+    as small images resolved by one dispatch together, and each equals its own call.
+    ``sampled``: the cull decided on a sample of the triangles first (as for large meshes)."""
+    minimum = dr.CULL_MIN_TRIANGLES
+    if sampled:
+        monkeypatch.setattr(dr, "CULL_SAMPLE_TRIANGLES", minimum)
     pos, tri, res = _scene("icosphere")
     if small:
         res = (40, 56)
@@ -312,7 +316,7 @@ def test_host_culling_changes_no_bit(ctx, monkeypatch, small):
     assert (culled[0][1, ..., 3] > 0).any()
     for a, b in zip(culled, whole):
         np.testing.assert_array_equal(a.view(np.uint32), b.view(np.uint32))
-    monkeypatch.undo()
+    monkeypatch.setattr(dr, "CULL_MIN_TRIANGLES", minimum)
     for b in range(2):
         alone = forward(batch[b], tri, res, ctx=ctx)[:2]
         for a, one in zip(culled, alone):

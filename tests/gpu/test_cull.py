@@ -224,3 +224,24 @@ def test_host_dropped_back_faces_are_back_faces_for_the_driver(ctx, resolution):
         r = gr.rasterize(pos, part, resolution, ctx=ctx, outputs=("tri_id",),
                          cull_backfaces=True)
         assert not r.info["culled"] and not r.mask.any()
+
+
+@pytest.mark.parametrize("llvmpipe", [True, False])
+def test_dropped_estimate_is_the_culls_fraction_on_its_sample(llvmpipe):
+    """Every triangle sampled: the fraction cull drops (back faces kept); every 4th: the
+    fraction among those triangles alone."""
+    from glraster.gpu.cull import dropped_estimate
+
+    resolution = (777, 999)
+    pos, tri, _ = _scene(resolution, seed=3)     # slivers: zero area on llvmpipe
+    pos = np.array(pos, np.float32)
+    third = len(pos) // 3
+    pos[:third, 0] += 2.5 * np.abs(pos[:third, 3])                  # some off-screen
+    tri = np.concatenate([tri, tri[:50, [0, 0, 1]]]).astype(np.int32)  # repeated indices
+    keep = cull(pos, tri, resolution, llvmpipe=llvmpipe).keep
+    assert 0 < keep.mean() < 1
+    for stride in (1, 4):
+        sample = keep[::stride]
+        assert dropped_estimate(pos, tri, resolution, llvmpipe=llvmpipe, stride=stride) \
+            == (len(sample) - sample.sum()) / len(sample)
+    assert dropped_estimate(pos, tri[:0], resolution) == 0.0

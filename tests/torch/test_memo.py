@@ -174,3 +174,21 @@ def test_arrays_match_only_when_every_bit_is_the_same():
     assert not memo._same(zeros, -zeros) and memo._same(zeros[::2], zeros[::2].copy())
     odd = np.arange(3, dtype=np.int32)  # 12 bytes: no whole number of 8-byte words
     assert memo._same(odd, odd.copy()) and not memo._same(odd, odd[::-1].copy())
+
+
+def test_the_sample_spans_channels_and_columns_not_one_stride():
+    # a plain stride of (V, 6) interleaved attributes or (N, 256, 256, 3) images hits one
+    # channel or one image column: arrays equal there (normals, an empty border) passed
+    np = pytest.importorskip("numpy")
+    for shape in [(2, 15488, 6), (2, 256, 256, 3), (65,), (1000, 7)]:
+        size = int(np.prod(shape))
+        at = memo._probe(size)
+        assert len(np.unique(at)) == memo.PROBE and at.min() >= 0 and at.max() < size
+    attrs = memo._probe(2 * 15488 * 6)
+    assert len(np.unique(attrs % 6)) == 6
+    pixels = memo._probe(2 * 256 * 256 * 3) // 3
+    assert len(np.unique(pixels % 256)) > memo.PROBE // 2   # columns
+    a = np.zeros((2, 15488, 6), np.float32)
+    b = a.copy()
+    b[..., 3:] = 1.0  # the same in channel 0 (where a stride lands), not elsewhere
+    assert not np.array_equal(a.reshape(-1)[attrs], b.reshape(-1)[attrs])
