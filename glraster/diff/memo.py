@@ -25,6 +25,7 @@ drops them.
 
 from __future__ import annotations
 
+import functools
 import threading
 import weakref
 
@@ -83,12 +84,27 @@ def _same_bits(a: np.ndarray, b: np.ndarray) -> bool:
     if a.flags.c_contiguous and b.flags.c_contiguous and a.ndim:
         a, b = a.reshape(-1), b.reshape(-1)
         if a.size > PROBE:
-            step = a.size // PROBE
-            if not np.array_equal(_bits(a[::step]), _bits(b[::step])):
+            at = _probe(a.size)
+            if not np.array_equal(_bits(a[at]), _bits(b[at])):
                 return False
         if a.nbytes % 8 == 0:
             return np.array_equal(a.view(np.uint64), b.view(np.uint64))
     return np.array_equal(_bits(a), _bits(b))
+
+
+@functools.lru_cache(maxsize=64)
+def _probe(size: int) -> np.ndarray:
+    """PROBE indices into ``size`` elements, one in each of PROBE equal strides, at a
+    position within its stride that moves on by the golden ratio from one to the next: an
+    even stride alone (``a[::size // PROBE]``) falls on the same column and channel of
+    every image row it meets (for a (4, 128, 128, 4) raster: x = 0 of every 8th row, the
+    empty border of a centred object, equal in every view: each such compare read all
+    of both arrays, 0.7 ms per interpolate call of the texture fit)."""
+    step = size // PROBE
+    k = np.arange(PROBE)
+    at = k * step + (k * 0.6180339887498949 % 1.0 * step).astype(np.int64)
+    at.flags.writeable = False  # (shared by the calls of one size)
+    return at
 
 
 def _bits(a: np.ndarray) -> np.ndarray:
