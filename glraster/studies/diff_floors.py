@@ -25,7 +25,11 @@ the pose fit at 256² (8 restarts) and the texture fit (128², 4 views,
 linear-mipmap-linear, 256² texture). Per fit:
 
 - the iteration's median (``--iterations`` per round, ``--rounds`` interleaved rounds);
-- per op call: calls per iteration, the core's time (inclusive) and its floor;
+- per op call: calls per iteration, the core's time (inclusive) and its floor: the
+  median over one replay of the round's recorded iteration after every timed iteration
+  (so floors and iterations are sampled alternately, in the same time window, as many
+  of each: on a shared machine a floor measured apart from the iterations drifted from
+  15 to 22 ms between runs of the texture fit);
 - per phase, exclusive time in iterations run under :func:`phase_clock` (interleaved
   with the plain ones; "clocked ms" is their median, the timers' own cost included):
   python (the torch bridge's and the GPU cores' host code, NumPy included), validation
@@ -566,14 +570,14 @@ def measure_fits(glctx, names, rounds: int, iterations: int, profile_iterations:
             with recording() as rec:
                 iteration()
             calls[name] = rec.trace.counts()
-            floors = floors_of(rec.trace, ctx)
+            trace, shared_floors = rec.trace, {}
             if batched is not None:
                 with recording() as rec:
                     batched()
                 calls[name].update({f"target {k}": n / count
                                     for k, n in rec.trace.counts().items()})
-                floors.update({f"target {k}": f / count
-                               for k, f in floors_of(rec.trace, ctx).items()})
+                shared_floors = {f"target {k}": f / count
+                                 for k, f in floors_of(rec.trace, ctx).items()}
                 totals = {}
                 with core_timer(totals):
                     start = time.perf_counter()
@@ -581,7 +585,6 @@ def measure_fits(glctx, names, rounds: int, iterations: int, profile_iterations:
                     elapsed = time.perf_counter() - start
                 s["shared"].append((elapsed / count,
                                     {f"target {k}": t / count for k, t in totals.items()}))
-            s["floors"].append(floors)
             for _ in range(iterations):
                 totals = {}
                 with core_timer(totals):
@@ -591,6 +594,8 @@ def measure_fits(glctx, names, rounds: int, iterations: int, profile_iterations:
                 s["iteration"].append(elapsed)
                 s["step"].append(step)
                 s["core"].append(totals)
+                # a floor sample after each timed iteration: the same time window
+                s["floors"].append({**trace.replay(ctx), **shared_floors})
             with phase_clock() as clock:
                 if batched is not None:
                     clock.reset()
