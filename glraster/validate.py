@@ -48,11 +48,11 @@ def real_array(name: str, value) -> np.ndarray:
 
 
 # A memory of arrays known unchanged since they passed :func:`finite` (None: none), set by
-# a higher layer through :func:`remember_finite` (glraster.diff.checked).
+# a higher layer through :func:`_remember_finite` (glraster.diff.checked).
 _memory = None
 
 
-def remember_finite(seen, passed) -> None:
+def _remember_finite(seen, passed) -> None:  # (a hook, not a check: for glraster.diff.checked)
     """Let :func:`finite` skip its test of an array known unchanged since it passed it:
     ``seen(arr)`` is True for such an array, else a token (``arr`` known by a key, not yet
     passed) or None (``arr`` not known); ``passed(token)`` records that the array of the
@@ -65,7 +65,7 @@ def finite(name: str, arr: np.ndarray, out: np.ndarray) -> np.ndarray:
     """``out`` (``arr`` converted to a float dtype) when every value is finite; else an
     error naming ``name`` and the index of the first bad value, saying whether the input
     held NaN / Inf or a value beyond ``out``'s range (1e39 -> float32 is Inf). The test is
-    skipped for an array the memory of :func:`remember_finite` knows unchanged since it
+    skipped for an array the memory of :func:`_remember_finite` knows unchanged since it
     passed."""
     memory = _memory
     seen = memory[0](out) if memory is not None and out is arr else None

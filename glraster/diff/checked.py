@@ -138,7 +138,7 @@ def finite_array(name: str, value, dtype) -> np.ndarray:
 def _seen(arr: np.ndarray):
     """True when ``arr`` is declared under a key it passed the finiteness test with (the
     same memory, version, shape and dtype; the owner alive); else ``(key, owner)`` of its
-    declaration, or None when it is not declared (:func:`validate.remember_finite`)."""
+    declaration, or None when it is not declared (:func:`validate._remember_finite`)."""
     regions = getattr(_local, "regions", None)
     if not regions or not arr.nbytes or not arr.flags.c_contiguous:
         return None
@@ -154,4 +154,4 @@ def _passed(declared_as) -> None:
     _finite[declared_as[0]] = declared_as[1]
 
 
-validate.remember_finite(_seen, _passed)
+validate._remember_finite(_seen, _passed)
