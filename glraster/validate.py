@@ -47,11 +47,33 @@ def real_array(name: str, value) -> np.ndarray:
     return arr
 
 
+# A memory of arrays known unchanged since they passed :func:`finite` (None: none), set by
+# a higher layer through :func:`_remember_finite` (glraster.diff.checked).
+_memory = None
+
+
+def _remember_finite(seen, passed) -> None:  # (a hook, not a check: for glraster.diff.checked)
+    """Let :func:`finite` skip its test of an array known unchanged since it passed it:
+    ``seen(arr)`` is True for such an array, else a token (``arr`` known by a key, not yet
+    passed) or None (``arr`` not known); ``passed(token)`` records that the array of the
+    token passed. Only arrays tested unconverted ask (``out is arr``)."""
+    global _memory
+    _memory = (seen, passed)
+
+
 def finite(name: str, arr: np.ndarray, out: np.ndarray) -> np.ndarray:
     """``out`` (``arr`` converted to a float dtype) when every value is finite; else an
     error naming ``name`` and the index of the first bad value, saying whether the input
-    held NaN / Inf or a value beyond ``out``'s range (1e39 -> float32 is Inf)."""
+    held NaN / Inf or a value beyond ``out``'s range (1e39 -> float32 is Inf). The test is
+    skipped for an array the memory of :func:`_remember_finite` knows unchanged since it
+    passed."""
+    memory = _memory
+    seen = memory[0](out) if memory is not None and out is arr else None
+    if seen is True:
+        return out
     if _all_finite(out):
+        if seen is not None:
+            memory[1](seen)
         return out
     where = tuple(int(i) for i in np.argwhere(~np.isfinite(out))[0])
     what = "NaN or Inf" if not np.isfinite(arr[where]) else f"a value beyond {out.dtype}"

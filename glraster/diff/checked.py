@@ -13,8 +13,12 @@ end that can tell an array is unchanged (glraster.torch: the keys of
 :mod:`glraster.gpu.uploads`, with torch's version counter) records each raster made
 (:func:`made`) and declares the inputs of a check (:func:`declared`); :func:`vouched` then
 says the decoding can be skipped, :func:`raster` skips the finiteness test of such a
-raster, and :func:`finite_array` skips that of a declared array that passed it under the
-same key. Without declarations (glraster.jax, NumPy callers) every check runs.
+raster, and every finiteness test of :mod:`glraster.validate` (:func:`validate.finite
+<glraster.validate.finite>`: pos, attr, color, rast_db, tex, uv, uv_da, mip levels, ...)
+skips that of a declared array that passed it under the same key (:func:`_seen`). Without
+declarations (glraster.jax, NumPy callers) every check runs. Writes that bypass the
+version counter (through a NumPy view of a tensor or ``.data``) are not seen, as for the
+upload cache.
 
 Entries are ``(region, key, owner)`` as in :mod:`glraster.gpu.uploads`: the owner is
 held weakly, so a raster whose tensor was collected is never vouched for.
@@ -127,18 +131,27 @@ def raster(value, dtype) -> np.ndarray:
 def finite_array(name: str, value, dtype) -> np.ndarray:
     """:func:`glraster.validate.finite_array`, its finiteness test skipped when ``value`` is
     a declared C-contiguous ``dtype`` array that passed it under the same key (unchanged
-    since, by the front end's version counter)."""
+    since, by the front end's version counter): as every finiteness test now is."""
+    return validate.finite_array(name, value, dtype)
+
+
+def _seen(arr: np.ndarray):
+    """True when ``arr`` is declared under a key it passed the finiteness test with (the
+    same memory, version, shape and dtype; the owner alive); else ``(key, owner)`` of its
+    declaration, or None when it is not declared (:func:`validate._remember_finite`)."""
     regions = getattr(_local, "regions", None)
-    declared_as = None
-    if (regions and isinstance(value, np.ndarray) and value.dtype == dtype
-            and value.flags.c_contiguous and value.nbytes):
-        declared_as = regions.get((address(value), value.nbytes))
-        if declared_as is not None:
-            owner = _finite.get(declared_as[0])
-            if owner is not None and owner() is not None:
-                return value
-    arr = validate.finite_array(name, value, dtype)
-    if declared_as is not None:
-        _make_room(_finite, lambda owner: owner)
-        _finite[declared_as[0]] = declared_as[1]
-    return arr
+    if not regions or not arr.nbytes or not arr.flags.c_contiguous:
+        return None
+    declared_as = regions.get((address(arr), arr.nbytes))
+    if declared_as is None:
+        return None
+    owner = _finite.get(declared_as[0])
+    return True if owner is not None and owner() is not None else declared_as
+
+
+def _passed(declared_as) -> None:
+    _make_room(_finite, lambda owner: owner)
+    _finite[declared_as[0]] = declared_as[1]
+
+
+validate._remember_finite(_seen, _passed)

@@ -25,7 +25,11 @@ the pose fit at 256² (8 restarts) and the texture fit (128², 4 views,
 linear-mipmap-linear, 256² texture). Per fit:
 
 - the iteration's median (``--iterations`` per round, ``--rounds`` interleaved rounds);
-- per op call: calls per iteration, the core's time (inclusive) and its floor;
+- per op call: calls per iteration, the core's time (inclusive) and its floor: the
+  median over one replay of the round's recorded iteration after every timed iteration
+  (so floors and iterations are sampled alternately, in the same time window, as many
+  of each: on a shared machine a floor measured apart from the iterations drifted from
+  15 to 22 ms between runs of the texture fit);
 - per phase, exclusive time in iterations run under :func:`phase_clock` (interleaved
   with the plain ones; "clocked ms" is their median, the timers' own cost included):
   python (the torch bridge's and the GPU cores' host code, NumPy included), validation
@@ -35,8 +39,9 @@ linear-mipmap-linear, 256² texture). Per fit:
   for the work before it, so much of the GL time shows here) and torch (everything
   else: torch, autograd, the optimizer and the fit's own code);
 - the largest host-code functions under cProfile (``--profile-iterations``), as hints;
-- the ratio iteration / (sum of its op calls' floors + the optimizer step): the goal is
-  "at most 1.5".
+- the ratio iteration / (sum of its op calls' floors + the optimizer step): the median of
+  the ratios of each timed iteration to the floor sample right after it (a load that
+  slows both cancels), its goal "at most 1.5".
 
 The environment-map fit (``envmap``) is ``fit envmap``'s defaults: 2 views at 256².
 
@@ -555,7 +560,7 @@ def measure_fits(glctx, names, rounds: int, iterations: int, profile_iterations:
     fits = {name: BUILDERS[name](glctx) for name in names}
     out = {}
     samples = {name: {"iteration": [], "step": [], "floors": [], "core": [], "phases": [],
-                      "clocked": [], "shared": [], "shared clocked": []}
+                      "clocked": [], "shared": [], "shared clocked": [], "ratio": []}
                for name in fits}
     calls = {}
     for _ in range(rounds):
@@ -566,22 +571,22 @@ def measure_fits(glctx, names, rounds: int, iterations: int, profile_iterations:
             with recording() as rec:
                 iteration()
             calls[name] = rec.trace.counts()
-            floors = floors_of(rec.trace, ctx)
+            trace, shared_floors, shared_time = rec.trace, {}, 0.0
             if batched is not None:
                 with recording() as rec:
                     batched()
                 calls[name].update({f"target {k}": n / count
                                     for k, n in rec.trace.counts().items()})
-                floors.update({f"target {k}": f / count
-                               for k, f in floors_of(rec.trace, ctx).items()})
+                shared_floors = {f"target {k}": f / count
+                                 for k, f in floors_of(rec.trace, ctx).items()}
                 totals = {}
                 with core_timer(totals):
                     start = time.perf_counter()
                     batched()
                     elapsed = time.perf_counter() - start
-                s["shared"].append((elapsed / count,
+                shared_time = elapsed / count
+                s["shared"].append((shared_time,
                                     {f"target {k}": t / count for k, t in totals.items()}))
-            s["floors"].append(floors)
             for _ in range(iterations):
                 totals = {}
                 with core_timer(totals):
@@ -591,6 +596,10 @@ def measure_fits(glctx, names, rounds: int, iterations: int, profile_iterations:
                 s["iteration"].append(elapsed)
                 s["step"].append(step)
                 s["core"].append(totals)
+                # a floor sample after each timed iteration: the same time window
+                floors = {**trace.replay(ctx), **shared_floors}
+                s["floors"].append(floors)
+                s["ratio"].append((elapsed + shared_time) / (sum(floors.values()) + step))
             with phase_clock() as clock:
                 if batched is not None:
                     clock.reset()
@@ -617,6 +626,7 @@ def measure_fits(glctx, names, rounds: int, iterations: int, profile_iterations:
         out[name] = {
             "iteration": statistics.median(s["iteration"]) + statistics.median(shared),
             "step": statistics.median(s["step"]),
+            "ratio": statistics.median(s["ratio"]),
             "floors": {k: statistics.median(f.get(k, 0.0) for f in s["floors"])
                        for k in segments},
             "core": {k: t for k, t in core.items() if "/" not in k},
@@ -628,6 +638,13 @@ def measure_fits(glctx, names, rounds: int, iterations: int, profile_iterations:
             "host": host_hotspots(fits[name], profile_iterations),
         }
     return {name: out[name] for name in names}
+
+
+def fit_ratio(fit: dict) -> float:
+    """iteration / (floors + step): the median of the ratios of each timed iteration to
+    the floor sample taken right after it (common load drift cancels in a pair), or, for
+    figures without pairs, the ratio of the medians."""
+    return fit["ratio"] if "ratio" in fit else fit["iteration"] / floor_sum(fit)
 
 
 def floor_sum(fit: dict) -> float:
@@ -647,7 +664,7 @@ def fits_tables(result: dict) -> str:
         it = fit["iteration"]
         shares = " | ".join(f"{1e3 * fit['phases'][p]:.2f}" for p in PHASES)
         lines.append(f"| {name} | {1e3 * it:.2f} | {1e3 * floor_sum(fit):.2f} | "
-                     f"{it / floor_sum(fit):.1f} | {1e3 * fit['clocked']:.2f} | {shares} |")
+                     f"{fit_ratio(fit):.2f} | {1e3 * fit['clocked']:.2f} | {shares} |")
     lines += ["", "| fit | op call | calls | core ms | floor ms | core / floor |",
               "|---|---|---|---|---|---|"]
     for name, fit in result.items():
@@ -706,7 +723,8 @@ def main(argv=None) -> int:
             figures["fits"] = measure_fits(glctx, args.fits, args.rounds, args.iterations,
                                            args.profile_iterations)
             print("\n## One fit iteration: ratio = iteration / (op floors + optimizer "
-                  "step); phases (ms, exclusive) of the clocked iterations\n")
+                  "step), the median over iterations each paired with the floor sample "
+                  "after it; phases (ms, exclusive) of the clocked iterations\n")
             print(fits_tables(figures["fits"]))
     if args.json:
         from glraster.io.atomic import write_text

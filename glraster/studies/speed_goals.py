@@ -74,7 +74,7 @@ def floors(glctx, fits, rounds: int, iterations: int, profile_iterations: int):
     """(diff_floors.measure_fits result, goals)."""
     result = diff_floors.measure_fits(glctx, fits, rounds, iterations, profile_iterations)
     goals = [_goal("floors", f"{name}: iteration / (floors + step)",
-                   fit["iteration"] / diff_floors.floor_sum(fit), FIT_GOAL)
+                   diff_floors.fit_ratio(fit), FIT_GOAL)
              for name, fit in result.items()]
     return result, goals
 

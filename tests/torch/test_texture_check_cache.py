@@ -16,15 +16,21 @@ from glraster.errors import ArgumentError
 
 @pytest.fixture
 def scans(monkeypatch):
-    """The names validate.finite_array was called for, in order."""
-    names = []
-    original = validate.finite_array
+    """The names of the arrays validate.finite scanned for NaN / Inf (ran its test), in
+    order."""
+    names, ran = [], []
+    test, finite = validate._all_finite, validate.finite
+    monkeypatch.setattr(validate, "_all_finite", lambda out: ran.append(1) or test(out))
 
-    def counting(name, value, dtype=None):
-        names.append(name)
-        return original(name, value, dtype)
+    def counting(name, arr, out):
+        before = len(ran)
+        try:
+            return finite(name, arr, out)
+        finally:
+            if len(ran) > before:
+                names.append(name)
 
-    monkeypatch.setattr(validate, "finite_array", counting)
+    monkeypatch.setattr(validate, "finite", counting)
     return names
 
 

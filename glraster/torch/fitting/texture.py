@@ -24,6 +24,7 @@ rendering with its own filter) and the PSNR of the texture itself against the tr
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -105,9 +106,46 @@ def make_views(glctx, rng, n: int, resolution: int, tex, *, supersample: int = 4
     return Views(mvp=mvp, target=torch.cat(targets), mask=torch.cat(masks), distance=distance)
 
 
+class _MaskedSquares(torch.autograd.Function):
+    """The loss of :func:`masked_mse` with the values and gradients of autograd's
+    ``torch.sum(m * (image - target) ** 2) / (torch.sum(m) * C)`` bit for bit, its backward
+    one pass over the pixels instead of autograd's four (mul, pow's ``d.pow(1)``, its
+    doubling and product), and the forward's squares in a buffer of this thread's kept
+    from call to call (as :func:`glraster.torch.fitting.common.mean_squares`)."""
+
+    _squares = threading.local()
+
+    @staticmethod
+    def forward(fctx, image, target, mask):
+        m = mask[..., None].to(image.dtype)
+        d = image - target
+        squares = getattr(_MaskedSquares._squares, "buffer", None)
+        if squares is None or squares.shape != d.shape or squares.dtype != d.dtype:
+            squares = _MaskedSquares._squares.buffer = torch.empty_like(d)
+        torch.mul(m, torch.pow(d, 2, out=squares), out=squares)   # m * d ** 2, in place
+        denominator = torch.sum(m) * image.shape[-1]
+        fctx.save_for_backward(d, m, denominator)
+        fctx.shapes = image.shape, target.shape
+        return torch.sum(squares) / denominator
+
+    @staticmethod
+    def backward(fctx, g):
+        d, m, denominator = fctx.saved_tensors
+        image_shape, target_shape = fctx.shapes
+        # autograd forms ((g / den) * m) * (2 d) (div's, mul's, then pow's backward); with
+        # the doubling moved onto the (B, H, W, 1) factor, d * (2 ((g / den) * m)) rounds
+        # the same exact product once: the same bits, signed zeros included (while 2 d
+        # stays finite, as for images)
+        grad = d * (2.0 * ((g / denominator) * m))
+        return (grad.sum_to_size(image_shape) if fctx.needs_input_grad[0] else None,
+                -grad.sum_to_size(target_shape) if fctx.needs_input_grad[1] else None, None)
+
+
 def masked_mse(image, target, mask):
-    m = mask[..., None].to(image.dtype)
-    return torch.sum(m * (image - target) ** 2) / (torch.sum(m) * image.shape[-1])
+    """The mean of ``(image - target) ** 2`` over the (B, H, W, C) values whose pixel
+    ``mask`` (B, H, W) is true: ``torch.sum(m * (image - target) ** 2) / (torch.sum(m) * C)``
+    with m the mask as 0 / 1, the same value and gradients bit for bit."""
+    return _MaskedSquares.apply(image, target, mask)
 
 
 def evaluate(glctx, tex, views: Views, resolution: int, *, mip: bool, chunk: int = 8) -> float:
