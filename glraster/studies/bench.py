@@ -172,6 +172,21 @@ print(json.dumps({"first_ms": first * 1e3, "warm_ms": float(np.median(times)) * 
 """
 
 
+PYRENDER_MISSING = ("the pyrender peer needs pyrender and trimesh (the [mesh] extra: pip "
+                    "install 'glraster[mesh]'); or pass --no-pyrender to skip it")
+
+
+class PyrenderMissing(ValueError):
+    """The pyrender peer was asked for where pyrender or trimesh is not installed."""
+
+
+def pyrender_installed() -> bool:
+    """Whether the pyrender peer's packages can be imported (found, not imported here)."""
+    import importlib.util
+
+    return all(importlib.util.find_spec(name) is not None for name in ("pyrender", "trimesh"))
+
+
 def pyrender_time(scene: BenchScene, resolution, repeats: int = 5, timeout: float = 600) -> dict:
     """Depth-only pyrender render of ``scene`` at ``resolution`` (H, W) in a subprocess
     (PYOPENGL_PLATFORM=egl): {"first_ms", "warm_ms", "warm_spread_ms", "covered"}."""
@@ -185,6 +200,8 @@ def pyrender_time(scene: BenchScene, resolution, repeats: int = 5, timeout: floa
         proc = subprocess.run([sys.executable, "-c", _PYRENDER_WORKER, src], env=env,
                               capture_output=True, text=True, timeout=timeout)
     if proc.returncode != 0:
+        if "No module named 'pyrender'" in proc.stderr or "No module named 'trimesh'" in proc.stderr:
+            raise PyrenderMissing(PYRENDER_MISSING)
         tail = "\n".join(proc.stderr.strip().splitlines()[-5:])
         raise RuntimeError(f"pyrender subprocess failed:\n{tail}")
     return json.loads(proc.stdout.strip().splitlines()[-1])
@@ -284,7 +301,8 @@ def run(preset="quick", *, backend="egl", max_reference_pixels=1 << 24, progress
     head, skip = {}, {}
     if summaries:
         tick("headline figures")
-        head = headline(backend=backend, repeats=max(settings["repeats"], 9))
+        head = headline(backend=backend, repeats=max(settings["repeats"], 9),
+                        with_pyrender=with_pyrender)
         tick("skip switches")
         skip = skips(backend=backend, repeats=settings["repeats"])
     return {"settings": {"preset": preset, **{k: list(v) if isinstance(v, tuple) else v
@@ -311,14 +329,15 @@ def _ratio_stats(a: np.ndarray, b: np.ndarray) -> dict:
             "max": float(ratio.max()), "pairs": int(len(ratio))}
 
 
-def headline(*, backend="egl", repeats=9, resolution=(1024, 1024), count=20000) -> dict:
+def headline(*, backend="egl", repeats=9, resolution=(1024, 1024), count=20000,
+             with_pyrender=True) -> dict:
     """The README figures: hw against two yardsticks drawing the same float targets, the
     fill limit (:class:`FillLimit`) and the lean draw (:class:`LeanDraw`: plain vertex
     attributes, preallocated outputs), with ``rasterize`` timed both returning new arrays
     and filling earlier ones (``out=``); all four timed in interleaved rounds, each ratio
     the median and spread of its per-round ratios over ``repeats`` rounds. Then the 64x64
     one-triangle warm overhead (also with ``out=``), the reference throughput, and
-    pyrender vs glraster (depth only)."""
+    pyrender vs glraster (depth only; ``"pyrender": None`` without ``with_pyrender``)."""
     from glraster.studies.fill_limit import LeanDraw
 
     scene = make_bench_scene("terrain", count)
@@ -359,8 +378,9 @@ def headline(*, backend="egl", repeats=9, resolution=(1024, 1024), count=20000) 
     reference.rasterize(scene.pos, scene.faces, resolution)  # loads the compiled kernels
     t_ref = np.array([_timed(lambda: reference.rasterize(scene.pos, scene.faces, resolution))[0]
                       for _ in range(5)])
-    peer = pyrender_time(scene, resolution, repeats)
+    peer = pyrender_time(scene, resolution, repeats) if with_pyrender else None
     pixels = resolution[0] * resolution[1]
+    t_depth_ms = float(np.median(t_depth)) * 1e3
     return {
         "scene": f"terrain {len(scene.faces)} triangles at {resolution[0]}x{resolution[1]} (HxW)",
         "hw_ms": float(np.median(t_hw)) * 1e3, "fill_ms": float(np.median(t_fill)) * 1e3,
@@ -375,10 +395,10 @@ def headline(*, backend="egl", repeats=9, resolution=(1024, 1024), count=20000) 
                               "per_method": overhead},
         "reference_mpix_per_s": {"median": pixels / float(np.median(t_ref)) / 1e6,
                                  "best": pixels / float(t_ref.min()) / 1e6},
-        "pyrender": {"pyrender_depth_ms": peer["warm_ms"],
-                     "glraster_depth_ms": float(np.median(t_depth)) * 1e3,
-                     "glraster_all_outputs_ms": float(np.median(t_hw)) * 1e3,
-                     "speedup_depth_only": peer["warm_ms"] / (float(np.median(t_depth)) * 1e3)},
+        "pyrender": None if peer is None else {
+            "pyrender_depth_ms": peer["warm_ms"], "glraster_depth_ms": t_depth_ms,
+            "glraster_all_outputs_ms": float(np.median(t_hw)) * 1e3,
+            "speedup_depth_only": peer["warm_ms"] / t_depth_ms},
     }
 
 

@@ -131,6 +131,9 @@ def run(args) -> int:
     from glraster.cli.commands.check import Progress
     from glraster.studies import bench
 
+    if not args.no_pyrender and not bench.pyrender_installed():
+        print(f"glraster bench: {bench.PYRENDER_MISSING}", file=sys.stderr)
+        return exit_codes.USAGE
     overrides = {}
     if args.methods:
         overrides["methods"] = tuple(m.strip() for m in args.methods.split(",") if m.strip())
@@ -153,9 +156,12 @@ def run(args) -> int:
     ref = head["reference_mpix_per_s"]
     print(f"  reference: {ref['median']:.2f} Mpixel/s (best {ref['best']:.2f})")
     pr = head["pyrender"]
-    print(f"  pyrender depth-only {pr['pyrender_depth_ms']:.1f} ms vs glraster depth-only "
-          f"{pr['glraster_depth_ms']:.1f} ms ({pr['speedup_depth_only']:.2f}x), glraster all "
-          f"outputs {pr['glraster_all_outputs_ms']:.1f} ms")
+    if pr is None:
+        print("  pyrender: skipped (--no-pyrender)")
+    else:
+        print(f"  pyrender depth-only {pr['pyrender_depth_ms']:.1f} ms vs glraster depth-only "
+              f"{pr['glraster_depth_ms']:.1f} ms ({pr['speedup_depth_only']:.2f}x), glraster "
+              f"all outputs {pr['glraster_all_outputs_ms']:.1f} ms")
     print("\nskip switches (on / off, median ms):")
     for label, v in result["skips"].items():
         print(f"  {label:<58}{v['on_ms']:>9.2f}{v['off_ms']:>9.2f}")
