@@ -138,6 +138,7 @@ def run(args) -> int:
         elif isinstance(value, dict):
             value = ", ".join(f"{k}={v}" for k, v in value.items()) or "none"
         elif isinstance(value, bool):
-            value = "yes (llvmpipe)" if value else "no (edge band used)"
+            value = ("yes (llvmpipe)" if value else
+                     "no (edge band used; glraster check detects the driver's rule)")
         print(f"{label + ':':<27}{value}")
     return exit_codes.OK
