@@ -295,7 +295,7 @@ def probe_noperspective_clip(render, ctx, earlier=()) -> ProbeResult:
     one, two = worst["x"], worst["x+near"]
     if any(r.name == "float_target" and r.failed for r in earlier):
         p.status = "skipped"
-        p.detail += " (not judged: the float targets lose precision, see float_target)"
+        p.detail += " (not judged: float_target failed, the barycentrics lack float32 precision)"
     elif one[0] or one[2]:
         p.status = "fail"
         p.diagnosis = (f"noperspective values are wrong even on a triangle clipped by one x "
@@ -414,11 +414,14 @@ def probe_float_target(render, ctx) -> ProbeResult:
     bad = {n: e for n, e in errs.items() if not e <= 2.0 ** -16}
     if bad:
         p.status = "fail"
-        worst = max(bad.values())
-        kind = (" (about half-float rounding, 11 bits)" if 2.0 ** -13 <= worst < 2.0 ** -8
-                else "")
-        p.diagnosis = (f"float targets lose precision: {', '.join(bad)} off by up to "
-                       f"{worst:.3g}{kind}; the targets must hold 32-bit floats")
+        worst, names = max(bad.values()), ", ".join(bad)
+        if 2.0 ** -13 <= worst < 2.0 ** -8:   # half-float rounding of values in [0, 1]
+            p.diagnosis = (f"float targets lose precision: {names} off by up to {worst:.3g} "
+                           "(about half-float rounding, 11 bits); the targets must hold "
+                           "32-bit floats")
+        else:   # R32F targets and an interpolation of float32 precision would hold 2^-16
+            p.diagnosis = (f"{names} off by up to {worst:.3g}: less than float32 precision "
+                           "from the driver's varying interpolation or its float targets")
     p._explains = lambda self, scene, f: _mentions(f, "persp", "screen")
     return p
 

@@ -56,6 +56,27 @@ def test_mutants_fail_the_probe_that_names_their_fault(ctx, name, probe, words):
     assert results[probe].status == "fail" and words in results[probe].diagnosis
 
 
+def test_float_target_blames_the_targets_only_for_half_float_sized_errors(ctx):
+    """An error of 1e-4 (NVIDIA's 580 driver measured 1.02e-4, docs/drivers.md) is below
+    half-float rounding: the probe fails without claiming the targets are half floats."""
+    from glraster.gpu.rasterize import rasterize
+
+    def off_by(error):
+        def render(pos, tri, resolution, outputs, **multisample):
+            r = rasterize(pos, tri, resolution, ctx=ctx, outputs=outputs, cull=False)
+            if r.persp is not None:
+                r.persp[r.mask] += np.float32(error)
+            return r
+        return render
+
+    p = probes.probe_float_target(off_by(1e-4), ctx)
+    assert p.status == "fail" and "persp off by up to 0.0001" in p.diagnosis
+    assert "varying interpolation" in p.diagnosis and "half-float" not in p.diagnosis
+    p = probes.probe_float_target(off_by(1e-3), ctx)
+    assert p.status == "fail" and "half-float" in p.diagnosis
+    assert probes.probe_float_target(off_by(0.0), ctx).status == "pass"
+
+
 def test_a_failing_probe_explains_only_matching_failures_of_scenes():
     ids = probes.ProbeResult("tri_id_source", "", "", status="fail", diagnosis="ids off by +1",
                              _explains=lambda self, scene, f: "triangle id" in f)
