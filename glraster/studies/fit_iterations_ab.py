@@ -202,8 +202,15 @@ def serve(iterations: int, size: int, names, envmap) -> None:
         print(n / (time.perf_counter() - start), flush=True)
 
 
+def _worker_env(tree: Path) -> dict:
+    """The worker's environment: ``tree`` first on PYTHONPATH (its glraster is the one
+    imported), then whatever the caller's PYTHONPATH held (where its packages may be)."""
+    rest = os.environ.get("PYTHONPATH", "")
+    return dict(os.environ, PYTHONPATH=os.pathsep.join([str(tree)] + ([rest] if rest else [])))
+
+
 def _start(tree: Path, iterations: int, size: int, names, envmap) -> subprocess.Popen:
-    env = dict(os.environ, PYTHONPATH=str(tree))
+    env = _worker_env(tree)
     command = [sys.executable, str(HERE), "--worker", "--iterations", str(iterations),
                "--size", str(size), "--cases", *names]
     if envmap is not None:
@@ -213,7 +220,7 @@ def _start(tree: Path, iterations: int, size: int, names, envmap) -> subprocess.
     word, _, where = proc.stdout.readline().strip().partition(" ")
     if word != "ready":
         proc.kill()
-        raise RuntimeError(f"the worker in {tree} did not start")
+        raise RuntimeError(f"the worker in {tree} did not start (its error is above)")
     if not Path(where).is_relative_to(tree):
         proc.kill()
         raise RuntimeError(f"the worker for {tree} imported glraster from {where}")

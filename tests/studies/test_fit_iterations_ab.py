@@ -76,6 +76,15 @@ def test_a_worker_refuses_a_tree_it_does_not_import(tmp_path):
         ab._start(tmp_path.resolve(), 4, 4, ["texture"], None)
 
 
+def test_a_worker_keeps_the_callers_pythonpath_after_its_tree(tmp_path, monkeypatch):
+    # packages found through PYTHONPATH (a --target install) stay importable in the worker
+    monkeypatch.setenv("PYTHONPATH", "/opt/site-a" + ":" + "/opt/site-b")
+    assert ab._worker_env(tmp_path)["PYTHONPATH"].split(":") == [
+        str(tmp_path), "/opt/site-a", "/opt/site-b"]
+    monkeypatch.delenv("PYTHONPATH")
+    assert ab._worker_env(tmp_path)["PYTHONPATH"] == str(tmp_path)
+
+
 def test_before_commit_is_a_temporary_worktree(tmp_path):
     repo = tmp_path / "repo"
     git = lambda *a: subprocess.run(["git", "-C", str(repo), *a], check=True,  # noqa: E731
