@@ -78,7 +78,9 @@ def worker() -> None:
 
 
 def _start(checkout: str) -> subprocess.Popen:
-    env = dict(os.environ, PYTHONPATH=os.path.abspath(checkout))
+    from glraster.studies import revision  # here: the worker runs this file in its tree
+
+    env = revision.tree_environment(os.path.abspath(checkout))
     return subprocess.Popen([sys.executable, os.path.abspath(__file__), "--worker"],
                             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
                             env=env, cwd=os.path.abspath(checkout))

@@ -38,7 +38,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import statistics
 import subprocess
 import sys
@@ -202,15 +201,10 @@ def serve(iterations: int, size: int, names, envmap) -> None:
         print(n / (time.perf_counter() - start), flush=True)
 
 
-def _worker_env(tree: Path) -> dict:
-    """The worker's environment: ``tree`` first on PYTHONPATH (its glraster is the one
-    imported), then whatever the caller's PYTHONPATH held (where its packages may be)."""
-    rest = os.environ.get("PYTHONPATH", "")
-    return dict(os.environ, PYTHONPATH=os.pathsep.join([str(tree)] + ([rest] if rest else [])))
-
-
 def _start(tree: Path, iterations: int, size: int, names, envmap) -> subprocess.Popen:
-    env = _worker_env(tree)
+    from glraster.studies import revision  # here: the worker runs this file in its tree
+
+    env = revision.tree_environment(tree)
     command = [sys.executable, str(HERE), "--worker", "--iterations", str(iterations),
                "--size", str(size), "--cases", *names]
     if envmap is not None:

@@ -13,7 +13,6 @@ read the ratio, not the milliseconds.
 from __future__ import annotations
 
 import json
-import os
 import statistics
 import subprocess
 import sys
@@ -45,7 +44,9 @@ print(json.dumps(sorted(times)[len(times) // 2]))
 
 
 def measure(tree: Path, samples: int, args, plain: bool = False) -> float:
-    env = dict(os.environ, PYTHONPATH=str(tree))
+    from glraster.studies import revision  # here: the worker runs this file in its tree
+
+    env = revision.tree_environment(tree)
     out = subprocess.run(
         [sys.executable, "-c", TIMER, str(samples), str(args.calls), str(args.size),
          str(args.size), str(args.triangles), "plain" if plain else "samples"],

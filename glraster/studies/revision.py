@@ -8,6 +8,7 @@ Needs a git checkout of glraster (the source tree this package is imported from)
 from __future__ import annotations
 
 import importlib.util
+import os
 import subprocess
 import sys
 import tempfile
@@ -18,6 +19,14 @@ from glraster.errors import ArgumentError
 
 # the source tree this package is in: glraster/studies/revision.py -> the checkout's root
 TREE = Path(__file__).resolve().parents[2]
+
+
+def tree_environment(tree) -> dict:
+    """``os.environ`` for a Python process that runs the checkout ``tree``: ``tree`` first
+    on PYTHONPATH (its glraster is the one imported), then the caller's PYTHONPATH entries
+    (where packages installed with ``pip --target`` are found)."""
+    rest = os.environ.get("PYTHONPATH", "")
+    return dict(os.environ, PYTHONPATH=os.pathsep.join([str(tree)] + ([rest] if rest else [])))
 
 
 def load_module_at(rev: str, path: str, name: str) -> ModuleType:

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import statistics
 import subprocess
 import sys
@@ -126,7 +125,9 @@ def worker(sizes, calls: int) -> dict:
 
 
 def _run_worker(tree: Path, sizes, calls: int) -> dict:
-    env = dict(os.environ, PYTHONPATH=str(tree))
+    from glraster.studies import revision  # here: the worker runs this file in its tree
+
+    env = revision.tree_environment(tree)
     done = subprocess.run([sys.executable, str(HERE), "--worker", "--calls", str(calls),
                            "--sizes", *map(str, sizes)], cwd=tree, env=env,
                           capture_output=True, text=True, timeout=1800)

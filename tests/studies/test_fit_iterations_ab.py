@@ -78,11 +78,13 @@ def test_a_worker_refuses_a_tree_it_does_not_import(tmp_path):
 
 def test_a_worker_keeps_the_callers_pythonpath_after_its_tree(tmp_path, monkeypatch):
     # packages found through PYTHONPATH (a --target install) stay importable in the worker
+    from glraster.studies.revision import tree_environment
+
     monkeypatch.setenv("PYTHONPATH", "/opt/site-a" + ":" + "/opt/site-b")
-    assert ab._worker_env(tmp_path)["PYTHONPATH"].split(":") == [
+    assert tree_environment(tmp_path)["PYTHONPATH"].split(":") == [
         str(tmp_path), "/opt/site-a", "/opt/site-b"]
     monkeypatch.delenv("PYTHONPATH")
-    assert ab._worker_env(tmp_path)["PYTHONPATH"] == str(tmp_path)
+    assert tree_environment(tmp_path)["PYTHONPATH"] == str(tmp_path)
 
 
 def test_before_commit_is_a_temporary_worktree(tmp_path):
