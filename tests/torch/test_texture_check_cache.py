@@ -10,28 +10,7 @@ import pytest
 import torch
 
 import glraster.torch as dr
-from glraster import validate
 from glraster.errors import ArgumentError
-
-
-@pytest.fixture
-def scans(monkeypatch):
-    """The names of the arrays validate.finite scanned for NaN / Inf (ran its test), in
-    order."""
-    names, ran = [], []
-    test, finite = validate._all_finite, validate.finite
-    monkeypatch.setattr(validate, "_all_finite", lambda out: ran.append(1) or test(out))
-
-    def counting(name, arr, out):
-        before = len(ran)
-        try:
-            return finite(name, arr, out)
-        finally:
-            if len(ran) > before:
-                names.append(name)
-
-    monkeypatch.setattr(validate, "finite", counting)
-    return names
 
 
 def call(glctx, tex, mip):
