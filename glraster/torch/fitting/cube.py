@@ -101,7 +101,7 @@ def fit_cube(glctx, resolution: int, seed: int, *, iterations: int = 1000, views
             states.append((pos.detach().clone(), col.detach().clone()))
             if progress is not None:
                 progress(it + 1, iterations, f"{resolution}x{resolution} seed {seed} "
-                                             f"error {_errors(states[-2:-1], true_pos)[0]:.4f}")
+                                             f"error {_errors([states[-2][0]], true_pos)[0]:.4f}")
     # the errors of every state at once (the same bits as one state at a time)
     error = _errors([p for p, _ in states], true_pos)
     color_error = (torch.stack([c for _, c in states]) - true_col).abs().mean(dim=(1, 2))
