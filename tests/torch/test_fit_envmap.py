@@ -173,10 +173,12 @@ def test_studio_cube_map_is_finite_positive_and_brightest_in_the_sun():
 def test_fit_envmap_command_writes_curves_images_and_json(tmp_path, gl_backend, capsys):
     rc = main(["fit", "envmap", "--resolution", "32", "--mesh", "16,12", "--env-size", "16",
                "--iterations", "6", "--out", str(tmp_path), "--json",
-               str(tmp_path / "r.json"), "--quiet", "--backend", gl_backend])
+               str(tmp_path / "r.json"), "--backend", gl_backend])
     assert rc == 1  # 6 iterations do not reach the goal, which the exit code says
-    text = capsys.readouterr().out
+    captured = capsys.readouterr()
+    text = captured.out
     assert "envmap seed 0: image RMSE" in text and "MISSED" in text
+    assert "6/6" in captured.err and "seed 0 RMSE" in captured.err   # the progress bar
     for name in ("fit-envmap-error.png", "fit-envmap-before-after.png"):
         assert (tmp_path / name).stat().st_size > 1000
     result = json.loads((tmp_path / "r.json").read_text())
