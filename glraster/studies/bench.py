@@ -176,10 +176,6 @@ PYRENDER_MISSING = ("the pyrender peer needs pyrender and trimesh (the [mesh] ex
                     "install 'glraster[mesh]'); or pass --no-pyrender to skip it")
 
 
-class PyrenderMissing(ValueError):
-    """The pyrender peer was asked for where pyrender or trimesh is not installed."""
-
-
 def pyrender_installed() -> bool:
     """Whether the pyrender peer's packages can be imported (found, not imported here)."""
     import importlib.util
@@ -200,8 +196,6 @@ def pyrender_time(scene: BenchScene, resolution, repeats: int = 5, timeout: floa
         proc = subprocess.run([sys.executable, "-c", _PYRENDER_WORKER, src], env=env,
                               capture_output=True, text=True, timeout=timeout)
     if proc.returncode != 0:
-        if "No module named 'pyrender'" in proc.stderr or "No module named 'trimesh'" in proc.stderr:
-            raise PyrenderMissing(PYRENDER_MISSING)
         tail = "\n".join(proc.stderr.strip().splitlines()[-5:])
         raise RuntimeError(f"pyrender subprocess failed:\n{tail}")
     return json.loads(proc.stdout.strip().splitlines()[-1])
