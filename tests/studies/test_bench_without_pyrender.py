@@ -46,3 +46,12 @@ def test_pyrender_installed_looks_for_both_packages(monkeypatch):
     assert not bench.pyrender_installed()
     found["trimesh"] = object()
     assert bench.pyrender_installed()
+
+
+def test_run_hands_with_pyrender_to_the_headline(gl_backend, monkeypatch):
+    seen = {}
+    monkeypatch.setattr(bench, "headline", lambda **kw: seen.update(kw) or {})
+    monkeypatch.setattr(bench, "skips", lambda **kw: {})
+    bench.run("quick", backend=gl_backend, with_pyrender=False, methods=("hw",),
+              resolutions=(16,), counts=(4,), repeats=1)
+    assert seen["with_pyrender"] is False
