@@ -127,13 +127,17 @@ def rasterize(pos, tri, resolution, *, ctx: Context | None = None, outputs=OUTPU
         ``raster/raster.frag`` (``raster33/`` on a GL 3.3 context; used by fault
         injection); only with ``method="hw"``.
     cull_backfaces : bool
-        Drop clockwise triangles (window space, GL's default front face is CCW).
+        Drop clockwise triangles (window space, GL's default front face is CCW): the
+        driver's face culling (GL_CULL_FACE), and with host culling (``cull``) also
+        before upload.
     cull : True, False or "auto"
         Drop before upload the triangles that cannot produce a fragment (outside the view
-        volume, zero area; see :mod:`glraster.gpu.cull`). The image is the same either way.
-        "auto" culls for the methods with per-triangle host work (``cull_by_default``)
-        and whenever back faces are culled; for the others llvmpipe's own trivial reject
-        is cheaper than the host test plus the id remapping (docs/performance.md).
+        volume, zero area, back faces with ``cull_backfaces``; see
+        :mod:`glraster.gpu.cull`). The image is the same either way. "auto" culls for the
+        methods with per-triangle host work (``cull_by_default``) and whenever back faces
+        are culled; for the others llvmpipe's own trivial reject is cheaper than the host
+        test plus the id remapping (docs/performance.md). False leaves everything to the
+        driver, back faces to GL_CULL_FACE alone.
     affine : bool or None
         None: take the affine path when every used vertex has the same w (persp equals
         screen, so one interpolation and one readback serve both). False: never.
@@ -227,7 +231,7 @@ def _culled(ctx, m: Method, pos, tri, resolution, cull, cull_backfaces: bool, in
     kept = None
     if cull == "auto":
         cull = m.cull_by_default or cull_backfaces
-    if len(tri) >= CULL_MIN_TRIANGLES and (cull or cull_backfaces):
+    if len(tri) >= CULL_MIN_TRIANGLES and cull:
         culling = _cull.cull(pos, tri, resolution, backfaces=cull_backfaces,
                              llvmpipe=ctx.is_llvmpipe, subpixel_bits=ctx.subpixel_bits)
         info["culled"] = culling.reasons

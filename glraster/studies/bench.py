@@ -39,6 +39,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from glraster.geometry import camera as cam
+from glraster.geometry.shapes import icosphere
 from glraster import reference
 from glraster.reference import kernels as reference_kernels
 from glraster.verify.compare import compare
@@ -425,9 +426,17 @@ def skips(*, backend="egl", repeats=5, resolution=(1024, 1024), count=20000) -> 
             ab(f"{method}: host culling (half the triangles behind the eye)",
                lambda m=method: rasterize(far, tri2, resolution, ctx=ctx, method=m, cull=True),
                lambda m=method: rasterize(far, tri2, resolution, ctx=ctx, method=m, cull=False))
-        ab("back-face culling (terrain, front faces kept)",
-           lambda: rasterize(pos, tri, resolution, ctx=ctx, cull_backfaces=True),
-           lambda: rasterize(pos, tri, resolution, ctx=ctx))
+        # a closed mesh, half of it facing away: the back faces dropped before upload
+        # against GL_CULL_FACE alone (cull_backfaces=True both times)
+        vertices, faces = icosphere(6)       # 81,920 triangles
+        view = cam.look_at((0.0, 0.0, 3.0), (0.0, 0.0, 0.0))
+        sphere = cam.project(vertices, view=view, proj=cam.perspective(FOVY_DEG, 1.0, NEAR, FAR))
+        for method in ("hw", "homogeneous"):
+            ab(f"{method}: host back-face culling (sphere, half facing away)",
+               lambda m=method: rasterize(sphere, faces, resolution, ctx=ctx, method=m,
+                                          cull_backfaces=True, cull=True),
+               lambda m=method: rasterize(sphere, faces, resolution, ctx=ctx, method=m,
+                                          cull_backfaces=True, cull=False))
     finally:
         ctx.release()
     # caches: a warm call against a call on a fresh context (compile + allocation)

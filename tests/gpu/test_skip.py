@@ -63,17 +63,21 @@ def test_tri_id_indexes_the_callers_triangles_after_culling(ctx):
     assert ids.max() < len(tri)
 
 
+@pytest.mark.parametrize("cull_option", ["auto", False])
 @pytest.mark.parametrize("count", [40, 600])  # below and above CULL_MIN_TRIANGLES
-def test_backface_culling_equals_drawing_the_front_faces(ctx, count):
+def test_backface_culling_equals_drawing_the_front_faces(ctx, count, cull_option):
     """cull_backfaces=True gives the image of the counter-clockwise triangles alone, with
-    ids of the caller's triangles (host pre-cull above the threshold, GL_CULL_FACE always)."""
+    ids of the caller's triangles (host pre-cull above the threshold unless cull=False,
+    GL_CULL_FACE always)."""
     pos, tri = synthetic.random_soup(count, seed=11)
     win = pos[:, :2] / pos[:, 3:4]
     a, b, c = win[tri[:, 0]], win[tri[:, 1]], win[tri[:, 2]]
     area = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
     front = np.flatnonzero(area > 0)
     assert 0 < len(front) < count
-    culled = gr.rasterize(pos, tri, RES, ctx=ctx, cull_backfaces=True)
+    culled = gr.rasterize(pos, tri, RES, ctx=ctx, cull_backfaces=True, cull=cull_option)
+    host_culled = cull_option == "auto" and count >= CULL_MIN_TRIANGLES
+    assert bool(culled.info["culled"].get("backface")) == host_culled
     only_front = gr.rasterize(pos, tri[front], RES, ctx=ctx)
     assert np.array_equal(culled.mask, only_front.mask)
     expected = np.where(only_front.mask, front[np.maximum(only_front.tri_id, 0)], -1)

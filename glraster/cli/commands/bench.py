@@ -163,8 +163,9 @@ def run(args) -> int:
               f"{pr['glraster_depth_ms']:.1f} ms ({pr['speedup_depth_only']:.2f}x), glraster "
               f"all outputs {pr['glraster_all_outputs_ms']:.1f} ms")
     print("\nskip switches (on / off, median ms):")
+    width = max(map(len, result["skips"]), default=0) + 2
     for label, v in result["skips"].items():
-        print(f"  {label:<58}{v['on_ms']:>9.2f}{v['off_ms']:>9.2f}")
+        print(f"  {label:<{width}}{v['on_ms']:>9.2f}{v['off_ms']:>9.2f}")
     if args.json:
         write_text(args.json, json.dumps(result, indent=1, default=float))
         print(f"wrote {args.json}")
