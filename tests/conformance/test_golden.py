@@ -88,3 +88,18 @@ def test_golden_cli_exit_codes(tmp_path, capsys):
     assert main(["golden", "update", "no_such_*", "--dir", str(tmp_path)]) == 2
     assert "no scene matches" in capsys.readouterr().err
     assert not list(tmp_path.iterdir())
+
+
+def test_golden_check_of_a_missing_folder_is_a_usage_error(tmp_path, capsys, monkeypatch):
+    """A folder that is not there is named once (exit 2), not reported as 39 missing
+    goldens; with no --dir the message names $GLRASTER_GOLDEN_DIR when that chose it."""
+    from glraster.cli import main
+
+    missing = tmp_path / "nowhere"
+    assert main(["golden", "check", "--dir", str(missing)]) == 2
+    err = capsys.readouterr().err
+    assert "--dir" in err and f"no golden folder at {missing}" in err
+    monkeypatch.setenv("GLRASTER_GOLDEN_DIR", str(missing))
+    assert main(["golden", "check", "basic_triangle"]) == 2
+    assert "GLRASTER_GOLDEN_DIR" in capsys.readouterr().err
+    assert not missing.exists()

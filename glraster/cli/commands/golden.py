@@ -6,6 +6,7 @@ rewrites them; 'check' recomputes the reference and requires every stored bit ba
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 
@@ -89,6 +90,14 @@ def _check(args) -> int:
     from glraster.conformance import golden
 
     names = _names(args.names)          # a ValueError is a usage error (exit 2) in main
+    folder = golden.golden_dir(args.dir)
+    if not folder.is_dir():
+        from_env = args.dir is None and bool(os.environ.get("GLRASTER_GOLDEN_DIR"))
+        raise ArgumentError("GLRASTER_GOLDEN_DIR" if from_env else "--dir",
+                            f"no golden folder at {folder}"
+                            f"{' (from $GLRASTER_GOLDEN_DIR)' if from_env else ''}: name the "
+                            "folder of the golden EXRs, or make them with 'glraster golden "
+                            "update'")
     t0 = time.perf_counter()
     bad = 0
     for name in names:
