@@ -145,6 +145,9 @@ def test_bad_file_types_and_npz(tmp_path):
     (tmp_path / "x.txt").write_text("hi")
     with pytest.raises(ValueError, match="unsupported scene file type"):
         load_scene_file(tmp_path / "x.txt")
+    (tmp_path / "t.npz").write_text("x")             # not a zip archive at all
+    with pytest.raises(ValueError, match="not a .npz file"):
+        load_scene_file(tmp_path / "t.npz")
     np.savez(tmp_path / "m.npz", pos=np.zeros((3, 4)))
     with pytest.raises(ValueError, match="missing array"):
         load_scene_file(tmp_path / "m.npz")

@@ -20,6 +20,7 @@ from __future__ import annotations
 import fnmatch
 import hashlib
 import json
+import zipfile
 from dataclasses import dataclass, field
 from functools import lru_cache
 from importlib import resources
@@ -190,6 +191,8 @@ def load_scene_file(path) -> Scene:
         raise ArgumentError("path", f"{src}: no such scene file")
     suffix = path.suffix.lower()
     if suffix == ".npz":
+        if not zipfile.is_zipfile(path):     # (np.load would say "pickled data")
+            raise ArgumentError("path", f"{src}: not a .npz file (not a zip archive)")
         try:
             data = np.load(path, allow_pickle=False)
         except Exception as exc:  # zipfile/pickle errors from a corrupt file
