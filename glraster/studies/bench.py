@@ -426,13 +426,13 @@ def skips(*, backend="egl", repeats=5, resolution=(1024, 1024), count=20000) -> 
             ab(f"{method}: host culling (half the triangles behind the eye)",
                lambda m=method: rasterize(far, tri2, resolution, ctx=ctx, method=m, cull=True),
                lambda m=method: rasterize(far, tri2, resolution, ctx=ctx, method=m, cull=False))
-        # a closed mesh, half of it facing away: the back faces dropped before upload
-        # against GL_CULL_FACE alone (cull_backfaces=True both times)
+        # a closed mesh seen from outside (about two thirds of it facing away): the back
+        # faces dropped before upload against GL_CULL_FACE alone (cull_backfaces=True both)
         vertices, faces = icosphere(6)       # 81,920 triangles
         view = cam.look_at((0.0, 0.0, 3.0), (0.0, 0.0, 0.0))
         sphere = cam.project(vertices, view=view, proj=cam.perspective(FOVY_DEG, 1.0, NEAR, FAR))
         for method in ("hw", "homogeneous"):
-            ab(f"{method}: host back-face culling (sphere, half facing away)",
+            ab(f"{method}: host back-face culling (closed sphere, seen from outside)",
                lambda m=method: rasterize(sphere, faces, resolution, ctx=ctx, method=m,
                                           cull_backfaces=True, cull=True),
                lambda m=method: rasterize(sphere, faces, resolution, ctx=ctx, method=m,
