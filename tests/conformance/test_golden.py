@@ -80,8 +80,12 @@ def test_golden_cli_exit_codes(tmp_path, capsys):
     cmd.register(parser.add_subparsers())
     args = parser.parse_args(["golden", "check", "basic_*", "--dir", str(golden.golden_dir())])
     assert args.func(args) == 0
-    args = parser.parse_args(["golden", "check", "basic_triangle", "--dir", str(tmp_path)])
+    # a golden missing beside one that is there is a failure (exit 1)
+    shutil.copy(golden.golden_path("tiny_viewport"), tmp_path / "tiny_viewport.exr")
+    args = parser.parse_args(["golden", "check", "basic_triangle", "tiny_viewport",
+                              "--dir", str(tmp_path)])
     assert args.func(args) == 1
+    (tmp_path / "tiny_viewport.exr").unlink()
     # bad names are a usage error through the CLI's main (exit 2), nothing written
     from glraster.cli import main
 
@@ -91,10 +95,14 @@ def test_golden_cli_exit_codes(tmp_path, capsys):
 
 
 def test_golden_check_of_a_missing_folder_is_a_usage_error(tmp_path, capsys, monkeypatch):
-    """A folder that is not there is named once (exit 2), not reported as 39 missing
-    goldens; with no --dir the message names $GLRASTER_GOLDEN_DIR when that chose it."""
+    """A folder that is not there, or holds none of the goldens asked for, is named once
+    (exit 2), not reported as 39 missing goldens; with no --dir the message names
+    $GLRASTER_GOLDEN_DIR when that chose it."""
     from glraster.cli import main
 
+    assert main(["golden", "check", "--dir", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert f"{tmp_path} holds none of the {len(list_scenes())} golden EXR(s) asked for" in err
     missing = tmp_path / "nowhere"
     assert main(["golden", "check", "--dir", str(missing)]) == 2
     err = capsys.readouterr().err

@@ -91,13 +91,15 @@ def _check(args) -> int:
 
     names = _names(args.names)          # a ValueError is a usage error (exit 2) in main
     folder = golden.golden_dir(args.dir)
-    if not folder.is_dir():
+    # a folder without one of the goldens asked for is the wrong folder, not N failures
+    if not any(golden.golden_path(name, args.dir).is_file() for name in names):
         from_env = args.dir is None and bool(os.environ.get("GLRASTER_GOLDEN_DIR"))
+        what = (f"{folder} holds none of the {len(names)} golden EXR(s) asked for"
+                if folder.is_dir() else f"no golden folder at {folder}")
         raise ArgumentError("GLRASTER_GOLDEN_DIR" if from_env else "--dir",
-                            f"no golden folder at {folder}"
-                            f"{' (from $GLRASTER_GOLDEN_DIR)' if from_env else ''}: name the "
-                            "folder of the golden EXRs, or make them with 'glraster golden "
-                            "update'")
+                            f"{what}{' (from $GLRASTER_GOLDEN_DIR)' if from_env else ''}: "
+                            "name the folder of the golden EXRs, or make them with 'glraster "
+                            "golden update'")
     t0 = time.perf_counter()
     bad = 0
     for name in names:
