@@ -141,3 +141,27 @@ def test_sigint_from_outside_during_a_write_leaves_no_file_and_exits_130(tmp_pat
     assert proc.returncode == exit_codes.INTERRUPTED, stderr
     assert _one_line(stderr.decode()) == "glraster: interrupted"
     assert os.listdir(out) == [], "the interrupted write left nothing behind"
+
+
+def test_render_writes_the_exr_and_its_preview_or_neither(tmp_path):
+    """A preview that cannot be written (its folder is a file) fails the render (exit 2)
+    without leaving the EXR behind; a preview whose name is not .png is refused before
+    anything is rendered."""
+    (tmp_path / "taken").write_text("a file, not a folder")
+    result = _glraster("render", "basic_triangle", "--reference", "-o", "x.exr",
+                       "--png", "taken/x.png", cwd=tmp_path)
+    assert result.returncode == exit_codes.USAGE, result.stderr
+    assert "taken is a file, not a folder" in _one_line(result.stderr)
+    assert sorted(os.listdir(tmp_path)) == ["taken"], "no x.exr, no temporary file"
+
+    result = _glraster("render", "basic_triangle", "--reference", "-o", "x.exr",
+                       "--png", "x.jpg", cwd=tmp_path)
+    assert result.returncode == exit_codes.USAGE, result.stderr
+    assert _one_line(result.stderr) == ("glraster render: argument --png: png must end in "
+                                        ".png, got 'x.jpg'")
+    assert sorted(os.listdir(tmp_path)) == ["taken"]
+
+    result = _glraster("render", "basic_triangle", "--reference", "-o", "x.exr",
+                       "--png", "x.png", cwd=tmp_path)
+    assert result.returncode == exit_codes.OK, result.stderr
+    assert sorted(os.listdir(tmp_path)) == ["taken", "x.exr", "x.png"]

@@ -43,7 +43,6 @@ def register(subparsers) -> None:
 
 def run(args) -> int:
     from glraster.conformance.scenes import resolve
-    from glraster.io import exr
 
     try:
         scene = resolve(args.scene)
@@ -54,6 +53,8 @@ def run(args) -> int:
             outputs = check_outputs([o.strip() for o in args.outputs.split(",") if o.strip()])
         if not str(args.output).lower().endswith(".exr"):
             raise ArgumentError("output", f"output must end in .exr, got {args.output!r}")
+        if args.png is not None and not str(args.png).lower().endswith(".png"):
+            raise ArgumentError("png", f"png must end in .png, got {args.png!r}")
         if args.server is not None and not args.server.strip():
             raise ArgumentError(
                 "--server", "--server needs the service's URL (http://HOST:PORT), got an "
@@ -93,23 +94,35 @@ def run(args) -> int:
             return exit_codes.USAGE
         producer = f"glraster.rasterize on {ctx.renderer} via {ctx.backend}, {ctx.gl_version}"
     seconds = time.perf_counter() - t
-    kept = {n: getattr(raster, n) for n in outputs}
-    path = exr.write_raster(args.output, **kept, window="covered" if args.crop else "full",
-                            metadata={"scene": scene.name, "scene_hash": scene.hash,
-                                      "producer": producer})
+    _write(args, raster, outputs, metadata={"scene": scene.name, "scene_hash": scene.hash,
+                                            "producer": producer})
     h, w = scene.resolution
     tris = f"{len(scene.tri)} triangle" + ("" if len(scene.tri) == 1 else "s")
     print(f"{scene.name}: {h}x{w} (HxW), {tris}, {int(raster.mask.sum())} "
-          f"pixels covered, {seconds:.3f} s -> {path} ({', '.join(outputs)})")
+          f"pixels covered, {seconds:.3f} s -> {args.output} ({', '.join(outputs)})")
     if args.png:
-        from pathlib import Path
-
-        from glraster.io.png import bary_rgb, write_png
-
-        bary = raster.persp if raster.persp is not None else raster.screen
-        write_png(Path(args.png), bary_rgb(bary, raster.mask))
         print(f"preview: {args.png}")
     return exit_codes.OK
+
+
+def _write(args, raster, outputs, metadata) -> None:
+    """Write the EXR (and the --png preview): both or neither. Each goes to a temporary
+    file beside its target, and the targets are replaced only once both are complete."""
+    from contextlib import ExitStack
+
+    from glraster.io import exr
+    from glraster.io.atomic import atomic_write
+
+    with ExitStack() as stack:
+        exr_tmp = stack.enter_context(atomic_write(args.output))
+        png_tmp = stack.enter_context(atomic_write(args.png)) if args.png else None
+        exr.write_raster(exr_tmp, **{n: getattr(raster, n) for n in outputs},
+                         window="covered" if args.crop else "full", metadata=metadata)
+        if png_tmp is not None:
+            from glraster.io.png import bary_rgb, write_png
+
+            bary = raster.persp if raster.persp is not None else raster.screen
+            write_png(png_tmp, bary_rgb(bary, raster.mask))
 
 
 def _token(args):
