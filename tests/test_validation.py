@@ -330,3 +330,12 @@ def test_interpolate_errors_name_the_argument(kwargs, argument, words):
     with pytest.raises(ArgumentError) as err:
         gr.interpolate(args.pop("attr"), args.pop("raster"), args.pop("tri"), **args)
     assert err.value.argument == argument and words in str(err.value), str(err.value)
+
+
+def test_a_context_that_is_not_one_names_ctx():
+    """ctx takes a glraster.Context (or None for the default); a backend name there is
+    an ArgumentError naming ctx, before any GL work, not an AttributeError from deep inside."""
+    with pytest.raises(ArgumentError) as err:
+        gr.rasterize(GOOD_POS, GOOD_TRI, (8, 8), ctx="egl")
+    assert err.value.argument == "ctx"
+    assert str(err.value) == "ctx must be a glraster.Context or None, got str 'egl'"

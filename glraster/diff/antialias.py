@@ -43,7 +43,7 @@ from glraster.diff.edge_lists import pair_lists, put_rows, take_rows
 from glraster.diff.antialias_args import AntialiasSaved, check, wanted
 from glraster.diff.antialias_reference import MAX_WALK
 from glraster.diff.topology_hash import TopologyHash, antialias_construct_topology_hash
-from glraster.gpu.context import Context, default_context
+from glraster.gpu.context import Context, context_or_default
 from glraster.gpu.shaders import shader_path
 
 __all__ = ["TopologyHash", "antialias_construct_topology_hash", "backward", "forward",
@@ -189,7 +189,7 @@ def forward(color, rast, pos, *, tri, topology_hash, pos_gradient_boost=1.0, con
         ``((out,), saved)``: out (B, H, W, C) float32; saved an
         :class:`~glraster.diff.antialias_args.AntialiasSaved`.
     """
-    ctx = ctx or default_context()
+    ctx = context_or_default(ctx)
     passes = _Passes(ctx, color, rast, pos, tri, topology_hash)
     out = recycle.empty(color.shape)    # (a copy of color: its memory used again)
     np.copyto(out, color)
@@ -214,7 +214,7 @@ def pair_records(color, rast, pos, tri, topology_hash=None, *, ctx: Context | No
     """The pass-1 records as (B, H, W, 2, 4) uint32 (code, row_a, row_b, bits of tau) per
     pixel A and axis (0: the pair with the right neighbour, 1: with the one above); for
     tests and error analysis (arguments checked as the op's)."""
-    ctx = ctx or default_context()
+    ctx = context_or_default(ctx)
     color, rast, pos, tri, th, _, _ = check(color, rast, pos, tri, topology_hash,
                                             dtype=np.float32)
     passes = _Passes(ctx, color, rast, pos, tri, th)

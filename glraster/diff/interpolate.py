@@ -31,7 +31,7 @@ import numpy as np
 from glraster.diff import buffer_views, compute, recycle
 from glraster.diff.address import address
 from glraster.diff.saved import InterpolateSaved
-from glraster.gpu.context import Context, default_context
+from glraster.gpu.context import Context, context_or_default
 from glraster.gpu.shaders import shader_path
 
 __all__ = ["InterpolateSaved", "backward", "forward"]
@@ -122,7 +122,7 @@ def forward(attr, rast, rast_db=None, *, tri, diff_attrs=None, ctx: Context | No
         ((B, H, W, 0) when none is chosen); saved an :class:`InterpolateSaved`. Empty
         pixels are 0 in both.
     """
-    ctx = ctx or default_context()
+    ctx = context_or_default(ctx)
     diff_index = tuple(diff_attrs or ())
     if not diff_index:
         rast_db = None

@@ -65,7 +65,8 @@ from glraster.diff.saved import RasterizeSaved
 from glraster.gpu import cull as _cull
 from glraster.gpu import homogeneous_kernel
 from glraster.gpu import pipeline
-from glraster.gpu.context import FRAMEBUFFER_SLOTS, SLOT_PIXELS, Context, default_context
+from glraster.gpu.context import (FRAMEBUFFER_SLOTS, SLOT_PIXELS, Context,
+                                  context_or_default)
 from glraster.gpu.shaders import shader_path
 
 __all__ = ["DepthPeeler", "RasterizeSaved", "backward", "backward_pixels", "forward",
@@ -128,7 +129,7 @@ class _Forward:
     checked inputs (the peeler draws the same items once per layer)."""
 
     def __init__(self, pos, tri, resolution, ranges, grad_db, space, ctx):
-        self.ctx = ctx if ctx is not None else default_context()
+        self.ctx = context_or_default(ctx)
         self.ctx.require_gl(45, "glraster.diff.rasterize", "shader storage buffers, GLSL 4.50")
         self.pos, self.tri, self.ranges = pos, tri, ranges
         self.grad_db, self.space = grad_db, space

@@ -51,7 +51,7 @@ from glraster.diff.texture_args import (
     check,
     wanted,
 )
-from glraster.gpu.context import Context, default_context
+from glraster.gpu.context import Context, context_or_default
 from glraster.gpu.shaders import shader_path
 
 __all__ = ["backward", "build_mips", "forward", "sampler_probe"]
@@ -277,7 +277,7 @@ def forward(tex, uv, uv_da=None, mip_level_bias=None, *mip, filter_mode="auto",
         ``((out,), saved)``: out (B, H, W, C) float32; saved a
         :class:`~glraster.diff.texture_args.TextureSaved`.
     """
-    ctx = ctx or default_context()
+    ctx = context_or_default(ctx)
     args = TextureArgs.of(tex, uv, uv_da, mip_level_bias, mip, filter_mode, boundary_mode,
                           max_mip_level, own_mips)
     n, uv_f, da, bias = _pixel_inputs(args)
@@ -514,7 +514,7 @@ def _bind_coordinate_outputs(ctx: Context, defines, count: int, coords: int):
 def build_mips(tex, max_mip_level=None, *, boundary_mode="wrap", ctx: Context | None = None):
     """The GPU's mip pyramid of ``tex`` (levels 1, 2, ..., float32), as :func:`forward`
     builds it (for checks and for passing as ``mip``)."""
-    ctx = ctx or default_context()
+    ctx = context_or_default(ctx)
     coords = 3 if boundary_mode == "cube" else 2
     tex_arr = np.asarray(tex)
     batch = tex_arr.shape[0] if tex_arr.ndim in (4, 5) else 1
@@ -560,7 +560,7 @@ def sampler_probe(tex, uv, level, *, boundary_mode="wrap", ctx: Context | None =
     border) in a compute shader, and returns ``(sampler_out, fetch_out)``, both (1, H, W, C)
     float32; fetch_out is :func:`forward` with mip_level_bias = level.
     """
-    ctx = ctx or default_context()
+    ctx = context_or_default(ctx)
     tex = np.ascontiguousarray(tex, np.float32)
     uv = np.ascontiguousarray(uv, np.float32)
     level = np.ascontiguousarray(level, np.float32)

@@ -480,3 +480,15 @@ def default_context() -> Context:
         if _default_context is None:
             _default_context = Context(backend=None)
         return _default_context
+
+
+def context_or_default(ctx) -> Context:
+    """``ctx`` when it is a :class:`Context`, the process-wide one (:func:`default_context`)
+    when it is None; ArgumentError naming ``ctx`` for anything else (a backend name, say:
+    ``Context(backend="egl")`` makes a context)."""
+    if ctx is None:
+        return default_context()
+    if not isinstance(ctx, Context):
+        raise ArgumentError("ctx", f"ctx must be a glraster.Context or None, got "
+                                   f"{type(ctx).__name__} {ctx!r:.60}")
+    return ctx

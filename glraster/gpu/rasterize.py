@@ -16,7 +16,7 @@ from glraster import validate
 from glraster.errors import ArgumentError
 from glraster.gpu import cull as _cull
 from glraster.gpu import pipeline
-from glraster.gpu.context import Context, default_context
+from glraster.gpu.context import Context, context_or_default
 from glraster.gpu.methods import (  # noqa: F401 (public)
     METHODS,
     Method,
@@ -169,7 +169,7 @@ def rasterize(pos, tri, resolution, *, ctx: Context | None = None, outputs=OUTPU
     """
     names, samples, interpolation = _check_options(outputs, method, samples, interpolation,
                                                    out, shader_files, affine, cull)
-    ctx = ctx if ctx is not None else default_context()
+    ctx = context_or_default(ctx)
     m = for_context(method, ctx)  # hw below GL 4.5: the vertex-attribute variant
     if samples > 1:
         _check_multisampling(ctx, m, samples, interpolation)
