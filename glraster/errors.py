@@ -82,3 +82,28 @@ class ArgumentError(ValueError):
     def __init__(self, argument: str, message: str):
         super().__init__(message)
         self.argument = argument
+
+
+# The pip extra (pyproject.toml, optional-dependencies) that installs each optional
+# top-level module glraster imports.
+EXTRA_OF_MODULE = {"torch": "torch", "jax": "jax", "jaxlib": "jax", "optax": "jax",
+                   "ray": "ray", "trimesh": "mesh", "pyrender": "mesh",
+                   "starlette": "service", "uvicorn": "service", "httptools": "service",
+                   "uvloop": "service", "msgspec": "service", "prometheus_client": "service"}
+
+
+def extra_of(exc: ModuleNotFoundError) -> str | None:
+    """The extra that brings the module ``exc`` found missing (its top-level package), or
+    None when no extra of glraster installs it."""
+    return EXTRA_OF_MODULE.get((exc.name or "").split(".")[0])
+
+
+def needs_extra(user: str, exc: ModuleNotFoundError) -> ModuleNotFoundError:
+    """A ModuleNotFoundError for ``user`` (a module or command of glraster) saying which
+    pip extra installs the module ``exc`` found missing; ``exc`` itself when no extra
+    does. ``.name`` stays the missing module's."""
+    extra = extra_of(exc)
+    if extra is None:
+        return exc
+    return ModuleNotFoundError(f"{user} needs {exc.name}: pip install 'glraster[{extra}]'",
+                               name=exc.name)

@@ -15,7 +15,7 @@ import sys
 from glraster._version import __version__
 from glraster.cli import commands, exit_codes
 from glraster.cli.errors import describe, name_options
-from glraster.errors import BackendUnavailable, ShaderCompileError
+from glraster.errors import BackendUnavailable, ShaderCompileError, extra_of, needs_extra
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -30,12 +30,6 @@ def build_parser() -> argparse.ArgumentParser:
         importlib.import_module(f"{commands.__name__}.{module.name}").register(subparsers)
     name_options(parser)   # errors name the option at fault (glraster.cli.errors)
     return parser
-
-
-# optional dependency -> the pyproject extra that installs it
-OPTIONAL_EXTRAS = {"torch": "torch", "starlette": "service", "uvicorn": "service",
-                   "trimesh": "mesh", "pyrender": "mesh", "ray": "ray", "jax": "jax",
-                   "jaxlib": "jax", "optax": "jax"}
 
 
 def main(argv=None) -> int:
@@ -81,11 +75,10 @@ def _main(argv) -> int:
         print(f"glraster {args.command}: error: {describe(exc, args)}", file=sys.stderr)
         return exit_codes.USAGE
     except ModuleNotFoundError as exc:
-        extra = OPTIONAL_EXTRAS.get((exc.name or "").split(".")[0])
-        if extra is None:
+        if extra_of(exc) is None:
             raise
-        print(f"glraster {args.command}: error: this command needs {exc.name}: "
-              f"pip install 'glraster[{extra}]'", file=sys.stderr)
+        print(f"glraster {args.command}: error: {needs_extra('this command', exc)}",
+              file=sys.stderr)
         return exit_codes.USAGE
     except BrokenPipeError:
         raise

@@ -4,6 +4,13 @@ tensors; float32 runs on OpenGL, float64 through the float64 reference (for grad
 Layouts: :mod:`glraster.torch.ops`, :mod:`glraster.torch.texture`; docs/differentiable.md.
 """
 
+from glraster.errors import needs_extra
+
+try:
+    import torch  # noqa: F401  (first, so that without it the error names the extra)
+except ModuleNotFoundError as exc:
+    raise needs_extra("glraster.torch", exc) from None
+
 from glraster.torch.antialias import antialias, antialias_construct_topology_hash
 from glraster.torch.context import RasterizeCudaContext, RasterizeGLContext
 from glraster.torch.log import get_log_level, set_log_level
