@@ -165,6 +165,9 @@ def load_mesh(source) -> Mesh:
         mesh = _trimesh_scene_to_mesh(loaded)
     elif isinstance(loaded, trimesh.Trimesh):
         mesh = _from_trimesh(loaded)
+    elif loaded is not source:   # a file of points or lines only (OBJ "v" with no "f")
+        raise ArgumentError("source", f"source {path!r} contains no triangles (trimesh read "
+                                      f"it as a {type(loaded).__name__})")
     else:
         raise ArgumentError(
             "source", f"source must be a mesh file path, trimesh.Trimesh, trimesh.Scene or "

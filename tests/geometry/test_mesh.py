@@ -83,9 +83,10 @@ def test_load_errors(tmp_path):
     with pytest.raises(ValueError, match="source"):
         load_mesh(tmp_path / "missing.obj")
     (tmp_path / "pts.obj").write_text("v 0 0 0\nv 1 0 0\n")
-    with pytest.raises(ValueError, match="source"):
+    with pytest.raises(ValueError, match=r"pts.obj' contains no triangles \(trimesh read it "
+                                         r"as a PointCloud\)"):
         load_mesh(tmp_path / "pts.obj")
-    with pytest.raises(ValueError, match="source"):
+    with pytest.raises(ValueError, match="source must be a mesh file path, .* got int"):
         load_mesh(42)
     with pytest.raises(ValueError, match="faces"):
         Mesh(np.zeros((3, 3)), [[0, 1, 3]])
