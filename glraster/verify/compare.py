@@ -181,6 +181,12 @@ def compare(gpu, ref, model: ErrorModel | None = None) -> Report:
     condition GLSL puts on the point they were evaluated at
     (:func:`glraster.verify.interpolation.check_point`), not against one reference point.
     """
+    for name, raster, wanted, what in (
+            ("gpu", gpu, ("resolution", "mask"), "a raster (glraster.rasterize's result)"),
+            ("ref", ref, ("resolution", "mask", "edge_band", "triangles"),
+             "a reference raster (glraster.reference.rasterize's result)")):
+        if not all(hasattr(raster, field) for field in wanted):
+            raise ArgumentError(name, f"{name} must be {what}, got {type(raster).__name__}")
     if tuple(gpu.resolution) != tuple(ref.resolution):
         raise ArgumentError(
             "gpu",

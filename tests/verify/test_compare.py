@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 import glraster as gr
+from glraster.errors import ArgumentError
 from glraster.geometry import synthetic
 from glraster.verify.tolerance import EPS32, ErrorModel, value_tolerance
 
@@ -102,6 +103,20 @@ def test_resolution_and_missing_ids_are_rejected(scene):
     no_ids = gr.reference.rasterize(*scene[:2], (96, 96), outputs=("persp",))
     with pytest.raises(ValueError, match="ref must include the 'tri_id' output"):
         gr.compare(as_gpu(ref), no_ids)
+
+
+def test_arguments_that_are_not_rasters_name_themselves(scene):
+    """gpu and ref swapped, or None for one of them: an ArgumentError naming the argument,
+    not an AttributeError from inside the comparison."""
+    _, _, ref = scene
+    gpu = gr.Raster(resolution=ref.resolution, mask=ref.mask.copy(),
+                    tri_id=ref.tri_id.copy(), persp=ref.persp.astype(np.float32))
+    for args, argument, got in (((gpu, None), "ref", "NoneType"),
+                                ((None, ref), "gpu", "NoneType"),
+                                ((ref, gpu), "ref", type(gpu).__name__)):
+        with pytest.raises(ArgumentError) as err:
+            gr.compare(*args)
+        assert err.value.argument == argument and str(err.value).endswith(f"got {got}")
 
 
 def test_generic_drivers_get_the_subpixel_term():
