@@ -61,6 +61,8 @@ from contextlib import ExitStack, contextmanager
 
 import numpy as np
 
+from glraster.io.destinations import OutputFile
+
 CORE_MODULES = ("rasterize", "interpolate", "texture", "antialias")
 FITS = ("cube4", "cube16", "pose256", "texture", "envmap")
 PHASES = ("python", "validation", "context", "upload", "dispatch", "readback", "torch")
@@ -701,7 +703,8 @@ def main(argv=None) -> int:
     parser.add_argument("--profile-iterations", type=int, default=10,
                         help="fit iterations under cProfile for the host-code hints")
     parser.add_argument("--backend", default=None, help="OpenGL backend (egl, osmesa)")
-    parser.add_argument("--json", default=None, help="also write the figures here")
+    parser.add_argument("--json", action=OutputFile,
+                        default=None, help="also write the figures here")
     args = parser.parse_args(argv)
     for option in ("rounds", "calls", "iterations", "profile_iterations"):
         if getattr(args, option) < 1:

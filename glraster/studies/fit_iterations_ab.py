@@ -342,6 +342,10 @@ def main(argv=None) -> int:
         envmap = (args.envmap_scene, args.envmap_resolution) if args.envmap_scene else None
         serve(args.iterations, args.size, args.cases, envmap)
         return 0
+    # here, not as an argparse action: the worker runs this file on another tree's glraster
+    from glraster.io.destinations import refuse_unwritable
+
+    refuse_unwritable(parser, "--json", args.json)
     if (args.before is None) == (args.before_commit is None):
         parser.error(f"give one of --before PATH or --before-commit COMMIT (e.g. "
                      f"{DEFAULT_BEFORE})")

@@ -40,6 +40,7 @@ import json
 import time
 from pathlib import Path
 
+from glraster.io.destinations import OutputFile
 from glraster.studies import diff_floors, fit_iterations_ab
 from glraster.studies.registry import argument_parser
 
@@ -158,7 +159,8 @@ def build_parser():
     parser.add_argument("--rounds", type=int, default=5,
                         help="interleaved rounds of the floors and the A/B (default 5)")
     parser.add_argument("--backend", default=None, help="OpenGL backend (egl, osmesa)")
-    parser.add_argument("--json", default=None, metavar="FILE", help="also write every "
+    parser.add_argument("--json", action=OutputFile,
+                        default=None, metavar="FILE", help="also write every "
                         "figure and goal here")
     floors_ = parser.add_argument_group("floors")
     floors_.add_argument("--fits", nargs="+", choices=diff_floors.FITS,

@@ -93,8 +93,9 @@ def test_an_unwritable_output_is_one_line_naming_the_file(tmp_path):
     out = blocker / "x.exr"
     result = _glraster("render", "basic_triangle", "--reference", "-o", str(out))
     assert result.returncode == exit_codes.USAGE
-    assert _one_line(result.stderr) == (f"glraster render: error: {out}: cannot create a "
-                                        f"file there ({blocker} is a file, not a folder)")
+    assert _one_line(result.stderr) == (f"glraster render: error: argument -o/--output: "
+                                        f"cannot write {out} ({blocker} is a file, not a "
+                                        f"folder)")
 
 
 # SIGINT at the worst moment: the EXR is fully written to its temporary file, which is
@@ -165,3 +166,28 @@ def test_render_writes_the_exr_and_its_preview_or_neither(tmp_path):
                        "--png", "x.png", cwd=tmp_path)
     assert result.returncode == exit_codes.OK, result.stderr
     assert sorted(os.listdir(tmp_path)) == ["taken", "x.exr", "x.png"]
+
+
+@pytest.mark.parametrize("args, option", [
+    (("fit", "cube", "--json", "taken/fit.json"), "--json"),
+    (("fit", "cube", "--out", "taken"), "--out"),
+    (("check", "--junit", "taken/junit.xml"), "--junit"),
+    (("check", "--html", "taken/report"), "--html"),
+    (("bench", "--quick", "--plot", "taken/pareto.png"), "--plot"),
+    (("stress", "--json", "taken/stress.json"), "--json"),
+    (("batch", "scenes", "taken"), "OUT"),
+    (("study", "speed-goals", "--json", "taken/goals.json"), "--json"),
+])
+def test_an_output_that_cannot_be_written_stops_the_command_before_it_runs(tmp_path, args,
+                                                                           option):
+    """A long run (a fit, the conformance suite, a benchmark) whose output file or folder
+    cannot be made is refused when its command line is parsed (exit 2), not after the
+    run, at its last write."""
+    (tmp_path / "taken").write_text("a file, not a folder")
+    result = _glraster(*args, cwd=tmp_path)
+    assert result.returncode == exit_codes.USAGE, result.stderr
+    assert result.stdout == "", "nothing ran"
+    line = _one_line(result.stderr)
+    assert f"error: argument {option}: cannot write taken" in line, line
+    assert line.endswith("(taken is a file, not a folder)"), line
+    assert sorted(os.listdir(tmp_path)) == ["taken"]

@@ -14,11 +14,12 @@ from __future__ import annotations
 from glraster.cli import exit_codes
 from glraster.cli.commands import add_backend_argument, add_command
 from glraster.errors import ArgumentError
+from glraster.io.destinations import OutputFolder
 
 
 def register(subparsers) -> None:
     p = add_command(subparsers, "antialias-study", __doc__)
-    p.add_argument("--out", default="out/antialias", metavar="DIR",
+    p.add_argument("--out", action=OutputFolder, default="out/antialias", metavar="DIR",
                    help="output directory (out/antialias)")
     p.add_argument("--size", type=int, default=128, metavar="N",
                    help="image width and height in pixels (128)")

@@ -17,13 +17,14 @@ from glraster.cli import exit_codes
 from glraster.cli.errors import describe
 from glraster.cli.commands import add_backend_argument, add_command
 from glraster.errors import ArgumentError
+from glraster.io.destinations import OutputFile, OutputFolder
 
 
 def register(subparsers) -> None:
     p = add_command(subparsers, "batch", __doc__)
     p.add_argument("input", metavar="IN", nargs="?", default=None,
                    help="folder of scene files, .txt list, or .json views file")
-    p.add_argument("output", metavar="OUT", nargs="?", default=None,
+    p.add_argument("output", action=OutputFolder, metavar="OUT", nargs="?", default=None,
                    help="output folder (shards, manifest.jsonl)")
     p.add_argument("--ray", default=None, metavar="ADDRESS",
                    help="Ray cluster address (default: $RAY_ADDRESS, else a local cluster)")
@@ -42,7 +43,8 @@ def register(subparsers) -> None:
                    help="measure instead: 2 actors against 2 in-process loops of rasterize "
                         "(throughput ratio), per-task overhead at 64^2 and 1024^2, head cost "
                         "per task, and .npz against Parquet shards (no IN/OUT)")
-    p.add_argument("--json", default=None, metavar="FILE", help="with --bench: write the figures")
+    p.add_argument("--json", action=OutputFile,
+                   default=None, metavar="FILE", help="with --bench: write the figures")
     p.set_defaults(func=run)
 
 

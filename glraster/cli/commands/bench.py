@@ -16,6 +16,7 @@ from glraster.cli import exit_codes
 from glraster.cli.errors import describe
 from glraster.cli.commands import add_command
 from glraster.io.atomic import write_text
+from glraster.io.destinations import OutputFile
 
 
 def _add_presets(parser) -> None:
@@ -34,8 +35,9 @@ def register(subparsers) -> None:
                    help="comma-separated methods (default: all)")
     p.add_argument("--backend", default="egl", choices=("egl", "osmesa"),
                    help="OpenGL backend (default: egl, the driver pyrender uses too)")
-    p.add_argument("--json", default=None, metavar="FILE", help="write all results as JSON")
-    p.add_argument("--plot", default=None, metavar="FILE",
+    p.add_argument("--json", action=OutputFile,
+                   default=None, metavar="FILE", help="write all results as JSON")
+    p.add_argument("--plot", action=OutputFile, default=None, metavar="FILE",
                    help="write the log-log time/error Pareto plot (PNG)")
     p.add_argument("--no-pyrender", action="store_true", help="skip the pyrender peer")
     p.add_argument("--max-reference-pixels", type=int, default=1 << 24, metavar="N",
@@ -60,7 +62,8 @@ def register(subparsers) -> None:
                    help="interleaved rounds per cell (default: the preset's)")
     d.add_argument("--backend", default="egl", choices=("egl", "osmesa"),
                    help="OpenGL backend (default: egl)")
-    d.add_argument("--json", default=None, metavar="FILE", help="write all results as JSON")
+    d.add_argument("--json", action=OutputFile,
+                   default=None, metavar="FILE", help="write all results as JSON")
     d.set_defaults(func=run_diff)
 
 

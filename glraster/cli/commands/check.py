@@ -13,6 +13,7 @@ import time
 from glraster.cli import exit_codes
 from glraster.cli.errors import describe as describe_error
 from glraster.cli.commands import add_backend_argument, add_command
+from glraster.io.destinations import OutputFile, OutputFolder
 
 
 def register(subparsers) -> None:
@@ -23,8 +24,9 @@ def register(subparsers) -> None:
     p.add_argument("--method", default="hw", metavar="NAME",
                    help="barycentric method to check: hw (default), divw, homogeneous, "
                         "homogeneous64 or solve4; each is judged by its own error model")
-    p.add_argument("--junit", default=None, metavar="FILE", help="write JUnit XML here")
-    p.add_argument("--html", default=None, metavar="DIR",
+    p.add_argument("--junit", action=OutputFile,
+                   default=None, metavar="FILE", help="write JUnit XML here")
+    p.add_argument("--html", action=OutputFolder, default=None, metavar="DIR",
                    help="write an HTML report (DIR/index.html)")
     p.add_argument("--mutants", nargs="?", const="all", default=None, metavar="PATTERN",
                    help="also run the fault-injection mutants (all, or matching PATTERN); "

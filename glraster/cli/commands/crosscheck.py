@@ -9,6 +9,7 @@ import json
 
 from glraster.cli import exit_codes
 from glraster.cli.commands import add_backend_argument, add_command
+from glraster.io.destinations import OutputFile
 
 
 def register(subparsers) -> None:
@@ -32,7 +33,8 @@ def register(subparsers) -> None:
                    help="pixels excluded around silhouettes and depth jumps (1)")
     q.add_argument("--max-median", type=float, default=1e-4,
                    help="fail if the median relative difference exceeds this (1e-4)")
-    q.add_argument("--json", metavar="PATH", help="also write the report as JSON")
+    q.add_argument("--json", action=OutputFile,
+                   metavar="PATH", help="also write the report as JSON")
     add_backend_argument(q)
     q.set_defaults(func=_pyrender)
 

@@ -12,12 +12,14 @@ from pathlib import Path
 
 from glraster.cli import exit_codes
 from glraster.cli.commands import add_backend_argument, add_command
+from glraster.io.destinations import OutputFolder
 
 
 def register(subparsers) -> None:
     p = add_command(subparsers, "demo", __doc__)
     add_backend_argument(p)
-    p.add_argument("--out", default="out", help="folder for reports and figures (default: out)")
+    p.add_argument("--out", action=OutputFolder,
+                   default="out", help="folder for reports and figures (default: out)")
     p.add_argument("--quick", action="store_true",
                    help="only the GPU-vs-reference comparison, no check or figure")
     p.set_defaults(func=run)

@@ -9,11 +9,12 @@ from __future__ import annotations
 
 from glraster.cli import exit_codes
 from glraster.cli.commands import add_backend_argument, add_command
+from glraster.io.destinations import OutputFolder
 
 
 def register(subparsers) -> None:
     p = add_command(subparsers, "distortion", __doc__)
-    p.add_argument("--out", default="out/distortion", metavar="DIR",
+    p.add_argument("--out", action=OutputFolder, default="out/distortion", metavar="DIR",
                    help="output directory (out/distortion)")
     p.add_argument("--width", type=int, default=480, help="image width per panel (480)")
     p.add_argument("--height", type=int, default=360, help="image height per panel (360)")

@@ -28,6 +28,7 @@ from pathlib import Path
 from glraster.cli import exit_codes
 from glraster.cli.commands import add_backend_argument, add_command
 from glraster.errors import ArgumentError
+from glraster.io.destinations import OutputFile, OutputFolder
 
 CUBE_GOAL = 0.05    # mean vertex error
 ENVMAP_COLOR_GOAL = 0.01     # mean |colour - true| over kd and ks
@@ -115,9 +116,10 @@ def register(subparsers) -> None:
         q.add_argument("--first-seed", type=int, default=0, help="first seed (0)")
         q.add_argument("--iterations", type=int, default=iterations,
                        help=f"optimizer steps per run ({iterations})")
-        q.add_argument("--out", default=f"out/fit/{out_name}", metavar="DIR",
+        q.add_argument("--out", action=OutputFolder, default=f"out/fit/{out_name}", metavar="DIR",
                        help=f"where the PNGs go (out/fit/{out_name})")
-        q.add_argument("--json", default=None, metavar="FILE", help="write the results as JSON")
+        q.add_argument("--json", action=OutputFile,
+                       default=None, metavar="FILE", help="write the results as JSON")
         q.add_argument("--threads", type=int, default=1,
                        help="torch CPU threads (1: the tensors are small, and llvmpipe "
                             "needs the cores; torch only)")

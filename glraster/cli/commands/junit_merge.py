@@ -13,12 +13,13 @@ import sys
 
 from glraster.cli import exit_codes
 from glraster.cli.commands import add_command
+from glraster.io.destinations import OutputFile
 
 
 def register(subparsers) -> None:
     p = add_command(subparsers, "junit-merge", __doc__)
     p.add_argument("inputs", nargs="+", metavar="JUNIT.xml", help="the shards' JUnit files")
-    p.add_argument("-o", "--output", required=True, metavar="OUT.xml",
+    p.add_argument("-o", "--output", action=OutputFile, required=True, metavar="OUT.xml",
                    help="merged JUnit file to write")
     p.set_defaults(func=run)
 

@@ -15,13 +15,15 @@ from glraster.cli import exit_codes
 from glraster.cli.errors import describe
 from glraster.cli.commands import add_backend_argument, add_command
 from glraster.errors import ArgumentError
+from glraster.io.destinations import OutputFile
 
 
 def register(subparsers) -> None:
     p = add_command(subparsers, "render", __doc__)
     p.add_argument("scene", metavar="SCENE_OR_FILE",
                    help="catalog scene name (see 'glraster check --list') or scene file")
-    p.add_argument("-o", "--output", required=True, metavar="OUT.exr", help="EXR to write")
+    p.add_argument("-o", "--output", action=OutputFile,
+                   required=True, metavar="OUT.exr", help="EXR to write")
     add_backend_argument(p)
     p.add_argument("--outputs", default=None, metavar="LIST",
                    help="comma-separated subset of persp,screen,depth,tri_id "
@@ -30,7 +32,7 @@ def register(subparsers) -> None:
                    help="write the float64 reference (rounded to float32) instead of the GPU")
     p.add_argument("--crop", action="store_true",
                    help="store only the bounding box of covered pixels (lossless)")
-    p.add_argument("--png", default=None, metavar="OUT.png",
+    p.add_argument("--png", action=OutputFile, default=None, metavar="OUT.png",
                    help="also write a preview PNG of the perspective barycentrics")
     p.add_argument("--server", default=None, metavar="URL",
                    help="render on a glraster service (glraster serve) instead of a local "

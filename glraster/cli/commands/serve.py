@@ -15,6 +15,7 @@ import sys
 from glraster.cli import exit_codes
 from glraster.cli.commands import add_backend_argument, add_command
 from glraster.errors import ArgumentError
+from glraster.io.destinations import OutputFile
 
 
 def register(subparsers) -> None:
@@ -69,7 +70,8 @@ def register(subparsers) -> None:
     b.add_argument("--quick", action="store_true", help="small counts (a smoke run, ~20 s)")
     b.add_argument("--memory-requests", type=int, default=10_000, metavar="N",
                    help="requests of the memory run (default 10000; 0 skips it)")
-    b.add_argument("--json", default=None, metavar="FILE", help="write the figures as JSON")
+    b.add_argument("--json", action=OutputFile,
+                   default=None, metavar="FILE", help="write the figures as JSON")
     b.set_defaults(func=run_bench)
 
 

@@ -14,6 +14,7 @@ import sys
 
 from glraster.cli import exit_codes
 from glraster.cli.commands import add_backend_argument, add_command
+from glraster.io.destinations import OutputFile
 
 
 def register(subparsers) -> None:
@@ -23,8 +24,10 @@ def register(subparsers) -> None:
                    help="comma-separated sweeps (default: all of origin, origin_y, origin_xy, origin_w1, "
                         "w_ratio, aspect, size, near, extent, scale)")
     p.add_argument("--methods", default=None, metavar="LIST", help="comma-separated methods")
-    p.add_argument("--json", default=None, metavar="FILE", help="write the curves as JSON")
-    p.add_argument("--plot", default=None, metavar="FILE", help="write the curves as PNG")
+    p.add_argument("--json", action=OutputFile,
+                   default=None, metavar="FILE", help="write the curves as JSON")
+    p.add_argument("--plot", action=OutputFile,
+                   default=None, metavar="FILE", help="write the curves as PNG")
     p.set_defaults(func=run)
 
 
