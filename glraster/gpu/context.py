@@ -113,6 +113,8 @@ class Context:
     max_texture_size : int    largest width or height glraster can render
     subpixel_bits : int       GL_SUBPIXEL_BITS
     mgl : moderngl.Context    the underlying moderngl context; use it inside ``with ctx:``
+    released : bool           True after :meth:`release`; then every use raises an
+                              ArgumentError naming ``ctx``
 
     ``with ctx:`` (and every call: rasterize, gl_error, release_targets, release ...) makes
     this context current and afterwards makes current again whatever context was current
@@ -136,6 +138,7 @@ class Context:
         self._backend, self.mgl = create_backend(backend)
         self.backend = self._backend.name
         self._lock = threading.RLock()
+        self.released = False   # set by release(); a released context does no more GL work
         self._programs: dict = {}
         self._compute: dict = {}
         self._framebuffers: OrderedDict = OrderedDict()
@@ -232,6 +235,9 @@ class Context:
 
     # -- making the context current -------------------------------------------------------
     def __enter__(self):
+        if self.released:
+            raise ArgumentError("ctx", f"{self!r} was released (Context.release()); make a new "
+                                       f"glraster.Context")
         self._lock.acquire()
         stack = _entered()
         # directly inside a block of this context: it is current already, nothing to switch
@@ -431,7 +437,10 @@ class Context:
         )
 
     def release(self):
-        """Release every GL object and the context itself."""
+        """Release every GL object and the context itself (once: a second call does
+        nothing). The default context (:func:`default_context`) is made anew after it."""
+        if self.released:
+            return
         with self:
             for program, vao in self._programs.values():
                 vao.release()
@@ -453,6 +462,7 @@ class Context:
         self.uploads.clear()
         self.mgl.release()
         self._backend.release()
+        self.released = True
 
     def __repr__(self):
         return f"glraster.Context(backend={self.backend!r}, renderer={self.renderer!r})"
@@ -477,7 +487,7 @@ def default_context() -> Context:
     """The process-wide context, made on first use (backend from ``$GLRASTER_BACKEND``)."""
     global _default_context
     with _default_lock:
-        if _default_context is None:
+        if _default_context is None or _default_context.released:
             _default_context = Context(backend=None)
         return _default_context
 

@@ -124,3 +124,30 @@ def test_release_targets_frees_the_framebuffers_and_rendering_goes_on(ctx):
     after = gr.rasterize(pos, tri, (24, 24), ctx=ctx)   # the next call allocates again
     np.testing.assert_array_equal(before.persp, after.persp)
     np.testing.assert_array_equal(before.tri_id, after.tri_id)
+
+
+def test_a_released_context_says_so_and_the_default_is_made_anew(gl_backend, monkeypatch):
+    """After release() every use of a context is an ArgumentError naming ctx (not moderngl's
+    AttributeError of an InvalidObject); a second release does nothing; a released default
+    context is replaced by a new one on the next call that needs it."""
+    import glraster.gpu.context as context_module
+    from glraster.errors import ArgumentError
+
+    pos, tri = synthetic.random_soup(2, seed=0)
+    ctx = gr.Context(gl_backend)
+    ctx.release()
+    assert ctx.released
+    with pytest.raises(ArgumentError) as err:
+        gr.rasterize(pos, tri, (16, 16), ctx=ctx)
+    assert err.value.argument == "ctx" and "was released" in str(err.value)
+    ctx.release()
+
+    released_default = gr.Context(gl_backend)
+    released_default.release()
+    monkeypatch.setattr(context_module, "_default_context", released_default)
+    fresh = default_context()
+    try:
+        assert fresh is not released_default and not fresh.released
+        assert gr.rasterize(pos, tri, (16, 16), ctx=fresh).mask.any()
+    finally:
+        fresh.release()
