@@ -20,6 +20,7 @@ OpenGL.
 from __future__ import annotations
 
 import json
+import math
 import sys
 import time
 from contextlib import contextmanager
@@ -90,7 +91,19 @@ def _positive(name: str, value: int) -> int:
 
 
 def _seeds(args) -> list[int]:
+    if args.first_seed < 0:
+        raise ArgumentError("--first-seed", f"--first-seed must be >= 0, got {args.first_seed}")
     return list(range(args.first_seed, args.first_seed + _positive("seeds", args.seeds)))
+
+
+def _check_learning_rates(args) -> None:
+    """Every learning-rate option the problem has (--lr, --exponent-lr, --env-lr) is a
+    finite number > 0 (Adam refuses others in words that name no option)."""
+    for name in ("lr", "exponent_lr", "env_lr"):
+        value = getattr(args, name, None)
+        if value is not None and not (math.isfinite(value) and value > 0):
+            flag = "--" + name.replace("_", "-")
+            raise ArgumentError(flag, f"{flag} must be a finite number > 0, got {value}")
 
 
 def _no_antialias(q) -> None:
@@ -205,6 +218,7 @@ def _session(args):
     glraster.jax.fitting.common.session)."""
     _positive("threads", args.threads)
     _positive("iterations", args.iterations)
+    _check_learning_rates(args)
     if args.framework == "jax":
         from glraster.jax.fitting.common import session
 
@@ -366,10 +380,6 @@ def _run_envmap(args) -> int:
     if len(mesh) != 2 or min(mesh) < 3:
         raise ArgumentError("--mesh", f"--mesh must be two integers >= 3 (longitudes,"
                                       f"latitudes), got {args.mesh!r}")
-    for name in ("lr", "exponent_lr", "env_lr"):
-        if not getattr(args, name) > 0:
-            flag = "--" + name.replace("_", "-")
-            raise ArgumentError(flag, f"{flag} must be > 0, got {getattr(args, name)}")
     with _session(args) as glctx:
         scene = envmap.make_scene(glctx, mesh=tuple(mesh), env_size=args.env_size)
         fits = []
