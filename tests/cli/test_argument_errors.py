@@ -65,3 +65,24 @@ def test_an_option_check_of_the_cli_is_one_line_naming_the_option(capsys, tmp_pa
     assert capsys.readouterr().err.strip() == (
         "glraster antialias-study: error: --size must be at least 16 pixels, got 8")
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("argv, line", [
+    (["distortion", "--width", "0"], "glraster distortion: error: --width must be >= 1, got 0"),
+    (["distortion", "--supersample", "0"],
+     "glraster distortion: error: --supersample must be >= 1, got 0"),
+    (["distortion", "--height", "100000"],
+     "glraster distortion: error: --height 100000 x --supersample 3 = 300000 pixels exceeds "
+     "the driver's maximum of {limit}"),
+    (["serve", "--queue", "-1"],
+     "glraster serve: error: argument --queue: queue_size must be an integer >= 0, got -1"),
+])
+def test_size_and_service_options_are_named_in_their_errors(argv, line, capsys, tmp_path,
+                                                            gl_context, monkeypatch):
+    """The panels of `distortion` are --width x --height each, rendered at --supersample
+    times that: an error names those options, not the internal aspect or resolution."""
+    monkeypatch.setenv("GLRASTER_BACKEND", gl_context.backend)
+    assert main([*argv, *(["--out", str(tmp_path / "d")] if argv[0] == "distortion" else [])]) \
+        == exit_codes.USAGE
+    assert capsys.readouterr().err.strip() == line.format(limit=gl_context.max_texture_size)
+    assert not (tmp_path / "d").exists()

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from glraster.cli import exit_codes
 from glraster.cli.commands import add_backend_argument, add_command
+from glraster.errors import ArgumentError
 from glraster.io.destinations import OutputFolder
 
 
@@ -28,7 +29,17 @@ def _run(args) -> int:
     from glraster.gpu.context import Context
     from glraster.studies.distortion import write_comparison
 
+    for name in ("width", "height", "supersample"):
+        if getattr(args, name) < 1:
+            raise ArgumentError(f"--{name}", f"--{name} must be >= 1, got {getattr(args, name)}")
     ctx = Context(backend=args.backend)
+    # the panels are rendered at supersample times their size, then box-filtered
+    for name in ("width", "height"):
+        rendered = getattr(args, name) * args.supersample
+        if rendered > ctx.max_texture_size:
+            raise ArgumentError(f"--{name}", f"--{name} {getattr(args, name)} x --supersample "
+                                             f"{args.supersample} = {rendered} pixels exceeds "
+                                             f"the driver's maximum of {ctx.max_texture_size}")
     summary = write_comparison(args.out, (args.height, args.width), args.supersample, ctx=ctx)
     print("\n".join(summary["text"]))
     for name, st in summary["scenes"].items():

@@ -25,7 +25,7 @@ def register(subparsers) -> None:
     p.add_argument("--port", type=int, default=8642, help="port (default 8642; 0: any free)")
     p.add_argument("--workers", type=int, default=None,
                    help="GL worker processes (default: one per available core)")
-    p.add_argument("--queue", type=int, default=None, metavar="N",
+    p.add_argument("--queue", dest="queue_size", type=int, default=None, metavar="N",
                    help="requests that may wait for a worker (default 4 per worker)")
     p.add_argument("--token-file", default=None, metavar="FILE",
                    help="require 'Authorization: Bearer TOKEN' with a token from FILE (one per "
@@ -97,7 +97,7 @@ def _config(args):
         raise ArgumentError("--max-body", "--max-body must be at least 1 KiB")
     return ServiceConfig(
         host=args.host, port=args.port, workers=workers,
-        queue_size=args.queue if args.queue is not None else 4 * workers,
+        queue_size=args.queue_size if args.queue_size is not None else 4 * workers,
         backend=args.backend, tokens=tokens, limits=limits, deadline=args.deadline,
         check_deadline=args.check_deadline, body_timeout=args.body_timeout,
         drain_timeout=args.drain_timeout, log_level=args.log_level)
