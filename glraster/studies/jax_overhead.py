@@ -117,6 +117,9 @@ def main(argv=None) -> int:
     parser.add_argument("--calls", type=int, default=20, help="calls per round (20)")
     parser.add_argument("--backend", default=None, help="OpenGL backend (auto)")
     args = parser.parse_args(argv)
+    for option in ("size", "rounds", "calls"):
+        if getattr(args, option) < 1:
+            parser.error(f"--{option} must be at least 1, got {getattr(args, option)}")
     from glraster.gpu.context import Context
 
     ctx = Context(backend=args.backend)

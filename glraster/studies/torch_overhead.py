@@ -176,6 +176,10 @@ def main(argv=None) -> int:
         return 0
     if (args.before is None) == (args.before_commit is None):
         parser.error("give one of --before PATH or --before-commit COMMIT")
+    for option, value in (("sizes", min(args.sizes)), ("rounds", args.rounds),
+                          ("calls", args.calls)):
+        if value < 1:
+            parser.error(f"--{option} must be at least 1, got {value}")
     with tempfile.TemporaryDirectory() as tmp:
         before = args.before
         if before is None:

@@ -97,6 +97,9 @@ def test_a_command_study_does_not_run_outside_the_cli():
     (["texture-mip-reuse", "--sizes", "12"], "--sizes must be powers of two >= 2, got 12"),
     (["texture-baseline", "--repeat", "0"], "--repeat must be >= 1, got 0"),
     (["metrics-ab", "--rounds", "0"], "--rounds must be at least 1, got 0"),
+    (["jax-overhead", "--size", "0"], "--size must be at least 1, got 0"),
+    (["torch-overhead", "--before-commit", "HEAD", "--calls", "0"],
+     "--calls must be at least 1, got 0"),
 ])
 def test_bad_options_are_usage_errors_naming_the_option(argv, message, capsys):
     _needs_extra(argv[0])
