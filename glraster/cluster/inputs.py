@@ -124,7 +124,9 @@ def _views(path: str) -> dict:
             else:
                 raise ValueError("needs view/proj, K/R/t/near/far or eye/target/fovy/near/far")
             cameras.append((validate.matrix4("view", view), validate.matrix4("proj", proj)))
-        except (KeyError, TypeError, ValueError) as exc:
+        except KeyError as exc:
+            raise ArgumentError("path", f"{path}: camera {i} lacks {exc}") from None
+        except (TypeError, ValueError) as exc:
             raise ArgumentError("path", f"{path}: camera {i}: {exc}") from None
     outputs = tuple(data.get("outputs", ("persp", "screen", "depth", "tri_id")))
     return {"mesh": mesh, "resolution": resolution, "outputs": validate.outputs(outputs),

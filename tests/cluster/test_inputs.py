@@ -48,7 +48,7 @@ def test_a_views_file_is_one_scene_per_camera_projected_as_the_camera_module_doe
 
 def test_bad_views_and_sources_name_what_is_wrong(tmp_path):
     path, _, _ = _views(tmp_path, [{"eye": [0, 0, 4]}])
-    with pytest.raises(ValueError, match="camera 0"):
+    with pytest.raises(ValueError, match="camera 0 lacks .target."):
         inputs.list_items(path)
     with pytest.raises(ValueError, match="does not exist"):
         inputs.list_items(tmp_path / "nothing")
