@@ -191,3 +191,32 @@ def test_an_output_that_cannot_be_written_stops_the_command_before_it_runs(tmp_p
     assert f"error: argument {option}: cannot write taken" in line, line
     assert line.endswith("(taken is a file, not a folder)"), line
     assert sorted(os.listdir(tmp_path)) == ["taken"]
+
+
+def test_every_option_that_names_an_output_is_checked_before_the_run():
+    """Every --json/--plot/--junit/--html/--png/--out/-o FILE of every command is an
+    OutputFile or OutputFolder action (refused at parse time when it cannot be made), so
+    that a new command's output option cannot skip the check."""
+    import argparse
+
+    from glraster.cli import build_parser
+    from glraster.io.destinations import OutputFile
+
+    outputs = {"json", "plot", "junit", "html", "png", "out", "output"}
+    unchecked, checked = [], 0
+
+    def walk(parser, prog):
+        nonlocal checked
+        for action in parser._actions:   # argparse offers no public list of them
+            if isinstance(action, argparse._SubParsersAction):
+                for name, sub in action.choices.items():
+                    walk(sub, f"{prog} {name}")
+            elif action.dest in outputs and action.nargs != 0:
+                if isinstance(action, OutputFile):
+                    checked += 1
+                else:
+                    unchecked.append(f"{prog} {'/'.join(action.option_strings) or action.dest}")
+
+    walk(build_parser(), "glraster")
+    assert not unchecked, unchecked
+    assert checked >= 20
