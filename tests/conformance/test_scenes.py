@@ -151,6 +151,10 @@ def test_bad_file_types_and_npz(tmp_path):
     np.savez(tmp_path / "m.npz", pos=np.zeros((3, 4)))
     with pytest.raises(ValueError, match="missing array"):
         load_scene_file(tmp_path / "m.npz")
+    np.savez(tmp_path / "o.npz", pos=np.zeros((3, 4)), tri=np.array([[0, 1, 2]], object),
+             resolution=[8, 8])                 # object arrays would need pickle
+    with pytest.raises(ValueError, match=r"o.npz: array 'tri' cannot be read \(Object arrays"):
+        load_scene_file(tmp_path / "o.npz")
     (tmp_path / "j.json").write_text("{not json")
     with pytest.raises(ValueError, match="invalid JSON"):
         load_scene_file(tmp_path / "j.json")

@@ -202,8 +202,16 @@ def load_scene_file(path) -> Scene:
             if missing:
                 raise ArgumentError("path", f"{src}: missing array(s) {', '.join(missing)} "
                                             f"(found: {', '.join(data.files) or 'none'})")
-            name = str(data["name"]) if "name" in data.files else path.stem
-            return make_scene(name, data["pos"], data["tri"], data["resolution"],
+            arrays = {}
+            for key in ("pos", "tri", "resolution", "name"):
+                if key in data.files:
+                    try:
+                        arrays[key] = data[key]
+                    except ValueError as exc:   # an object array needs pickle: refused
+                        raise ArgumentError("path", f"{src}: array {key!r} cannot be read "
+                                                    f"({exc})") from None
+            name = str(arrays["name"]) if "name" in arrays else path.stem
+            return make_scene(name, arrays["pos"], arrays["tri"], arrays["resolution"],
                               source=src)
     if suffix == ".json":
         try:
