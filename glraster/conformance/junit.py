@@ -20,6 +20,7 @@ import xml.etree.ElementTree as ET
 from datetime import datetime, timezone
 from pathlib import Path
 
+from glraster.errors import ArgumentError
 from glraster.io.atomic import atomic_write
 
 
@@ -187,8 +188,14 @@ def merge(sources) -> ET.ElementTree:
     groups: dict = {}
     order = []
     for src in sources:
-        tree = src if isinstance(src, ET.ElementTree) else ET.parse(src)
+        try:
+            tree = src if isinstance(src, ET.ElementTree) else ET.parse(src)
+        except ET.ParseError as exc:
+            raise ArgumentError("inputs", f"{src}: not well-formed XML ({exc})") from None
         root = tree.getroot()
+        if root.tag not in ("testsuites", "testsuite"):
+            raise ArgumentError("inputs", f"{src}: not a JUnit file (its root element is "
+                                          f"<{root.tag}>, not <testsuites> or <testsuite>)")
         suites = [root] if root.tag == "testsuite" else list(root.iterfind("testsuite"))
         for suite in suites:
             props = _props(suite)

@@ -99,6 +99,22 @@ def test_merge_command_fails_on_failed_cases_and_writes_the_file(tmp_path):
     assert not (tmp_path / "partial.xml").exists()
 
 
+def test_merge_refuses_a_file_that_is_not_junit_naming_it(tmp_path, capsys):
+    """Another XML file among the inputs (or no XML at all) is bad input naming the file
+    (exit 2), not an empty merge that a CI job would read as passing."""
+    from glraster.cli import main
+
+    (tmp_path / "coverage.xml").write_text("<coverage/>")
+    (tmp_path / "empty.xml").write_text("")
+    for name, words in (("coverage.xml", "not a JUnit file (its root element is <coverage>"),
+                        ("empty.xml", "not well-formed XML (no element found")):
+        assert main(["junit-merge", str(tmp_path / name), "-o",
+                     str(tmp_path / "merged.xml")]) == 2
+        err = capsys.readouterr().err
+        assert f"argument JUNIT.xml: {tmp_path / name}: {words}" in err, err
+    assert not (tmp_path / "merged.xml").exists()
+
+
 def test_sharded_check_runs_merge_into_the_unsharded_run(gl_backend, tmp_path):
     """Three shards of a real check (with the mutant pass in shard 1) merge into the cases
     of one unsharded run."""
