@@ -29,9 +29,12 @@ _log = logging.getLogger(__name__)
 
 
 def _source_key(tex: torch.Tensor) -> tuple:
-    """``tex``'s memory, view and version counter (bumped by every in-place change)."""
+    """``tex``'s memory, view and version counter (bumped by every in-place change). An
+    inference tensor (made under torch.inference_mode) has no version counter: its key
+    matches no other, so levels built from it are rebuilt on every use."""
+    version = object() if tex.is_inference() else tex._version
     return (tex.untyped_storage().data_ptr(), tex.storage_offset(), tuple(tex.shape),
-            tuple(tex.stride()), tex.dtype, tex._version)
+            tuple(tex.stride()), tex.dtype, version)
 
 
 def _shapes(levels) -> str:
@@ -61,7 +64,7 @@ class TextureMip:
         with self._lock, torch.no_grad():
             if _source_key(tex) == self._key:
                 return self.levels
-            if self._key is not None:
+            if self._key is not None and not tex.is_inference():
                 _log.warning("texture: mip= was built from another texture or before an "
                              "in-place change of this one: rebuilding it (call "
                              "texture_construct_mip again after changing the texture, or "
