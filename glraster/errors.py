@@ -107,3 +107,14 @@ def needs_extra(user: str, exc: ModuleNotFoundError) -> ModuleNotFoundError:
         return exc
     return ModuleNotFoundError(f"{user} needs {exc.name}: pip install 'glraster[{extra}]'",
                                name=exc.name)
+
+
+def require_extra(module: str, user: str) -> None:
+    """Import ``module`` for ``user`` (a front end of glraster), or raise
+    :func:`needs_extra`'s error naming the pip extra that installs it."""
+    import importlib
+
+    try:
+        importlib.import_module(module)
+    except ModuleNotFoundError as exc:
+        raise needs_extra(user, exc) from None

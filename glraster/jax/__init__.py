@@ -16,12 +16,9 @@ leading axis becomes the op's batch axis). float32 arrays run on OpenGL, float64
 :mod:`glraster.jax.bridge`; docs/jax.md.
 """
 
-from glraster.errors import needs_extra
+from glraster.errors import require_extra
 
-try:
-    import jax  # noqa: F401  (first, so that without it the error names the extra)
-except ModuleNotFoundError as exc:
-    raise needs_extra("glraster.jax", exc) from None
+require_extra("jax", "glraster.jax")  # first: without jax, the error names the extra
 
 from glraster.diff.log import get_log_level, set_log_level
 from glraster.jax.antialias import antialias, antialias_construct_topology_hash
