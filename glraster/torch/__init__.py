@@ -4,16 +4,13 @@ tensors; float32 runs on OpenGL, float64 through the float64 reference (for grad
 Layouts: :mod:`glraster.torch.ops`, :mod:`glraster.torch.texture`; docs/differentiable.md.
 """
 
-from glraster.errors import needs_extra
+from glraster.diff.log import get_log_level, set_log_level
+from glraster.errors import require_extra
 
-try:
-    import torch  # noqa: F401  (first, so that without it the error names the extra)
-except ModuleNotFoundError as exc:
-    raise needs_extra("glraster.torch", exc) from None
+require_extra("torch", "glraster.torch")  # first: without torch, the error names the extra
 
 from glraster.torch.antialias import antialias, antialias_construct_topology_hash
 from glraster.torch.context import RasterizeCudaContext, RasterizeGLContext
-from glraster.torch.log import get_log_level, set_log_level
 from glraster.torch.ops import DepthPeeler, interpolate, rasterize
 from glraster.torch.texture import TextureMip, texture, texture_construct_mip
 

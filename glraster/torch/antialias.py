@@ -15,6 +15,7 @@ from glraster.diff.ops import ANTIALIAS
 from glraster.torch import bridge
 
 
+@bridge.eager
 def antialias_construct_topology_hash(tri, *, pos=None):
     """The topology hash of ``tri`` (nvdiffrast's ``antialias_construct_topology_hash``):
     build it once for triangles that do not change and pass it to :func:`antialias`.
@@ -27,6 +28,7 @@ def antialias_construct_topology_hash(tri, *, pos=None):
                  pos=None if pos is None else bridge.tensor("pos", pos))
 
 
+@bridge.eager
 def antialias(color, rast, pos, tri, topology_hash=None, pos_gradient_boost=1.0, *,
               glctx=None, convex=True):
     """Antialias ``color`` across the mesh's silhouette edges (nvdiffrast's ``antialias``).

@@ -35,6 +35,11 @@ INTEGER_PARAMS = ("tri", "ranges")  # checked, known and saved like the inputs
 KEYED_BYTES = 1024  # smaller tensors are not keyed: a key costs more than their upload
 
 
+# The public ops' decorator: under torch.compile, TorchDynamo runs them as written (a graph
+# break), as their NumPy views of tensors cannot be of its fake ones (test_compile.py).
+eager = torch.compiler.disable
+
+
 def tensor(name: str, value, dtypes=FLOATS) -> np.ndarray:
     """A NumPy view of ``value``, once it is a dense CPU tensor of one of ``dtypes``."""
     if not isinstance(value, torch.Tensor):
@@ -82,8 +87,8 @@ def upload_entry(value: torch.Tensor, owner=None):
     """``(region, key, owner)`` of a contiguous tensor of KEYED_BYTES or more (else None) for
     :mod:`glraster.gpu.uploads`: the key names the tensor (a view's base: the owner, held
     weakly, or ``owner``), address, version (bumped in place, shared by views), shape, dtype."""
-    if (value is None or value.nbytes < KEYED_BYTES or not value.is_contiguous()
-            or value.is_inference()):   # (torch.inference_mode's tensors have no version)
+    if value is None or value.nbytes < KEYED_BYTES or not value.is_contiguous() \
+            or value.is_inference():   # (inference tensors have no version counter)
         return None
     base = value._base if value._base is not None else value
     address = value.data_ptr()
@@ -131,11 +136,8 @@ class Call:
         core, held = self.op.core(self.dtype), (*self.inputs, *self.kept)
         entries = self.entries if forward is None else [*map(upload_entry, held)]  # (layers)
         gl = self.params["ctx"] if self.dtype == np.float32 else None
-        # (a peeler's layers are not; nor are calls on inference tensors, which have no
-        # version counter to tell an in-place change by)
-        repeatable = (gl is not None and forward is None
-                      and not torch.is_inference_mode_enabled()
-                      and not any(t is not None and t.is_inference() for t in held))
+        repeatable = gl is not None and forward is None and not torch.is_inference_mode_enabled() \
+            and not any(t is not None and t.is_inference() for t in held)  # (nor peelers')
         forward = forward or functools.partial(core.forward, *self.arrays, **self.params)
         how = (core, self.dtype, self.frozen, gl, len(self.inputs), entries)
         if torch.is_grad_enabled() and any(t is not None and t.requires_grad for t in self.inputs):

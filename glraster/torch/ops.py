@@ -34,6 +34,7 @@ def _rasterize_call(glctx, pos, tri, resolution, ranges, grad_db):
                        frozen=() if bridge.flag("grad_db", grad_db) else (1,))
 
 
+@bridge.eager
 def rasterize(glctx, pos, tri, resolution, ranges=None, grad_db=True):
     """Rasterize triangles (nvdiffrast's ``rasterize``): ``(rast, rast_db)`` of pos'
     dtype, B = 1 for 2-D pos without ranges (layouts in the module docstring).
@@ -49,6 +50,7 @@ def rasterize(glctx, pos, tri, resolution, ranges=None, grad_db=True):
     return call()
 
 
+@bridge.eager
 def interpolate(attr, rast, tri, rast_db=None, diff_attrs=None, *, glctx=None):
     """Interpolate vertex attributes (nvdiffrast's ``interpolate``): ``(out, out_da)``.
 
@@ -77,6 +79,7 @@ class DepthPeeler(PeelerScope):
     ``rasterize`` on its context raises RuntimeError.
     """
 
+    @bridge.eager
     def __init__(self, glctx, pos, tri, resolution, ranges=None, grad_db=True):
         self._call = _rasterize_call(glctx, pos, tri, resolution, ranges, grad_db)
         self.raster_ctx = glctx
@@ -85,6 +88,7 @@ class DepthPeeler(PeelerScope):
     def _open(self):
         self._peeler = depth_peeler(*self._call.arrays, **self._call.params)
 
+    @bridge.eager
     def rasterize_next_layer(self):
         """The next layer's ``(rast, rast_db)``; layouts as :func:`rasterize`'s."""
         if self._peeler is None:

@@ -29,12 +29,10 @@ _log = logging.getLogger(__name__)
 
 
 def _source_key(tex: torch.Tensor) -> tuple:
-    """``tex``'s memory, view and version counter (bumped by every in-place change). An
-    inference tensor (made under torch.inference_mode) has no version counter: its key
-    matches no other, so levels built from it are rebuilt on every use."""
-    version = object() if tex.is_inference() else tex._version
+    """``tex``'s memory, view and version counter (bumped by every in-place change; an
+    inference tensor has none: its key matches no other, its levels are made anew)."""
     return (tex.untyped_storage().data_ptr(), tex.storage_offset(), tuple(tex.shape),
-            tuple(tex.stride()), tex.dtype, version)
+            tuple(tex.stride()), tex.dtype, object() if tex.is_inference() else tex._version)
 
 
 def _shapes(levels) -> str:
@@ -92,6 +90,7 @@ class TextureMip:
                 f"max_mip_level={self.max_mip_level}, cube_mode={self.cube_mode})")
 
 
+@bridge.eager
 def texture_construct_mip(tex, max_mip_level=None, cube_mode=False, *, glctx=None):
     """The mip pyramid of ``tex`` (the box filter ``texture`` builds) as a :class:`TextureMip`
     (nvdiffrast's ``texture_construct_mip``); float32 builds on ``glctx`` (glraster's)."""
@@ -146,6 +145,7 @@ def _levels(tex, mip, uv_da, mip_level_bias, filter_mode, boundary_mode, max_mip
     return (tuple(mip.levels_for(tex)) if mipmapped else ()), mipmapped
 
 
+@bridge.eager
 def texture(tex, uv, uv_da=None, mip_level_bias=None, mip=None, filter_mode="auto",
             boundary_mode="wrap", max_mip_level=None, *, glctx=None):
     """Filtered texture lookups (nvdiffrast's ``texture``): ``out`` (layouts above).
