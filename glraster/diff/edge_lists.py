@@ -10,9 +10,9 @@ pair): the order the shaders' lists have always had, so their results do not cha
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
+from glraster import jit
 from glraster.diff import recycle
 
 __all__ = ["pair_lists", "put_rows", "take_rows"]
@@ -65,7 +65,7 @@ def put_rows(values: np.ndarray, first: int, pixels: np.ndarray, rows: np.ndarra
     _put_rows(values[first:], pixels, rows)
 
 
-_compiled = numba.njit(cache=True, nogil=True)
+_compiled = jit.njit(nogil=True)
 
 
 @_compiled

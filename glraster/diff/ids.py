@@ -15,9 +15,9 @@ tests/gpu/test_shaders.py checks that both write and read the same bits.
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
+from glraster import jit
 from glraster.errors import ArgumentError
 
 __all__ = ["EXACT_FLOAT_IDS", "ID_BIAS", "MAX_ID", "decode_ids", "encode_ids"]
@@ -73,7 +73,7 @@ def decode_ids(values, name: str = "rast id channel") -> np.ndarray:
     return ids
 
 
-_compiled = numba.njit(cache=True, nogil=True)
+_compiled = jit.njit(nogil=True)
 
 
 @_compiled

@@ -8,10 +8,11 @@ error model for the conditioning of clipped triangles.
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
-_compiled = numba.njit(cache=True, nogil=True, error_model="numpy")
+from glraster import jit
+
+_compiled = jit.njit(nogil=True, error_model="numpy")
 
 
 @_compiled

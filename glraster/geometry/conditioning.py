@@ -11,9 +11,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
+from glraster import jit
 from glraster.geometry.clipping import clip_to_planes
 
 
@@ -58,7 +58,7 @@ def triangle_conditioning(clip, simple, resolution) -> Conditioning:
     return cond
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@jit.njit(nogil=True, error_model="numpy")
 def _conditioning(clip, simple, width, height, R, kappa, D, S, h, wmin, N):
     """Fill the (T,) outputs of :func:`triangle_conditioning` for clip (T, 3, 4) float64;
     simple (T,) bool: the triangle is drawn unclipped."""

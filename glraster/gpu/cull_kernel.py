@@ -12,10 +12,11 @@ formulation triangle by triangle.
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
-_compiled = numba.njit(cache=True, nogil=True, error_model="numpy")
+from glraster import jit
+
+_compiled = jit.njit(nogil=True, error_model="numpy")
 
 # what the triangle pass returns per reason, in order
 REASONS = ("outside", "zero_area", "backface")

@@ -28,10 +28,11 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
-_compiled = numba.njit(cache=True, nogil=True, error_model="numpy")
+from glraster import jit
+
+_compiled = jit.njit(nogil=True, error_model="numpy")
 
 ANCHOR_GRID = 256.0      # 1/256 px, as glraster.gpu.homogeneous.ANCHOR_GRID
 _DBL_MAX = np.finfo(np.float64).max

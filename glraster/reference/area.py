@@ -44,16 +44,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
+from glraster import jit
 from glraster import validate
 from glraster.errors import ArgumentError
 from glraster.geometry.clipping import clip_to_planes
 
 __all__ = ["AreaFragments", "area_coverage", "visible_area", "window_polygons"]
 
-_compiled = numba.njit(cache=True, nogil=True, error_model="numpy")
+_compiled = jit.njit(nogil=True, error_model="numpy")
 
 #: Most vertices of a triangle clipped by the six planes of the view volume.
 MAX_POLYGON = 9

@@ -30,10 +30,11 @@ import math
 import numba
 import numpy as np
 
+from glraster import jit
 from glraster.geometry.fill_rule import FIXED_ONE
 
-_compiled = numba.njit(cache=True, nogil=True, error_model="numpy")
-_parallel = numba.njit(cache=True, nogil=True, error_model="numpy", parallel=True)
+_compiled = jit.njit(nogil=True, error_model="numpy")
+_parallel = jit.njit(nogil=True, error_model="numpy", parallel=True)
 
 # a pixel center with some lambda_k below -this lies outside the float triangle (far above
 # the float64 rounding of lambda at pixel coordinates up to 16k)

@@ -30,9 +30,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
+from glraster import jit
 from glraster.errors import ArgumentError
 from glraster.geometry.triangles import TriangleGeometry
 from glraster.types import VALUE_OUTPUTS
@@ -179,7 +179,7 @@ def value_tolerance(triangles: TriangleGeometry | None, tri_id: np.ndarray,
     )
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@jit.njit(nogil=True, error_model="numpy")
 def _bound(unit, value, grad, vertex_value, shrink, reach, span, delta):
     """unit (|f| + shrink (|grad f|_1 reach + F span)) + |grad f|_1 delta, NaN -> inf:
     the module docstring's bound with unit = C eps32."""
@@ -187,7 +187,7 @@ def _bound(unit, value, grad, vertex_value, shrink, reach, span, delta):
     return np.inf if math.isnan(b) else b
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@jit.njit(nogil=True, error_model="numpy")
 def _tolerances(pix, tri_id, width, adj, det, clip, reach, span, S, N, wmin, unit, delta,
                 shrink, persp_from_screen, screen_tol, persp_tol, depth_tol, ox=0.5, oy=0.5):
     """Fill the bounds of :func:`value_tolerance` at the covered pixels ``pix`` (K,) of

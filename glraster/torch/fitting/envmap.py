@@ -47,10 +47,10 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-import numba
 import numpy as np
 import torch
 
+from glraster import jit
 from glraster.fitting.results import EnvmapFit
 from glraster.fitting.scenes import SUN_DIRECTION, blob, studio_cube_map
 from glraster.torch.fitting.common import Timer, clip_positions, descend
@@ -214,7 +214,7 @@ def render_envmap(glctx, scene: Scene, mvp, eye, diffuse, specular, exponent,
                  exponent), views.covered
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@jit.njit(nogil=True, error_model="numpy")
 def _loss_kernel(covered, t_diffuse, t_mirror, e_diffuse, e_mirror, r, sun, true, material,
                  grads, image_grads):
     """The loss of :func:`envmap_loss` and its gradients in one pass over the P pixels.
@@ -321,7 +321,7 @@ def envmap_loss(glctx, scene: Scene, mvp, eye, material, resolution: int, *, env
         return _EnvmapLoss.apply(kd, ks, p, *light, true_light, views.r, views.covered)
 
 
-@numba.njit(cache=True, nogil=True)
+@jit.njit(nogil=True)
 def _split(pix, pix_da, n, r, n_da, r_da):
     """The normals' and the reflections' channels of the P interpolated pixels ``pix``
     (P, 6) and their derivatives ``pix_da`` (P, 12) into ``n``, ``r`` (P, 3) and ``n_da``,
