@@ -49,6 +49,25 @@ class DriverTooOld(BackendUnavailable):
         self.needed = needed
 
 
+class ForkedProcess(BackendUnavailable):
+    """This process was forked from one that had set up OpenGL: Mesa's drivers do not render
+    in such a child (the threads they started in the parent are not in it; they wait for
+    them for ever), so glraster refuses here instead of hanging. ``parent`` is the pid of
+    the process that set OpenGL up."""
+
+    def __init__(self, parent: int):
+        super().__init__(
+            f"OpenGL was set up in process {parent} before this process was forked from it, "
+            f"and Mesa's drivers cannot render in a forked child: start workers with the "
+            f"'spawn' or 'forkserver' method (multiprocessing.get_context('spawn'), "
+            f"DataLoader(multiprocessing_context='spawn')), or make the first glraster "
+            f"context only in the workers")
+        self.parent = parent
+
+    def __reduce__(self):   # (pickled as its pid: a worker pool sends it to the parent)
+        return ForkedProcess, (self.parent,)
+
+
 class GLVersionError(ValueError):
     """A feature needs a newer OpenGL than the context offers; the message names the
     feature, the version the context offers and the one needed."""

@@ -19,7 +19,7 @@ from pathlib import Path
 import moderngl
 import numpy as np
 
-from glraster.errors import ArgumentError, BadEnvironment, GLVersionError
+from glraster.errors import ArgumentError, BadEnvironment, ForkedProcess, GLVersionError
 from glraster.gpu.backends import create_backend
 from glraster.gpu.backends.current import MIN_GL, version_text
 from glraster.gpu.shaders import compile_compute, compile_program
@@ -124,6 +124,8 @@ class Context:
     Raises :class:`~glraster.errors.BackendUnavailable` (or a subclass: ``LibraryMissing``,
     ``DriverTooOld``, ``BackendCrashed``, ``BadEnvironment``) when no context can be made;
     its message names the library or the environment variable at fault and what to do.
+    In a process forked after its parent made a context, making or using one raises
+    ``ForkedProcess`` (Mesa's drivers would hang there).
     """
 
     def __init__(self, backend: str | None = None, *, max_gl=None):
@@ -135,7 +137,10 @@ class Context:
                                      "GLRASTER_MAX_GL") from None
         else:
             cap = None if max_gl is None else parse_gl_version(max_gl)
+        global _gl_process
+        _refuse_after_fork()
         self._backend, self.mgl = create_backend(backend)
+        _gl_process = _gl_process or os.getpid()
         self.backend = self._backend.name
         self._lock = threading.RLock()
         self.released = False   # set by release(); a released context does no more GL work
@@ -235,6 +240,7 @@ class Context:
 
     # -- making the context current -------------------------------------------------------
     def __enter__(self):
+        _refuse_after_fork()
         if self.released:
             raise ArgumentError("ctx", f"{self!r} was released (Context.release()); make a new "
                                        f"glraster.Context")
@@ -481,6 +487,13 @@ def _entered() -> list:
 
 _default_context: Context | None = None
 _default_lock = threading.Lock()
+_gl_process: int | None = None   # the pid of the process that made the first context
+
+
+def _refuse_after_fork() -> None:
+    """ForkedProcess in a child forked after its parent made a context (which would hang)."""
+    if _gl_process is not None and _gl_process != os.getpid():
+        raise ForkedProcess(_gl_process)
 
 
 def default_context() -> Context:

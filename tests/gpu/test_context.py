@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import resource
 
 import numpy as np
@@ -151,3 +152,35 @@ def test_a_released_context_says_so_and_the_default_is_made_anew(gl_backend, mon
         assert gr.rasterize(pos, tri, (16, 16), ctx=fresh).mask.any()
     finally:
         fresh.release()
+
+
+def _render_in_child(queue):
+    pos, tri = synthetic.random_soup(2, seed=0)
+    try:
+        queue.put(int(gr.rasterize(pos, tri, (16, 16), ctx=gr.Context()).mask.sum()))
+    except Exception as exc:   # (sent back whole: the test reads its type and text)
+        queue.put(exc)
+
+
+def test_a_process_forked_after_opengl_was_set_up_refuses_instead_of_hanging(gl_context):
+    """Mesa's drivers hang for ever in a child forked after the parent made a context (a
+    DataLoader's workers under the default 'fork' start method); glraster raises
+    ForkedProcess there, naming the way out. A 'spawn'ed child renders as usual."""
+    import multiprocessing
+
+    from glraster.errors import BackendUnavailable, ForkedProcess
+
+    for method, expected in (("fork", ForkedProcess), ("spawn", int)):
+        mp = multiprocessing.get_context(method)
+        queue = mp.Queue()
+        child = mp.Process(target=_render_in_child, args=(queue,))
+        child.start()
+        child.join(120)
+        if child.exitcode is None:
+            child.kill()
+            pytest.fail(f"the {method}ed child hung")
+        result = queue.get(timeout=10)
+        assert isinstance(result, expected), result
+        if method == "fork":
+            assert result.parent == os.getpid() and "'spawn'" in str(result)
+            assert isinstance(result, BackendUnavailable)       # the CLI's exit code 3
