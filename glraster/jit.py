@@ -36,9 +36,10 @@ def njit(**options):
 def _temporary_cache() -> bool:
     """Point numba at ``TMP/glraster-numba-UID`` (made 0700) when it has no cache folder
     yet; False when that folder cannot be used: not made, not writable, or not this user's
-    alone (numba's cache files hold code it loads: another user's folder is not trusted)."""
+    alone (numba's cache files hold code it loads: another user's folder is not trusted),
+    or when numba has a cache folder already and could not use it."""
     if numba.config.CACHE_DIR:
-        return os.access(numba.config.CACHE_DIR, os.W_OK)
+        return False
     folder = os.path.join(tempfile.gettempdir(), f"glraster-numba-{os.getuid()}")
     try:
         os.makedirs(folder, mode=0o700, exist_ok=True)

@@ -49,3 +49,14 @@ def test_a_temp_folder_others_can_write_is_not_trusted(no_cache_folder):
     assert compiled(np.arange(3.0)).tolist() == [1.0, 3.0, 5.0]
     assert not any(no_cache_folder.iterdir()), "compiled without a cache"
     assert numba.config.CACHE_DIR == ""
+
+
+def test_a_cache_folder_numba_cannot_use_means_no_cache(no_cache_folder, monkeypatch, tmp_path):
+    """$NUMBA_CACHE_DIR set, yet numba found no locator (the folder is unusable): compiled
+    without a cache, not retried into the same error."""
+    monkeypatch.setattr(caching.UserProvidedCacheLocator, "from_function",
+                        classmethod(lambda cls, py_func, py_file: None))
+    monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path / "unusable"))
+    compiled = jit.njit(nogil=True)(_kernel)
+    assert compiled(np.arange(3.0)).tolist() == [1.0, 3.0, 5.0]
+    assert not (tmp_path / "unusable").exists() and not no_cache_folder.exists()
