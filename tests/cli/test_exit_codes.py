@@ -53,3 +53,15 @@ def test_a_missing_optional_extra_is_a_usage_error_naming_it(tmp_path):
     assert result.returncode == exit_codes.USAGE, result.stderr
     assert "pip install 'glraster[torch]'" in result.stderr
     assert "Traceback" not in result.stderr
+
+
+def test_python_dash_m_glraster_is_the_command():
+    """``python -m glraster`` runs the CLI as ``python -m glraster.cli`` and the
+    ``glraster`` script do (a new user's first try when the script is not on PATH)."""
+    for module in ("glraster", "glraster.cli"):
+        result = subprocess.run([sys.executable, "-m", module, "--version"],
+                                capture_output=True, text=True, timeout=120)
+        assert result.returncode == 0, result.stderr
+        assert result.stdout.startswith("glraster "), result.stdout
+    assert subprocess.run([sys.executable, "-m", "glraster", "no-such-command"],
+                          capture_output=True, timeout=120).returncode == exit_codes.USAGE
