@@ -12,6 +12,7 @@ import ctypes
 import os
 import re
 import threading
+import weakref
 from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
@@ -139,8 +140,13 @@ class Context:
             cap = None if max_gl is None else parse_gl_version(max_gl)
         global _gl_process
         _refuse_after_fork()
+        _release_dropped()
         self._backend, self.mgl = create_backend(backend)
         _gl_process = _gl_process or os.getpid()
+        # a context dropped unreleased is released by the next one made (not by the garbage
+        # collector, which may run while another context is current)
+        self._dropped = weakref.finalize(self, _dropped.append, (self.mgl, self._backend))
+        self._dropped.atexit = False
         self.backend = self._backend.name
         self._lock = threading.RLock()
         self.released = False   # set by release(); a released context does no more GL work
@@ -447,6 +453,7 @@ class Context:
         nothing). The default context (:func:`default_context`) is made anew after it."""
         if self.released:
             return
+        self._dropped.detach()
         with self:
             for program, vao in self._programs.values():
                 vao.release()
@@ -488,6 +495,18 @@ def _entered() -> list:
 _default_context: Context | None = None
 _default_lock = threading.Lock()
 _gl_process: int | None = None   # the pid of the process that made the first context
+
+
+_dropped: list = []   # (moderngl context, backend) of contexts collected unreleased
+
+
+def _release_dropped() -> None:
+    """Release the GL contexts of Context objects collected without release(), when no
+    glraster context is current on this thread (destroying a context frees its objects)."""
+    while _dropped and not _entered():
+        mgl, backend = _dropped.pop()
+        mgl.release()
+        backend.release()
 
 
 def _refuse_after_fork() -> None:

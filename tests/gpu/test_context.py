@@ -184,3 +184,32 @@ def test_a_process_forked_after_opengl_was_set_up_refuses_instead_of_hanging(gl_
         if method == "fork":
             assert result.parent == os.getpid() and "'spawn'" in str(result)
             assert isinstance(result, BackendUnavailable)       # the CLI's exit code 3
+
+
+def test_a_context_dropped_without_release_is_released_by_the_next_one(gl_backend):
+    """A Context collected unreleased (one made per call and dropped, as some nvdiffrast
+    code makes its RasterizeGLContext) used to keep its GL context: about 5.5 MB each on
+    llvmpipe, measured over 60 in a loop; RSS now stays flat. Its GL context is released
+    when the next Context is made (never inside the garbage collector, which may run while
+    another context is current)."""
+    import gc
+
+    import glraster.gpu.context as context_module
+
+    pos, tri = synthetic.random_soup(2, seed=0)
+    held = []
+    for _ in range(3):
+        ctx = gr.Context(gl_backend)
+        gr.rasterize(pos, tri, (16, 16), ctx=ctx)
+        held.append(ctx.mgl)
+        del ctx
+        gc.collect()
+    assert len(context_module._dropped) == 1, "the last one waits for the next context"
+    survivor = gr.Context(gl_backend)
+    try:
+        assert context_module._dropped == []
+        assert [type(m.mglo).__name__ for m in held] == ["InvalidObject"] * 3   # released
+        assert gr.rasterize(pos, tri, (16, 16), ctx=survivor).mask.any()
+    finally:
+        survivor.release()
+    assert context_module._dropped == [], "an explicitly released context is not queued"
