@@ -127,6 +127,7 @@ class Context:
     its message names the library or the environment variable at fault and what to do.
     In a process forked after its parent made a context, making or using one raises
     ``ForkedProcess`` (Mesa's drivers would hang there).
+    A context collected without :meth:`release` is released when the next one is made.
     """
 
     def __init__(self, backend: str | None = None, *, max_gl=None):
