@@ -34,7 +34,9 @@ and do not get gradients), are static: they are checked once and closed over.
 from __future__ import annotations
 
 import contextlib
+import itertools
 import math
+import weakref
 from collections.abc import Sequence
 
 import jax
@@ -126,15 +128,35 @@ def apply(op: Op, inputs: Sequence, params: dict):
 
 # The jitted call per op, input layout, dtype and static parameters: building one means
 # tracing and compiling an XLA computation (~0.1 s), which an eager call would otherwise
-# pay every time. Oldest first out.
+# pay every time. Oldest first out; a context's calls go with it.
 CACHE_SIZE = 256
 _CACHE: dict = {}
+_CONTEXT_TOKENS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_SERIAL = itertools.count()
+
+
+def _context_token(glctx: RasterizerContext) -> tuple:
+    """A front end's context in cache keys: a token, not the context, so that the cache
+    does not keep a dropped context (and its OpenGL context) alive; its calls are dropped
+    with it."""
+    token = _CONTEXT_TOKENS.get(glctx)
+    if token is None:
+        token = _CONTEXT_TOKENS[glctx] = ("context", next(_SERIAL))
+        weakref.finalize(glctx, _forget_calls, token).atexit = False
+    return token
+
+
+def _forget_calls(token) -> None:
+    for key in [k for k in _CACHE if ("ctx", token) in k[-1]]:
+        _CACHE.pop(key, None)
 
 
 def _frozen(value):
     """A hashable stand-in for a static parameter: arrays by dtype, shape and bytes,
-    containers element-wise, anything else itself (contexts and topology hashes hash by
-    identity, and the key keeps them alive)."""
+    containers element-wise, a front end's context by its token, anything else itself
+    (topology hashes hash by identity, and the key keeps them alive)."""
+    if isinstance(value, RasterizerContext):
+        return _context_token(value)
     if isinstance(value, np.ndarray):
         return ("ndarray", value.dtype.str, value.shape, value.tobytes())
     if isinstance(value, dict):
@@ -158,13 +180,21 @@ def _build(op: Op, names, layout, dtype, checked_params: dict, traced: bool):
     # range-mode rasterize has no batch axis to fold a vmapped axis into
     foldable = not (op.name == "rasterize" and checked_params.get("ranges") is not None)
     glctx = checked_params.get("ctx")
+    # a front end's context is held weakly (its calls are dropped with it, _context_token)
+    glctx_ref = weakref.ref(glctx) if isinstance(glctx, RasterizerContext) else None
+    static = {k: v for k, v in checked_params.items() if glctx_ref is None or k != "ctx"}
+    del glctx, checked_params
+
+    def params():
+        """The checked params, with the front end's context if it has one."""
+        return static if glctx_ref is None else dict(static, ctx=glctx_ref())
 
     def core_params():
         """The params for the core; a front end's context is made on first use, here in
         the callback, so that float64 and bad input never open OpenGL."""
-        if not isinstance(glctx, RasterizerContext):
-            return checked_params
-        return dict(checked_params, ctx=glctx.context if dtype == np.float32 else None)
+        if glctx_ref is None:
+            return static
+        return dict(static, ctx=glctx_ref().context if dtype == np.float32 else None)
 
     def current():
         """The OpenGL context, current for a whole core call (its own ``with ctx:`` blocks
@@ -182,7 +212,7 @@ def _build(op: Op, names, layout, dtype, checked_params: dict, traced: bool):
     def run_forward(values, check: bool = traced):
         args = full(values)
         if check:    # the values were not seen at trace time: check them now
-            args, _ = op.check(*args, **checked_params)
+            args, _ = op.check(*args, **params())
         return core.forward(*args, **core_params())
 
     def forward_host(*values):
