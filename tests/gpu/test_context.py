@@ -154,14 +154,16 @@ def test_a_released_context_says_so_and_the_default_is_made_anew(gl_backend, mon
         fresh.release()
 
 
-def _render_in_child(queue):
+def _render_in_child(pipe):
     pos, tri = synthetic.random_soup(2, seed=0)
     try:
-        queue.put(int(gr.rasterize(pos, tri, (16, 16), ctx=gr.Context()).mask.sum()))
+        pipe.send(int(gr.rasterize(pos, tri, (16, 16), ctx=gr.Context()).mask.sum()))
     except Exception as exc:   # (sent back whole: the test reads its type and text)
-        queue.put(exc)
+        pipe.send(exc)
 
 
+# (the fork is the point; the child runs no JAX, nor any thread: a pipe, not a queue)
+@pytest.mark.filterwarnings("ignore:os.fork:RuntimeWarning")
 def test_a_process_forked_after_opengl_was_set_up_refuses_instead_of_hanging(gl_context):
     """Mesa's drivers hang for ever in a child forked after the parent made a context (a
     DataLoader's workers under the default 'fork' start method); glraster raises
@@ -172,14 +174,14 @@ def test_a_process_forked_after_opengl_was_set_up_refuses_instead_of_hanging(gl_
 
     for method, expected in (("fork", ForkedProcess), ("spawn", int)):
         mp = multiprocessing.get_context(method)
-        queue = mp.Queue()
-        child = mp.Process(target=_render_in_child, args=(queue,))
+        receiver, sender = mp.Pipe(duplex=False)
+        child = mp.Process(target=_render_in_child, args=(sender,))
         child.start()
-        child.join(120)
-        if child.exitcode is None:
+        if not receiver.poll(120):
             child.kill()
             pytest.fail(f"the {method}ed child hung")
-        result = queue.get(timeout=10)
+        result = receiver.recv()
+        child.join(60)
         assert isinstance(result, expected), result
         if method == "fork":
             assert result.parent == os.getpid() and "'spawn'" in str(result)
