@@ -111,17 +111,11 @@ EXTRA_OF_MODULE = {"torch": "torch", "jax": "jax", "jaxlib": "jax", "optax": "ja
                    "uvloop": "service", "msgspec": "service", "prometheus_client": "service"}
 
 
-def extra_of(exc: ModuleNotFoundError) -> str | None:
-    """The extra that brings the module ``exc`` found missing (its top-level package), or
-    None when no extra of glraster installs it."""
-    return EXTRA_OF_MODULE.get((exc.name or "").split(".")[0])
-
-
 def needs_extra(user: str, exc: ModuleNotFoundError) -> ModuleNotFoundError:
     """A ModuleNotFoundError for ``user`` (a module or command of glraster) saying which
-    pip extra installs the module ``exc`` found missing; ``exc`` itself when no extra
-    does. ``.name`` stays the missing module's."""
-    extra = extra_of(exc)
+    pip extra installs the module ``exc`` found missing (by its top-level package);
+    ``exc`` itself when no extra does. ``.name`` stays the missing module's."""
+    extra = EXTRA_OF_MODULE.get((exc.name or "").split(".")[0])
     if extra is None:
         return exc
     return ModuleNotFoundError(f"{user} needs {exc.name}: pip install 'glraster[{extra}]'",

@@ -15,7 +15,7 @@ import sys
 from glraster._version import __version__
 from glraster.cli import commands, exit_codes
 from glraster.cli.errors import describe, name_options
-from glraster.errors import BackendUnavailable, ShaderCompileError, extra_of, needs_extra
+from glraster.errors import BackendUnavailable, ShaderCompileError, needs_extra
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -75,10 +75,10 @@ def _main(argv) -> int:
         print(f"glraster {args.command}: error: {describe(exc, args)}", file=sys.stderr)
         return exit_codes.USAGE
     except ModuleNotFoundError as exc:
-        if extra_of(exc) is None:
+        error = needs_extra("this command", exc)
+        if error is exc:   # a module no extra of glraster installs: a bug, with traceback
             raise
-        print(f"glraster {args.command}: error: {needs_extra('this command', exc)}",
-              file=sys.stderr)
+        print(f"glraster {args.command}: error: {error}", file=sys.stderr)
         return exit_codes.USAGE
     except BrokenPipeError:
         raise
