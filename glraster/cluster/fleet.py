@@ -337,12 +337,12 @@ def write_html(fleet: FleetResult, directory):
     columns = []
     for d, m, r in fleet.runs:
         label = run_label(d, m)
-        report = HtmlReport(directory / label)
-        for s in r.scenes:
-            if (d, m, s.name) in fleet.images:
-                info, files = fleet.images[(d, m, s.name)]
-                report.add_images(s.name, info, files)
-        report.finish(r)
+        with HtmlReport(directory / label) as report:
+            for s in r.scenes:
+                if (d, m, s.name) in fleet.images:
+                    info, files = fleet.images[(d, m, s.name)]
+                    report.add_images(s.name, info, files)
+            report.finish(r)
         columns.append((label, f"{label}/index.html", r))
     nodes = [(n.driver, n.node, n.ok, n.error or n.renderer) for n in fleet.nodes]
     return write_driver_matrix(directory, columns, nodes, fleet.missing, fleet.seconds)

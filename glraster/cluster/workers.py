@@ -16,7 +16,6 @@ from __future__ import annotations
 import os
 import socket
 import tempfile
-from pathlib import Path
 
 from glraster.cluster.runtime import driver_env, driver_name
 
@@ -90,11 +89,11 @@ class GLWorker:
         if images and art is not None:
             from glraster.conformance.html_report import HtmlReport
 
-            with tempfile.TemporaryDirectory(prefix="glraster-images-") as tmp:
-                report = HtmlReport(tmp)
+            with tempfile.TemporaryDirectory(prefix="glraster-images-") as tmp, \
+                    HtmlReport(tmp) as report:
                 report.add_scene(res, art)
                 info = report.images[res.name]
-                pictures = (info, {f: (Path(tmp) / "img" / f).read_bytes()
+                pictures = (info, {f: (report.img / f).read_bytes()
                                    for f in info["files"].values()})
         if res.report is not None:  # the per-pixel maps stay here (images carry them)
             res.report.maps = None

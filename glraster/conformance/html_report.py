@@ -21,6 +21,9 @@ table. Nothing is loaded from the network; the page works from ``file://``.
 from __future__ import annotations
 
 import html
+import os
+import shutil
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -112,14 +115,42 @@ class HtmlReport:
     """Collects scenes during a check run and writes ``directory/index.html``.
 
     Use ``add_scene(result, artifacts)`` as the ``on_scene`` callback of
-    :func:`glraster.conformance.check.run`, then ``finish(check_result)``.
+    :func:`glraster.conformance.check.run`, then ``finish(check_result)``, inside ``with
+    HtmlReport(directory) as report:``. The run's images go to a hidden folder of their own
+    in ``directory`` (``img``: its path), which replaces ``img/`` when ``finish`` writes
+    ``index.html``; a run that raises or is interrupted before then leaves the report that
+    was there as it was, and the ``with`` block removes the run's images.
     """
 
     def __init__(self, directory):
         self.dir = Path(directory)
-        self.img = self.dir / "img"
-        self.img.mkdir(parents=True, exist_ok=True)
+        self._made = not self.dir.exists()     # (then discard removes it, if left empty)
+        self.dir.mkdir(parents=True, exist_ok=True)
+        self.img = Path(tempfile.mkdtemp(prefix=".img.", dir=self.dir))
         self.images: dict[str, dict] = {}
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc_info):
+        self.discard()
+
+    def discard(self) -> None:
+        """Remove this run's images unless ``finish`` published them."""
+        if self.img != self.dir / "img":
+            shutil.rmtree(self.img, ignore_errors=True)
+            if self._made and not any(self.dir.iterdir()):
+                self.dir.rmdir()
+
+    def _publish(self) -> Path | None:
+        """Move this run's images to ``img/``; returns where the old ones went (None: none)."""
+        final, old = self.dir / "img", None
+        if final.exists():
+            old = Path(tempfile.mkdtemp(prefix=".img.old.", dir=self.dir))
+            os.replace(final, old / "img")
+        os.replace(self.img, final)
+        self.img = final
+        return old
 
     def add_scene(self, res, art):
         """Write the four images of one scene (nothing when the scene raised)."""
@@ -200,7 +231,8 @@ class HtmlReport:
         return fname
 
     def finish(self, result) -> Path:
-        """Write index.html (atomically) and return its path."""
+        """Write index.html and put this run's images in ``img/`` (both replace the old
+        ones at the end, together); returns index.html's path."""
         fig = self._summary_figure(result)
         e = html.escape
         n_ok = sum(s.ok for s in result.scenes)
@@ -286,7 +318,13 @@ Coverage: <span style="background:#6e6e6e"></span>both
         for s in result.scenes:
             parts.append(self._scene_html(s))
         parts.append("</body></html>\n")
-        return write_text(self.dir / "index.html", "\n".join(parts))
+        index = self.dir / "index.html"
+        with atomic_write(index) as tmp:
+            Path(tmp).write_text("\n".join(parts), encoding="utf-8")
+            old = self._publish()
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+        return index
 
     def _scene_html(self, s) -> str:
         e = html.escape

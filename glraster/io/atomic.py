@@ -2,12 +2,16 @@
 
 Every writer in glraster (EXR, PNG, figures) writes to a temporary file in the target's
 folder and renames it over the target only when the write succeeded, so a failure (or an
-interrupt) leaves the previous file, or none, and no temporary file.
+interrupt) leaves the previous file, or none, and no temporary file. An OSError of the write
+names the target, not the temporary file (a full disk reads "out.exr: No space left on
+device").
 """
 
 from __future__ import annotations
 
+import errno
 import os
+import shutil
 import signal
 import tempfile
 import threading
@@ -80,9 +84,11 @@ def atomic_write(path, suffix: str | None = None, mode: int = 0o644):
         yield tmp
         os.chmod(tmp, mode)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         if tmp is not None:
             Path(tmp).unlink(missing_ok=True)
+        if isinstance(exc, OSError) and exc.errno is not None and exc.filename in (None, tmp):
+            raise OSError(exc.errno, exc.strerror, str(path)) from exc
         raise
     finally:
         _release(held)
@@ -96,9 +102,27 @@ def write_text(path, text: str) -> Path:
     return path
 
 
+def image_write_error(path, message: str, nbytes: int) -> OSError:
+    """The OSError of an OpenImageIO write of about ``nbytes`` to ``path`` that failed with
+    ``message``. OpenImageIO's writers report a full disk only in their error text, and
+    their open, write and close may all return success (PNG): the error is ENOSPC when
+    ``path``'s file system has less than ``nbytes`` free, else EIO with the first line of
+    ``message`` (the file named as "it": the error names ``path`` already)."""
+    try:
+        free = shutil.disk_usage(Path(path).parent).free
+    except OSError:
+        free = None
+    if free is not None and free < nbytes:
+        return OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+    first = (message.strip().splitlines() or ["no reason given"])[0]
+    first = first.replace(f'"{path}"', "it").replace(str(path), "it")
+    return OSError(errno.EIO, f"OpenImageIO cannot write it: {first}", str(path))
+
+
 def write_image(path, spec, pixels, suffix: str) -> Path:
     """Write one OpenImageIO image (``spec``, ``pixels``) to ``path`` atomically; the format
-    follows ``suffix`` (".png", ".exr"). OSError naming the file when OpenImageIO fails."""
+    follows ``suffix`` (".png", ".exr"). OSError naming the file when OpenImageIO fails,
+    including a failure it reports only in its error text."""
     import OpenImageIO as oiio
 
     path = Path(path)
@@ -106,9 +130,9 @@ def write_image(path, spec, pixels, suffix: str) -> Path:
         out = oiio.ImageOutput.create(tmp)
         if out is None:
             raise OSError(f"OpenImageIO cannot write {suffix} files: {oiio.geterror()}")
-        try:
-            if not out.open(tmp, spec) or not out.write_image(pixels):
-                raise OSError(f"cannot write {path}: {out.geterror() or oiio.geterror()}")
-        finally:
-            out.close()
+        ok = out.open(tmp, spec) and out.write_image(pixels)
+        ok = out.close() and ok
+        message = out.geterror()
+        if not ok or message:
+            raise image_write_error(tmp, message or oiio.geterror(), pixels.nbytes)
     return path

@@ -32,7 +32,7 @@ import numpy as np
 import OpenImageIO as oiio
 
 from glraster.errors import ArgumentError
-from glraster.io.atomic import atomic_write
+from glraster.io.atomic import atomic_write, image_write_error
 
 ORIENTATION = "upright: file row 0 is the top row (glraster array row H-1)"
 _LAYERS = {"persp": ("persp.b0", "persp.b1", "persp.b2"),
@@ -206,8 +206,10 @@ def write_raster(path, raster=None, *, persp=None, screen=None, depth=None, tri_
                 ok = ok and out.open(tmp, spec, "AppendSubimage")
             ok = ok and out.write_image(data)
         ok = out.close() and ok
-        if not ok:
-            raise OSError(f"writing {path} failed: {out.geterror() or oiio.geterror()}")
+        message = out.geterror()
+        if not ok or message:
+            raise image_write_error(tmp, message or oiio.geterror(),
+                                    sum(data.nbytes for _, data in parts))
     return path
 
 

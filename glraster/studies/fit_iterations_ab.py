@@ -362,7 +362,9 @@ def main(argv=None) -> int:
           "alternating case by case) [range]; iterations (texture: calls) per second")
     print(table(rows))
     if args.json:
-        Path(args.json).write_text(json.dumps(rows, indent=1))
+        from glraster.io.atomic import write_text
+
+        write_text(args.json, json.dumps(rows, indent=1))
     return 0
 
 

@@ -112,3 +112,46 @@ def test_report_renders_in_headless_chromium(report_dir, tmp_path):
     # The summary figure (an <img>) loaded: its blue/orange/green bars are visible.
     bars = ((rgb[..., 2] > 150) & (rgb[..., 0] < 60)).sum()
     assert bars > 200
+
+
+def _snapshot(folder):
+    """{relative path: bytes} of every file under ``folder``, hidden ones included."""
+    return {str(p.relative_to(folder)): p.read_bytes()
+            for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def test_a_run_that_fails_leaves_the_report_that_was_there(gl_context, tmp_path):
+    """The images of a run go to a folder of their own until finish() writes index.html:
+    a run that raises (a full disk, Ctrl-C) between its first image and the index leaves
+    the previous report whole (its index and exactly its images) and nothing of its own;
+    a run that finishes replaces both, so the images are those the index shows."""
+    out = tmp_path / "report"
+    with HtmlReport(out) as rep:
+        result = check.run(gl_context, ["torus"], on_scene=rep.add_scene)
+        rep.finish(result)
+    before = _snapshot(out)
+    assert "index.html" in before and "img/torus_gpu.png" in before
+
+    with pytest.raises(KeyboardInterrupt):
+        with HtmlReport(out) as rep:
+            check.run(gl_context, ["fan_offcenter"], on_scene=rep.add_scene)
+            assert (rep.img / "fan_offcenter_gpu.png").is_file()   # written, not published
+            raise KeyboardInterrupt
+    assert _snapshot(out) == before
+
+    with HtmlReport(out) as rep:
+        result = check.run(gl_context, ["fan_offcenter"], on_scene=rep.add_scene)
+        rep.finish(result)
+    after = _snapshot(out)
+    assert 'id="fan_offcenter"' in after["index.html"].decode()
+    assert sorted(after) == ["img/fan_offcenter_coverage.png", "img/fan_offcenter_error.png",
+                             "img/fan_offcenter_gpu.png", "img/fan_offcenter_ref.png",
+                             "img/summary.png", "index.html"]
+
+
+def test_a_report_folder_made_by_a_run_that_fails_is_removed(tmp_path):
+    out = tmp_path / "new" / "report"
+    with pytest.raises(RuntimeError):
+        with HtmlReport(out):
+            raise RuntimeError("the run failed")
+    assert not out.exists()

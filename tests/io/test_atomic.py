@@ -62,3 +62,80 @@ def test_write_text_is_atomic_and_names_a_blocked_target(tmp_path):
     with pytest.raises(OSError, match=r"cannot create a file there \(.*/f is a file, not a "
                                       r"folder\): '.*/f/b.txt'"):
         write_text(tmp_path / "f" / "b.txt", "hi")
+
+
+# A child process whose files cannot grow past FILE_LIMIT bytes (RLIMIT_FSIZE, SIGXFSZ
+# ignored: a write past it fails with EFBIG, as a full disk fails with ENOSPC). Each
+# writer writes more than that into FOLDER; the child prints what each raised.
+FILE_LIMIT = 4096
+_WRITERS = r"""
+import json, resource, signal, sys
+import numpy as np
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+folder, limit = sys.argv[1], int(sys.argv[2])
+old = folder + "/old.png"
+from glraster.io.png import write_png
+write_png(old, np.zeros((4, 4, 3)))            # a file that is there before, under the limit
+resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+from glraster.io.atomic import write_text
+from glraster.io.exr import write_raster
+noise = np.random.default_rng(0).random((200, 200, 3))
+writers = {
+    "old.png": lambda p: write_png(p, noise),
+    "new.png": lambda p: write_png(p, noise),
+    "new.exr": lambda p: write_raster(p, persp=noise.astype(np.float32), window="full"),
+    "new.txt": lambda p: write_text(p, "x" * 3 * limit),
+}
+raised = {}
+for name, write in writers.items():
+    try:
+        write(folder + "/" + name)
+        raised[name] = None
+    except OSError as exc:
+        raised[name] = [exc.errno, exc.filename, str(exc)]
+print(json.dumps(raised))
+"""
+
+
+def test_a_write_that_fails_for_lack_of_room_is_an_error_naming_the_file(tmp_path):
+    """OpenImageIO's PNG writer returns success from open, write and close when the file
+    system refuses bytes (only its error text says so): every writer raises an OSError
+    naming the target, the old file stays whole and nothing partial is left."""
+    import errno
+    import json
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-c", _WRITERS, str(tmp_path), str(FILE_LIMIT)],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    raised = json.loads(out.stdout)
+    old_bytes = (tmp_path / "old.png").read_bytes()
+    for name, error in raised.items():
+        assert error is not None, f"writing {name} past the limit raised nothing"
+        code, filename, text = error
+        assert filename == str(tmp_path / name), text    # the target, not a temporary file
+        assert code in (errno.EFBIG, errno.EIO), text
+    assert "OpenImageIO cannot write it" in raised["new.png"][2]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["old.png"]
+    assert (tmp_path / "old.png").read_bytes() == old_bytes
+
+
+def test_an_image_write_short_of_room_is_enospc(tmp_path, monkeypatch):
+    """The OSError of a failed OpenImageIO write: ENOSPC when the folder's file system has
+    less room than the image's bytes, else EIO with OpenImageIO's first line, in which
+    the file is 'it' (the error names it already)."""
+    import errno
+    import shutil
+
+    from glraster.io import atomic
+
+    target = tmp_path / "x.png"
+    text = f'could not write "{target}"\nsecond line'
+    error = atomic.image_write_error(target, text, 1 << 10)
+    assert (error.errno, error.filename) == (errno.EIO, str(target))
+    assert error.strerror == "OpenImageIO cannot write it: could not write it"
+    usage = shutil.disk_usage(tmp_path)
+    monkeypatch.setattr(atomic.shutil, "disk_usage", lambda path: usage._replace(free=100))
+    error = atomic.image_write_error(target, text, 1 << 10)
+    assert (error.errno, error.strerror) == (errno.ENOSPC, "No space left on device")

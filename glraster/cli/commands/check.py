@@ -7,6 +7,7 @@ fill rule is modeled) and check the golden EXRs bit for bit. Exits 1 on any fail
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import time
 
@@ -137,24 +138,25 @@ def run(args) -> int:
     except (BackendUnavailable, ValueError) as exc:
         print(f"glraster check: {describe_error(exc, args)}", file=sys.stderr)
         return exit_codes.NO_BACKEND
-    report = None
-    if args.html:
-        from glraster.conformance.html_report import HtmlReport
+    with contextlib.ExitStack() as stack:
+        report = None
+        if args.html:   # (a run that fails leaves the report that was there as it was)
+            from glraster.conformance.html_report import HtmlReport
 
-        report = HtmlReport(args.html)
-    result = check.run(ctx, names, method=args.method, golden_dir=args.golden_dir,
-                       check_golden=not args.no_golden,
-                       mutants=bool(args.mutants), mutant_pattern=args.mutants,
-                       on_scene=report.add_scene if report else None, progress=Progress(),
-                       **({"mutant_scenes": mutant_scenes} if mutant_scenes else {}))
-    result.shard = shard
-    print(check.format_table(result))
-    if args.junit:
-        from glraster.conformance import junit
+            report = stack.enter_context(HtmlReport(args.html))
+        result = check.run(ctx, names, method=args.method, golden_dir=args.golden_dir,
+                           check_golden=not args.no_golden,
+                           mutants=bool(args.mutants), mutant_pattern=args.mutants,
+                           on_scene=report.add_scene if report else None, progress=Progress(),
+                           **({"mutant_scenes": mutant_scenes} if mutant_scenes else {}))
+        result.shard = shard
+        print(check.format_table(result))
+        if args.junit:
+            from glraster.conformance import junit
 
-        print(f"JUnit XML: {junit.write(result, args.junit)}")
-    if report:
-        print(f"HTML report: {report.finish(result)}")
+            print(f"JUnit XML: {junit.write(result, args.junit)}")
+        if report:
+            print(f"HTML report: {report.finish(result)}")
     return exit_codes.OK if result.ok else exit_codes.FAIL
 
 
