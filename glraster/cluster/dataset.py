@@ -72,31 +72,43 @@ class ShardRenderer:
                                f"{type(exc).__name__}: {exc}") from None
 
     def __call__(self, batch):
-        rows = {"shard": [], "lines": [], "rendered": [], "pid": [], "node": [], "seconds": []}
+        rows = {"shard": [], "lines": [], "rendered": [], "pid": [], "node": [], "seconds": [],
+                "write_error": []}
         for index, items in zip(batch["shard"], batch["items"]):
             t = time.perf_counter()
             shard = _shards.Shard(int(index), tuple(json.loads(str(items))))
-            ledger = _shards.CrashLedger(self.out_dir, shard)
-            results, rendered = [], 0
-            for k, item in enumerate(shard.items):
-                crashes = ledger.crashes(k)
-                if crashes >= _shards.CRASHES_BEFORE_ERROR:
-                    results.append(f"crashed its worker {crashes} times; not rendered again")
-                    continue
-                ledger.starting(k)
-                try:
-                    scene = _inputs.load_item(item)
-                    results.append(self.render(self.ctx, scene, self.outputs, self.method))
-                    rendered += 1
-                except Exception as exc:  # a bad scene is an error line, not a lost shard
-                    results.append(f"{type(exc).__name__}: {exc}")
-            lines = _shards.write_shard(self.out_dir, shard, results)
-            ledger.done()
+            lines, rendered, write_error = [], 0, ""
+            try:
+                lines, rendered = self._render(shard)
+            except OSError as exc:   # OUT takes no shard (a full disk): the head stops the run
+                write_error = json.dumps([exc.errno, exc.strerror or str(exc), exc.filename])
             for key, value in (("shard", shard.index), ("lines", json.dumps(lines)),
                                ("rendered", rendered), ("pid", os.getpid()),
-                               ("node", self.node), ("seconds", time.perf_counter() - t)):
+                               ("node", self.node), ("seconds", time.perf_counter() - t),
+                               ("write_error", write_error)):
                 rows[key].append(value)
         return rows
+
+    def _render(self, shard):
+        """Render and write ``shard``: (its manifest lines, scenes rendered). An OSError
+        when its file or its crash ledger cannot be written."""
+        ledger = _shards.CrashLedger(self.out_dir, shard)
+        results, rendered = [], 0
+        for k, item in enumerate(shard.items):
+            crashes = ledger.crashes(k)
+            if crashes >= _shards.CRASHES_BEFORE_ERROR:
+                results.append(f"crashed its worker {crashes} times; not rendered again")
+                continue
+            ledger.starting(k)
+            try:
+                scene = _inputs.load_item(item)
+                results.append(self.render(self.ctx, scene, self.outputs, self.method))
+                rendered += 1
+            except Exception as exc:  # a bad scene is an error line, not a lost shard
+                results.append(f"{type(exc).__name__}: {exc}")
+        lines = _shards.write_shard(self.out_dir, shard, results)
+        ledger.done()
+        return lines, rendered
 
 
 @dataclass
@@ -149,6 +161,9 @@ def render_dataset(source, out_dir, *, address=None, driver=None, shard_size=DEF
     render  : ``render(ctx, scene, outputs, method) -> {output: array}`` run on the workers
               (default :func:`render_scene`)
     progress(done_items, total_items, label): after each finished shard.
+
+    A shard that ``out_dir`` cannot take (a full disk) stops the run with that OSError
+    (naming the file); the shards written stay, and a rerun resumes after them.
     """
     t0 = time.perf_counter()
     if outputs is not None:
@@ -175,8 +190,13 @@ def render_dataset(source, out_dir, *, address=None, driver=None, shard_size=DEF
     if todo:
         ray = runtime.connect(address, [driver] if driver else [])
         summary.workers = workers or _worker_count(ray, driver)
-        for row in _pipeline(ray, todo, out_dir, driver, outputs, method, backend, render,
-                             summary.workers).iter_rows():
+        rows = iter(_pipeline(ray, todo, out_dir, driver, outputs, method, backend, render,
+                              summary.workers).iter_rows())
+        for row in rows:
+            if row["write_error"]:  # every later shard would fail alike: stop; a rerun resumes
+                rows.close()        # (the pipeline and its workers stop)
+                _remove_temporaries(out_dir)
+                raise OSError(*json.loads(str(row["write_error"])))
             index = int(row["shard"])
             lines_of[index] = str(row["lines"])  # JSON text: ~200 bytes a scene on the head
             summary.rendered_shards += 1
@@ -186,10 +206,7 @@ def render_dataset(source, out_dir, *, address=None, driver=None, shard_size=DEF
             done_items += sizes[index]
             if progress:
                 progress(done_items, len(items), f"shard {index} on {row['node']}")
-    # A worker killed while writing leaves its temporary file (its retry wrote the shard):
-    # with every worker done, remove them, so that OUT holds whole files only.
-    for tmp in out_dir.glob(".shard-*.npz.*"):
-        tmp.unlink(missing_ok=True)
+    _remove_temporaries(out_dir)
 
     def manifest():
         for s in plan:
@@ -209,6 +226,13 @@ def render_dataset(source, out_dir, *, address=None, driver=None, shard_size=DEF
     summary.manifest = str(_shards.write_manifest(out_dir, manifest()))
     summary.seconds = time.perf_counter() - t0
     return summary
+
+
+def _remove_temporaries(out_dir: Path) -> None:
+    """A worker killed while writing leaves its temporary file (its retry wrote the shard):
+    with every worker done, remove them, so that OUT holds whole files only."""
+    for tmp in out_dir.glob(".shard-*.npz.*"):
+        tmp.unlink(missing_ok=True)
 
 
 def _worker_count(ray, driver) -> int:

@@ -237,6 +237,29 @@ def test_a_scene_that_crashes_its_worker_every_time_is_an_error_not_a_loop(clust
     assert not summary.ok and not summary.lost and summary.rendered_items == 4
 
 
+def test_a_shard_out_cannot_take_stops_the_run_naming_it_and_a_rerun_resumes(cluster,
+                                                                             tmp_path):
+    """A shard file that cannot be written (here a folder stands where it goes; a full
+    disk fails the same way) stops the run with the OSError naming it, instead of retrying
+    every shard and calling them lost; no temporary file stays, and once the obstacle is
+    gone a rerun renders the rest, every scene once."""
+    src, out = tmp_path / "scenes", tmp_path / "out"
+    _make_scenes(src, 5)
+    blocked = out / "shard-00001.npz"
+    (blocked / "in-the-way").mkdir(parents=True)
+    with pytest.raises(OSError) as caught:
+        dataset.render_dataset(src, out, shard_size=2, workers=1)
+    assert caught.value.filename == str(blocked)
+    assert not list(out.glob(".shard-*")) and not (out / "manifest.jsonl").exists()
+    (blocked / "in-the-way").rmdir()
+    blocked.rmdir()
+    summary = dataset.render_dataset(src, out, shard_size=2, workers=1)
+    assert summary.ok and summary.rendered_items + 2 * summary.skipped >= 4
+    lines = [json.loads(ln) for ln in (out / "manifest.jsonl").read_text().splitlines()]
+    assert [Path(ln["scene"]).name for ln in lines] == [f"scene{i:04d}.npz" for i in range(5)]
+    assert all(ln["keys"] for ln in lines)
+
+
 def test_a_fleet_worker_killed_mid_check_is_restarted_and_nothing_is_lost_or_doubled(cluster):
     """A GLWorker killed by its pid after the second finished task: Ray restarts it and
     retries its task; every scene is reported once, each passing."""
