@@ -60,7 +60,7 @@ def _quiet_stdout() -> None:
 
 def _main(argv) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = _parse(parser, sys.argv[1:] if argv is None else list(argv))
     if not getattr(args, "func", None):
         parser.print_help()
         return exit_codes.USAGE
@@ -85,6 +85,27 @@ def _main(argv) -> int:
     except OSError as exc:  # a file that cannot be read or written, a full disk
         print(f"glraster {args.command}: error: {describe_os_error(exc)}", file=sys.stderr)
         return exit_codes.USAGE
+
+
+def _parse(parser: argparse.ArgumentParser, argv: list) -> argparse.Namespace:
+    """``parser.parse_args(argv)``, except that an argument no parser knows is refused by
+    the (sub)command it was given to, with that command's usage ("glraster fit cube:
+    error: unrecognized arguments: --itrations 5"), not the top level's."""
+    args, extra = parser.parse_known_args(argv)
+    if extra:
+        _command_parser(parser, argv).error(f"unrecognized arguments: {' '.join(extra)}")
+    return args
+
+
+def _command_parser(parser: argparse.ArgumentParser, argv: list) -> argparse.ArgumentParser:
+    """The innermost (sub)command parser that ``argv`` names."""
+    while True:
+        commands = next((a.choices for a in parser._actions
+                         if isinstance(a, argparse._SubParsersAction)), None)
+        name = next((t for t in argv if t in commands), None) if commands else None
+        if name is None:
+            return parser
+        parser, argv = commands[name], argv[argv.index(name) + 1:]
 
 
 def describe_os_error(exc: OSError) -> str:

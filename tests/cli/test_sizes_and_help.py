@@ -1,5 +1,6 @@
-"""Small CLI promises: `render` prints sizes as HxW (the API's (H, W) order), and the
-texture benchmark module answers --help instead of starting the benchmark."""
+"""Small CLI promises: `render` prints sizes as HxW (the API's (H, W) order), the
+texture benchmark module answers --help instead of starting the benchmark, and a mistyped
+option is refused by the command it was given to."""
 
 from __future__ import annotations
 
@@ -39,3 +40,22 @@ def test_texture_baseline_help_does_not_run_the_benchmark():
         assert "| image and texture |" not in result.stdout, "the benchmark ran"
     assert "usage: glraster study texture-baseline" in result.stderr
     assert "--sizes must be powers of two >= 2, got 3" in result.stderr
+
+
+def test_an_unknown_argument_is_refused_by_the_command_it_was_given_to(capsys):
+    """A mistyped option gets the usage and error of the (sub)command it was given to, not
+    the top level's ("usage: glraster [-h] [--version] COMMAND ..." told nothing)."""
+    import pytest
+
+    for argv, prog, unknown in ((["fit", "cube", "--itrations", "5"], "glraster fit cube",
+                                 "--itrations 5"),
+                                (["golden", "check", "--bogus"], "glraster golden check",
+                                 "--bogus"),
+                                (["info", "extra"], "glraster info", "extra"),
+                                (["--bogus"], "glraster", "--bogus")):
+        with pytest.raises(SystemExit) as exit_:
+            main(argv)
+        assert exit_.value.code == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"usage: {prog} "), err
+        assert err.rstrip().endswith(f"{prog}: error: unrecognized arguments: {unknown}"), err
