@@ -64,17 +64,24 @@ def is_traced(value) -> bool:
     return isinstance(value, jax.core.Tracer)
 
 
+def static(name: str, value):
+    """``value`` unchanged, for a static argument (``tri``, ``ranges``, every parameter): a
+    tracer, or a tuple or list holding one, is an ArgumentError (it has no value while JAX
+    traces)."""
+    items = value if isinstance(value, (tuple, list)) else (value,)
+    if any(is_traced(v) for v in items):
+        raise ArgumentError(name, f"{name} must be concrete (NumPy, Python numbers, or a JAX "
+                                  f"array made outside jax.jit): it decides the output's "
+                                  f"shapes and takes no gradient; inside jit, close over it "
+                                  f"or pass it as a static argument, got a traced value "
+                                  f"{value}")
+    return value
+
+
 def concrete(name: str, value):
-    """``value`` as a NumPy array, for static arguments (``tri``, ``ranges``): a tracer is
-    an ArgumentError (it has no value while JAX traces)."""
-    if value is None:
-        return None
-    if is_traced(value):
-        raise ArgumentError(name, f"{name} must be a concrete array (NumPy, or a JAX array "
-                                  f"made outside jax.jit): it decides the output's shapes "
-                                  f"and takes no gradient; inside jit, close over it or pass "
-                                  f"it as a static argument, got a traced value {value}")
-    return np.asarray(value)
+    """``value`` as a NumPy array (None stays None), for static array arguments (``tri``,
+    ``ranges``): :func:`static`."""
+    return None if value is None else np.asarray(static(name, value))
 
 
 def _input_names(op: Op, count: int) -> list[str]:
@@ -102,6 +109,8 @@ def apply(op: Op, inputs: Sequence, params: dict):
     Arrays are converted with ``jnp.asarray`` (a float64 NumPy array without
     ``jax_enable_x64`` becomes float32, as everywhere in JAX).
     """
+    for name, value in params.items():   # (resolution, modes, max_mip_level, boost, ...)
+        static(name, value)
     names = _input_names(op, len(inputs))
     arrays = [None if v is None else jnp.asarray(v) for v in inputs]
     for name, value in zip(names, arrays):

@@ -328,12 +328,21 @@ def test_shape_errors_come_from_op_check_eagerly_and_under_jit(jit):
         (jax.jit(f) if jit else f)(jnp.zeros((7, 3), jnp.float32))
 
 
-def test_a_traced_tri_is_refused_with_a_clear_error():
+def test_a_traced_tri_resolution_or_parameter_is_refused_with_a_clear_error():
     glctx = dr.RasterizeGLContext()
-    with pytest.raises(ArgumentError, match="tri must be a concrete array") as info:
-        jax.jit(lambda p, t: dr.rasterize(glctx, p, t, RES)[0])(
-            jnp.asarray(scenes.POS, jnp.float32), jnp.asarray(TRI))
+    pos = jnp.asarray(scenes.POS, jnp.float32)
+    with pytest.raises(ArgumentError, match="tri must be concrete") as info:
+        jax.jit(lambda p, t: dr.rasterize(glctx, p, t, RES)[0])(pos, jnp.asarray(TRI))
     assert info.value.argument == "tri"
+    # (a traced height used to read "resolution height must be an integer, got JitTracer")
+    with pytest.raises(ArgumentError, match="resolution must be concrete") as info:
+        jax.jit(lambda p, r: dr.rasterize(glctx, p, TRI, r)[0])(pos, RES)
+    assert info.value.argument == "resolution"
+    tex, uv = jnp.ones((1, 8, 8, 3)), jnp.zeros((1, 4, 4, 2))   # every static parameter
+    with pytest.raises(ArgumentError, match="max_mip_level must be concrete") as info:
+        jax.jit(lambda t, m: dr.texture(t, uv, mip_level_bias=jnp.zeros((1, 4, 4)),
+                                        max_mip_level=m))(tex, 2)
+    assert info.value.argument == "max_mip_level"
 
 
 def test_non_finite_values_under_jit_are_reported_from_the_callback(x64):
