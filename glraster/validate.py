@@ -199,6 +199,9 @@ def image_shape(name: str, value, shape=None, channels: int | None = 4) -> np.nd
     elif arr.ndim != 4 or (channels is not None and arr.shape[-1] != channels):
         c = "C" if channels is None else channels
         raise ArgumentError(name, f"{name} must have shape (B, H, W, {c}), got {arr.shape}")
+    elif min(arr.shape[:3]) < 1:
+        raise ArgumentError(name, f"{name} must have B, H and W >= 1 (an image of at least "
+                                  f"one pixel), got shape {arr.shape}")
     return arr
 
 

@@ -171,8 +171,9 @@ def _uv(uv, dtype, cube: bool, tex_batch: int) -> np.ndarray:
         what = "a direction (x, y, z) per pixel with boundary_mode='cube'" if cube else "(s, t)"
         raise ArgumentError("uv", f"uv must have shape (B, H, W, {coords}) ({what}), got "
                             f"{arr.shape}")
-    if arr.shape[0] < 1:
-        raise ArgumentError("uv", f"uv must have a batch of at least 1, got shape {arr.shape}")
+    if min(arr.shape[:3]) < 1:
+        raise ArgumentError("uv", f"uv must have B, H and W >= 1 (an image of at least one "
+                                  f"pixel), got shape {arr.shape}")
     if tex_batch not in (1, arr.shape[0]):
         raise ArgumentError("tex", f"tex has a batch of {tex_batch}, uv of {arr.shape[0]}: "
                             "they must match (or tex's be 1)")

@@ -111,6 +111,9 @@ def test_float32_runs_on_opengl_and_matches_float64(ctx):
     (lambda t, u: dr.texture(t, u, max_mip_level=-2), "max_mip_level must be None"),
     (lambda t, u: dr.texture(t, u, glctx="gl"), "glctx must be a RasterizeGLContext"),
     (lambda t, u: dr.texture(t, u * float("nan")), "uv must be finite"),
+    # an image of no pixels (NumPy's "cannot reshape array of size 0" before)
+    (lambda t, u: dr.texture(t, u[:, :0]), "uv must have B, H and W >= 1"),
+    (lambda t, u: dr.texture(t, u[:, :, :0]), "uv must have B, H and W >= 1"),
 ])
 def test_bad_input_raises_value_error_naming_the_argument(call, message):
     tex = torch.zeros(1, 4, 4, 3, dtype=torch.float64)

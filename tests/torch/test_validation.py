@@ -127,6 +127,9 @@ INTERPOLATE_CASES = [
     (r"rast must have shape \(B, H, W, 4\)", dict(rast=torch.zeros(1, 4, 4, 3,
                                                                    dtype=torch.float64))),
     ("rast channel 3", dict(rast=torch.full((1, 4, 4, 4), 0.5, dtype=torch.float64))),
+    # an image of no pixels (NumPy's "cannot reshape array of size 0" before)
+    ("rast must have B, H and W >= 1", dict(rast=torch.zeros(1, 0, 4, 4, dtype=torch.float64))),
+    ("rast must have B, H and W >= 1", dict(rast=torch.zeros(0, 4, 4, 4, dtype=torch.float64))),
     ("rast holds triangle id 9", dict(rast=torch.tensor([0, 0, 0, 9.0],
                                                         dtype=torch.float64).expand(1, 2, 2, 4))),
     ("tri index 7 is out of range", dict(tri=torch.tensor([[0, 1, 7]], dtype=torch.int32))),
