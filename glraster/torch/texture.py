@@ -111,13 +111,16 @@ def _pyramid(tex: torch.Tensor, max_mip_level, cube_mode: bool, glctx) -> list:
                 or (mip.max_mip_level, mip.cube_mode, mip._glctx) != (max_mip_level,
                                                                        cube_mode, glctx)):
             mip = TextureMip(tex, max_mip_level, cube_mode, glctx)
-            _PYRAMIDS[id(tex)] = (weakref.ref(tex, functools.partial(_forget, id(tex))), mip)
+            forget = functools.partial(_forget, _PYRAMIDS, id(tex))
+            _PYRAMIDS[id(tex)] = (weakref.ref(tex, forget), mip)
         return mip.levels
 
 
-def _forget(key: int, ref) -> None:  # no lock: the collector may run it inside _pyramid
-    if _PYRAMIDS.get(key, (None,))[0] is ref:
-        _PYRAMIDS.pop(key, None)
+def _forget(pyramids: dict, key: int, ref) -> None:
+    # no lock: the collector may run it inside _pyramid; no module global: it may run at
+    # interpreter exit, after the module's globals are gone
+    if pyramids.get(key, (None,))[0] is ref:
+        pyramids.pop(key, None)
 
 
 def _levels(tex, mip, uv_da, mip_level_bias, filter_mode, boundary_mode, max_mip_level,

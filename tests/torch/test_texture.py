@@ -121,3 +121,27 @@ def test_bad_input_raises_value_error_naming_the_argument(call, message):
     with pytest.raises(ValueError) as info:
         call(tex, uv)
     assert message in str(info.value)
+
+
+def test_a_pyramid_entry_is_forgotten_without_module_globals(monkeypatch):
+    """The weak reference that forgets a texture's cached pyramid may fire at interpreter
+    exit, once the module's globals are None (it printed "Exception ignored in ...
+    AttributeError: 'NoneType' object has no attribute 'get'" at the end of test runs):
+    it reaches the cache through its own reference."""
+    import gc
+    import sys
+
+    module = sys.modules["glraster.torch.texture"]   # (glraster.torch.texture: the op)
+    tex = torch.rand(1, 8, 8, 3, dtype=torch.float64)
+    uv, uv_da = torch.rand(1, 4, 4, 2, dtype=torch.float64), torch.zeros(1, 4, 4, 4,
+                                                                        dtype=torch.float64)
+    dr.texture(tex, uv, uv_da, filter_mode="linear-mipmap-linear")
+    cache = module._PYRAMIDS
+    assert id(tex) in cache
+    key, raised = id(tex), []
+    monkeypatch.setattr(sys, "unraisablehook", raised.append)
+    monkeypatch.setattr(module, "_PYRAMIDS", None)   # as at interpreter exit
+    del tex
+    gc.collect()
+    assert not raised, raised[0].exc_value
+    assert key not in cache
