@@ -30,7 +30,7 @@ import numpy as np
 
 from glraster.errors import ArgumentError
 from glraster.io import figures
-from glraster.io.atomic import atomic_write, write_text
+from glraster.io.atomic import atomic_write, staged_error, write_text
 from glraster.io.png import EMPTY_RGB, bary_rgb, write_png
 
 MAX_IMAGE_PX = 384
@@ -132,8 +132,13 @@ class HtmlReport:
     def __enter__(self):
         return self
 
-    def __exit__(self, *exc_info):
+    def __exit__(self, exc_type, exc, traceback):
+        stage = self.img
         self.discard()
+        if isinstance(exc, OSError):   # (named where the image goes, not its staged copy)
+            error = staged_error(exc, stage, self.dir / "img")
+            if error is not exc:
+                raise error from exc
 
     def discard(self) -> None:
         """Remove this run's images unless ``finish`` published them."""

@@ -21,14 +21,15 @@ Pictures are grids of panels, upright, separated by grey lines, each panel scale
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
-
 from typing import Protocol
 
 import numpy as np
 
 from glraster.fitting import scenes
 from glraster.io import figures
+from glraster.io.atomic import staged_folder
 from glraster.io.png import write_png
 
 __all__ = ["PANEL", "Renderer", "cube_figures", "envmap_figures", "grid", "pose_figures",
@@ -95,6 +96,18 @@ def write_grid(path, rows, title):
                      metadata={"Title": title, "Software": "glraster fit"})
 
 
+def _one_set(write):
+    """``write(fits, renderer, out_dir, ...)`` writing its files as one set
+    (:func:`glraster.io.atomic.staged_folder`): a run whose figures fail leaves the last
+    run's whole, not a mix of the two."""
+    @functools.wraps(write)
+    def written(fits, renderer, out_dir, **kwargs) -> list[Path]:
+        with staged_folder(out_dir) as stage:
+            paths = write(fits, renderer, stage, **kwargs)
+        return [Path(out_dir) / Path(p).name for p in paths]
+    return written
+
+
 def _log_floor(values, floor):
     return np.maximum(np.asarray(values, np.float64), floor)
 
@@ -102,6 +115,7 @@ def _log_floor(values, floor):
 # --------------------------------------------------------------------------- cube
 
 
+@_one_set
 def cube_figures(fits, renderer: Renderer, out_dir) -> list[Path]:
     """Write fit-cube-error.png and fit-cube-before-after.png for a list of
     :class:`~glraster.fitting.results.CubeFit`; returns the paths."""
@@ -149,6 +163,7 @@ def cube_figures(fits, renderer: Renderer, out_dir) -> list[Path]:
 # --------------------------------------------------------------------------- pose
 
 
+@_one_set
 def pose_figures(fits, renderer: Renderer, out_dir) -> list[Path]:
     """Write fit-pose-error.png and fit-pose-before-after.png for a list of
     :class:`~glraster.fitting.results.PoseFit`; returns the paths."""
@@ -197,6 +212,7 @@ def pose_figures(fits, renderer: Renderer, out_dir) -> list[Path]:
 # --------------------------------------------------------------------------- texture
 
 
+@_one_set
 def texture_figures(pairs, renderer: Renderer, out_dir, *, data) -> list[Path]:
     """Write fit-texture-psnr.png, fit-texture-before-after.png and fit-texture-views.png
     for a list of (linear TextureFit, mipmapped TextureFit) pairs, one per seed; ``data``:
@@ -248,6 +264,7 @@ def texture_figures(pairs, renderer: Renderer, out_dir, *, data) -> list[Path]:
 # --------------------------------------------------------------------------- envmap
 
 
+@_one_set
 def envmap_figures(fits, renderer: Renderer, out_dir) -> list[Path]:
     """Write fit-envmap-error.png (image RMSE, colour and exponent error per iteration,
     every seed) and fit-envmap-before-after.png (first seed) for a list of

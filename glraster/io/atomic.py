@@ -94,6 +94,45 @@ def atomic_write(path, suffix: str | None = None, mode: int = 0o644):
         _release(held)
 
 
+def staged_error(exc: OSError, stage: Path, folder: Path) -> OSError:
+    """``exc``, naming the file in ``folder`` where it names its staged copy in ``stage``."""
+    if exc.errno is None or not exc.filename or Path(exc.filename).parent != stage:
+        return exc
+    return OSError(exc.errno, exc.strerror, str(folder / Path(exc.filename).name))
+
+
+@contextmanager
+def staged_folder(folder):
+    """Context manager yielding a hidden folder (a Path) inside ``folder`` (made if missing)
+    to write a set of files into. On normal exit every file written there replaces its
+    namesake in ``folder``, all of them after the last write succeeded (Ctrl-C held back
+    meanwhile), so a run that fails leaves the set that was there, not a mix of old and new
+    files; on any exception the staged files are removed (an OSError names the file in
+    ``folder``, not its staged copy), and ``folder`` too when it was made for them.
+    ``folder``'s other files stay."""
+    folder = Path(folder)
+    stage, made = None, not folder.exists()
+    held = _hold_interrupts()
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        stage = Path(tempfile.mkdtemp(prefix=".staged.", dir=folder))
+        held, holding = None, held
+        _release(holding)
+        try:
+            yield stage
+        except OSError as exc:
+            raise staged_error(exc, stage, folder) from exc
+        held = _hold_interrupts()
+        for item in sorted(stage.iterdir()):
+            os.replace(item, folder / item.name)
+    finally:
+        if stage is not None:
+            shutil.rmtree(stage, ignore_errors=True)
+            if made and not any(folder.iterdir()):   # (made for a run that wrote nothing)
+                folder.rmdir()
+        _release(held)
+
+
 def write_text(path, text: str) -> Path:
     """Write ``text`` (UTF-8) to ``path`` atomically (the parent folder is created)."""
     path = Path(path)

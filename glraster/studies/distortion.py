@@ -30,7 +30,7 @@ from fractions import Fraction
 import numpy as np
 
 from glraster import validate
-from glraster.io.atomic import write_image, write_text
+from glraster.io.atomic import staged_folder, write_image, write_text
 from glraster.geometry import camera as cam
 from glraster.interpolate import interpolate
 
@@ -364,20 +364,29 @@ def write_comparison(out_dir="out/distortion", resolution=(360, 480), supersampl
     Returns:
         {"files": [paths], "scenes": {name: stats}, "segment_example": {...}}.
     """
+    results = render_comparison(resolution, supersample, ctx)
+    with staged_folder(out_dir) as stage:   # the whole set replaces the last run's, or none
+        summary, text = _write_files(results, stage, resolution, supersample, ctx)
+    summary["files"] = [os.path.join(out_dir, name) for name in summary.pop("names")]
+    summary["text"] = text
+    return summary
+
+
+def _write_files(results, stage, resolution, supersample: int, ctx):
+    """Write :func:`write_comparison`'s files into the folder ``stage``: (the summary, with
+    ``names`` the files' names in order; the worked example's lines)."""
     from glraster.io import figures
     from glraster.io.png import write_png
 
-    os.makedirs(out_dir, exist_ok=True)
-    results = render_comparison(resolution, supersample, ctx)
     files = []
 
     for res in results:
         n = res.scene.name
         for label, img in (("affine", res.affine), ("correct", res.correct)):
-            p = os.path.join(out_dir, f"{n}_{label}.png")
+            p = os.path.join(stage, f"{n}_{label}.png")
             write_png(p, img, metadata=_png_meta(f"{n} {label}"))  # row 0 at the bottom
             files.append(p)
-        p = os.path.join(out_dir, f"{n}_diff.png")
+        p = os.path.join(stage, f"{n}_diff.png")
         meta = _png_meta(f"{n} uv error heatmap")
         with figures.figure(p, figsize=(6.4, 4.8), dpi=100, title=meta["Title"],
                             description=meta["Description"]) as fig:
@@ -388,7 +397,7 @@ def write_comparison(out_dir="out/distortion", resolution=(360, 480), supersampl
             fig.colorbar(im, ax=ax, shrink=0.85, label="uv error (checker squares)")
         files.append(p)
 
-    p = os.path.join(out_dir, "distortion_figure.png")
+    p = os.path.join(stage, "distortion_figure.png")
     meta = _png_meta("side-by-side figure")
     with figures.figure(p, figsize=(16, 4.6 * len(results)), dpi=100, title=meta["Title"],
                         description=meta["Description"]) as fig:
@@ -412,7 +421,7 @@ def write_comparison(out_dir="out/distortion", resolution=(360, 480), supersampl
                      "supersampled)", fontsize=14)
     files.append(p)
 
-    p = os.path.join(out_dir, "distortion.exr")
+    p = os.path.join(stage, "distortion.exr")
     _write_exr(p, results)
     files.append(p)
 
@@ -422,16 +431,15 @@ def write_comparison(out_dir="out/distortion", resolution=(360, 480), supersampl
         f"GPU (pixel {gpu['pixel']}): screen weight of V1 {gpu['screen_weight_B']:.7f}, "
         f"affine depth {gpu['affine_depth']:.7f}, perspective-correct depth "
         f"{gpu['correct_depth']:.7f}"]
-    p = os.path.join(out_dir, "segment_example.txt")
+    p = os.path.join(stage, "segment_example.txt")
     write_text(p, "\n".join(text) + "\n")
     files.append(p)
     summary = {"scenes": {r.scene.name: r.stats for r in results},
                "segment_example": {"affine_depth": str(ex.affine_depth),
                                    "correct_depth": str(ex.correct_depth), "gpu": gpu},
                "resolution": list(resolution), "supersample": supersample}
-    p = os.path.join(out_dir, "summary.json")
+    p = os.path.join(stage, "summary.json")
     write_text(p, json.dumps(summary, indent=2))
     files.append(p)
-    summary["files"] = files
-    summary["text"] = text
-    return summary
+    summary["names"] = [os.path.basename(p) for p in files]
+    return summary, text

@@ -139,3 +139,37 @@ def test_an_image_write_short_of_room_is_enospc(tmp_path, monkeypatch):
     monkeypatch.setattr(atomic.shutil, "disk_usage", lambda path: usage._replace(free=100))
     error = atomic.image_write_error(target, text, 1 << 10)
     assert (error.errno, error.strerror) == (errno.ENOSPC, "No space left on device")
+
+
+def test_a_staged_set_of_files_lands_whole_or_not_at_all(tmp_path):
+    """staged_folder: the files of a run replace the last run's together; a run that fails
+    midway leaves the old set (not a mix), no staged file, and names the file where it
+    goes; a folder made for a run that wrote nothing is removed again."""
+    import errno
+
+    from glraster.io.atomic import staged_folder, write_text
+
+    out = tmp_path / "out"
+    with staged_folder(out) as stage:
+        for name in ("a.txt", "b.txt"):
+            write_text(stage / name, f"old {name}")
+    (out / "mine.txt").write_text("not glraster's")
+    assert sorted(p.name for p in out.iterdir()) == ["a.txt", "b.txt", "mine.txt"]
+
+    with pytest.raises(OSError) as caught:
+        with staged_folder(out) as stage:
+            write_text(stage / "a.txt", "new a.txt")
+            raise OSError(errno.ENOSPC, "No space left on device", str(stage / "b.txt"))
+    assert caught.value.filename == str(out / "b.txt")
+    assert {p.name: p.read_text() for p in out.iterdir()} == {
+        "a.txt": "old a.txt", "b.txt": "old b.txt", "mine.txt": "not glraster's"}
+
+    with staged_folder(out) as stage:
+        write_text(stage / "a.txt", "new a.txt")
+    assert (out / "a.txt").read_text() == "new a.txt" and (out / "b.txt").exists()
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]
+
+    with pytest.raises(RuntimeError):
+        with staged_folder(tmp_path / "new" / "out"):
+            raise RuntimeError("the run failed")
+    assert not (tmp_path / "new" / "out").exists()
