@@ -19,9 +19,9 @@ bench: setup
 
 setup: system-deps $(VENV)/.installed
 
-# Mesa's EGL and OSMesa libraries, installed through apt only when missing.
+# Mesa's EGL and OSMesa libraries (and python3's venv), installed through apt only when missing.
 system-deps:
-	@bash scripts/install-system-deps.sh
+	@PYTHON=$(PYTHON) bash scripts/install-system-deps.sh
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Install the system libraries glraster loads at run time, through apt, only when missing:
 #   libEGL + Mesa's EGL driver (default backend), libOSMesa (fallback backend),
-#   Mesa's DRI drivers (llvmpipe), Chromium (headless screenshots of the HTML report in tests).
+#   Mesa's DRI drivers (llvmpipe), Chromium (headless screenshots of the HTML report in tests),
+#   and the venv module of the system's python3.
 # Chromium is optional: where apt has no package of it (Ubuntu ships it as a snap), the
 # libraries are installed all the same and the screenshot test says it is skipped.
 set -euo pipefail
@@ -15,6 +16,14 @@ have_lib 'libEGL_mesa.so.0 '  || missing+=(libegl-mesa0)
 have_lib 'libOSMesa.so'       || missing+=(libosmesa6)
 [ -e /usr/lib/x86_64-linux-gnu/dri/swrast_dri.so ] || [ -n "$(ls /usr/lib/*/dri/swrast_dri.so 2>/dev/null)" ] \
     || missing+=(libgl1-mesa-dri)
+# `make` builds its venv with $PYTHON (python3): Debian's and Ubuntu's own python3 has no
+# venv module (ensurepip) until python3-venv is installed; another Python is left as it is
+python=$(command -v "${PYTHON:-python3}" || true)
+if [ -z "$python" ]; then
+    missing+=(python3 python3-venv)
+elif [[ "$(readlink -f "$python")" == /usr/bin/* ]] && ! "$python" -c 'import ensurepip, venv' 2>/dev/null; then
+    missing+=(python3-venv)
+fi
 browser=()
 command -v chromium >/dev/null || command -v chromium-browser >/dev/null || browser=(chromium)
 
