@@ -7,8 +7,10 @@
 # libraries are installed all the same and the screenshot test says it is skipped.
 set -euo pipefail
 
-# grep without -q reads all of ldconfig's output, so pipefail never sees a SIGPIPE
-have_lib() { ldconfig -p | grep "$1" >/dev/null; }
+# grep without -q reads all of ldconfig's output, so pipefail never sees a SIGPIPE;
+# ldconfig lives in /sbin, which a user's PATH may lack
+LDCONFIG=$(command -v ldconfig || echo /sbin/ldconfig)
+have_lib() { "$LDCONFIG" -p | grep "$1" >/dev/null; }
 
 missing=()
 have_lib 'libEGL.so.1 '       || missing+=(libegl1)
