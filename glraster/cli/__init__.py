@@ -16,6 +16,7 @@ from glraster._version import __version__
 from glraster.cli import commands, exit_codes
 from glraster.cli.errors import describe, name_options
 from glraster.errors import BackendUnavailable, ShaderCompileError, needs_extra
+from glraster.io.destinations import refuse_unwritable_defaults
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -90,10 +91,13 @@ def _main(argv) -> int:
 def _parse(parser: argparse.ArgumentParser, argv: list) -> argparse.Namespace:
     """``parser.parse_args(argv)``, except that an argument no parser knows is refused by
     the (sub)command it was given to, with that command's usage ("glraster fit cube:
-    error: unrecognized arguments: --itrations 5"), not the top level's."""
+    error: unrecognized arguments: --itrations 5"), not the top level's, and that output
+    options left at their defaults are judged too (:mod:`glraster.io.destinations`)."""
     args, extra = parser.parse_known_args(argv)
+    command = _command_parser(parser, argv)
     if extra:
-        _command_parser(parser, argv).error(f"unrecognized arguments: {' '.join(extra)}")
+        command.error(f"unrecognized arguments: {' '.join(extra)}")
+    refuse_unwritable_defaults(command, args)   # (given ones were judged as parsed)
     return args
 
 

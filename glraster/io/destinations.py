@@ -3,7 +3,9 @@
 A long run (a fit, the conformance suite, a benchmark) that fails only at its last write
 loses the run. :class:`OutputFile` and :class:`OutputFolder` are argparse actions that
 refuse such an option when the command line is parsed: one line on stderr naming the
-option, exit code 2 (argparse's own for a bad command line), nothing made.
+option, exit code 2 (argparse's own for a bad command line), nothing made. argparse runs
+no action for an option left at its default (``out/fit/cube``, say):
+:func:`refuse_unwritable_defaults` judges those once the command line is parsed.
 """
 
 from __future__ import annotations
@@ -56,3 +58,14 @@ class OutputFolder(OutputFile):
     """``action=`` of an option naming a folder to write into (made if missing)."""
 
     folder = True
+
+
+def refuse_unwritable_defaults(parser: argparse.ArgumentParser,
+                               namespace: argparse.Namespace) -> None:
+    """:func:`refuse_unwritable` for each :class:`OutputFile` option of ``parser`` that
+    ``namespace`` holds at its default (not given on the command line)."""
+    for action in parser._actions:
+        if isinstance(action, OutputFile) and action.default is not None \
+                and getattr(namespace, action.dest, None) is action.default:
+            refuse_unwritable(parser, "/".join(action.option_strings) or action.metavar
+                              or action.dest, action.default, action.folder)

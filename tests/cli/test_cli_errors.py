@@ -193,6 +193,35 @@ def test_an_output_that_cannot_be_written_stops_the_command_before_it_runs(tmp_p
     assert sorted(os.listdir(tmp_path)) == ["taken"]
 
 
+@pytest.mark.parametrize("args, target", [
+    (("fit", "cube"), "out/fit/cube"),
+    (("distortion",), "out/distortion"),
+    (("antialias-study",), "out/antialias"),
+    (("demo",), "out"),
+])
+def test_an_output_left_at_its_default_is_judged_before_the_run_too(tmp_path, args, target):
+    """argparse runs no action for an option left at its default: such an --out was not
+    judged, and the command ran until its first write (demo: after its comparison)."""
+    (tmp_path / "out").write_text("a file, not a folder")
+    result = _glraster(*args, cwd=tmp_path)
+    assert result.returncode == exit_codes.USAGE, result.stderr
+    assert result.stdout == "", "nothing ran"
+    line = _one_line(result.stderr)
+    assert f"error: argument --out: cannot write {target} (out is a file, not a folder)" \
+        in line, line
+    assert sorted(os.listdir(tmp_path)) == ["out"]
+
+
+def test_demo_quick_writes_nothing_so_its_default_out_is_not_judged(tmp_path, gl_backend):
+    (tmp_path / "out").write_text("a file, not a folder")
+    env = {k: v for k, v in _env().items() if k != "GLRASTER_BACKEND"}
+    result = subprocess.run([sys.executable, "-m", "glraster.cli", "demo", "--quick",
+                             "--backend", gl_backend], capture_output=True, text=True,
+                            env=env, cwd=tmp_path, timeout=300)
+    assert result.returncode == exit_codes.OK, result.stderr
+    assert sorted(os.listdir(tmp_path)) == ["out"]
+
+
 def test_every_option_that_names_an_output_is_checked_before_the_run():
     """Every --json/--plot/--junit/--html/--png/--out/-o FILE of every command is an
     OutputFile or OutputFolder action (refused at parse time when it cannot be made), so

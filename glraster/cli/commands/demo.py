@@ -12,14 +12,15 @@ from pathlib import Path
 
 from glraster.cli import exit_codes
 from glraster.cli.commands import add_backend_argument, add_command
-from glraster.io.destinations import OutputFolder
+from glraster.errors import ArgumentError
+from glraster.io.destinations import OutputFolder, unwritable_reason
 
 
 def register(subparsers) -> None:
     p = add_command(subparsers, "demo", __doc__)
     add_backend_argument(p)
-    p.add_argument("--out", action=OutputFolder,
-                   default="out", help="folder for reports and figures (default: out)")
+    p.add_argument("--out", action=OutputFolder, default=None,
+                   help="folder for reports and figures (default: out)")
     p.add_argument("--quick", action="store_true",
                    help="only the GPU-vs-reference comparison, no check or figure")
     p.set_defaults(func=run)
@@ -56,12 +57,15 @@ def run(args) -> int:
     from glraster.cli import main
     from glraster.gpu.context import Context
 
+    out = Path(args.out or "out")
+    reason = None if args.quick else unwritable_reason(out, folder=True)
+    if reason is not None:   # (the default is judged here: --quick writes nothing)
+        raise ArgumentError("--out", f"cannot write {out} ({reason})")
     ctx = Context(backend=args.backend)
     print(f"glraster demo on {ctx.backend}: {ctx.renderer}, {ctx.gl_version}")
     ok = compare_builtin(ctx)
     if args.quick:
         return exit_codes.OK if ok else exit_codes.FAIL
-    out = Path(args.out)
     backend = ["--backend", ctx.backend]
     print(f"\n== conformance check -> {out / 'report' / 'index.html'}")
     ok &= main(["check", *backend, "--html", str(out / "report")]) == 0
