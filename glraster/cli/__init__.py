@@ -10,7 +10,9 @@ import argparse
 import importlib
 import os
 import pkgutil
+import signal
 import sys
+import threading
 
 from glraster._version import __version__
 from glraster.cli import commands, exit_codes
@@ -36,6 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     """Run one command; every error is one line on stderr and an exit code of
     :mod:`glraster.cli.exit_codes` (a traceback only for a bug in glraster)."""
+    terminate = _raise_on_sigterm()
     try:
         return _main(argv)
     except KeyboardInterrupt:
@@ -44,9 +47,35 @@ def main(argv=None) -> int:
         _quiet_stdout()
         print("glraster: interrupted", file=sys.stderr)
         return exit_codes.INTERRUPTED
+    except Terminated:
+        _quiet_stdout()
+        print("glraster: terminated", file=sys.stderr)
+        return exit_codes.TERMINATED
     except BrokenPipeError:
         _quiet_stdout()
         return exit_codes.BROKEN_PIPE
+    finally:
+        if terminate is not None:
+            signal.signal(signal.SIGTERM, terminate)
+
+
+class Terminated(BaseException):
+    """SIGTERM (a CI job cancelled or timed out), raised where the command is, so that its
+    clean-up runs as for Ctrl-C (without it, Python dies at once and leaves temporary files
+    and staged folders behind)."""
+
+
+def _terminated(signum, frame):
+    raise Terminated
+
+
+def _raise_on_sigterm():
+    """Make SIGTERM raise :class:`Terminated` (main thread only, where handlers can be set,
+    and only over the default action); returns the handler to put back, or None."""
+    if threading.current_thread() is not threading.main_thread() \
+            or signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
+        return None
+    return signal.signal(signal.SIGTERM, _terminated)
 
 
 def _quiet_stdout() -> None:

@@ -19,31 +19,43 @@ from contextlib import contextmanager
 from pathlib import Path
 
 
+# Ctrl-C, and SIGTERM where a handler makes it an exception (glraster.cli.main)
+_HELD_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
 def _hold_interrupts():
-    """Defer Ctrl-C: SIGINT's handler is replaced by one that only records it. Returns
-    what :func:`_release` needs (None off the main thread, where no KeyboardInterrupt is
-    ever raised and handlers cannot be set). A signal mask would not do: SIGINT goes to any
-    thread that does not block it (driver and OpenImageIO threads), and Python raises it in
-    the main thread anyway."""
+    """Defer Ctrl-C and SIGTERM: their handlers are replaced by one that only records them
+    (SIGTERM's only when it has a handler of its own: by default it ends the process, which
+    nothing here can undo). Returns what :func:`_release` needs (None off the main thread,
+    where no KeyboardInterrupt is ever raised and handlers cannot be set). A signal mask
+    would not do: a signal goes to any thread that does not block it (driver and
+    OpenImageIO threads), and Python runs its handler in the main thread anyway."""
     if threading.current_thread() is not threading.main_thread():
         return None
     caught = []
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(frame))
+    previous = {}
+    for number in _HELD_SIGNALS:
+        if number == signal.SIGINT or callable(signal.getsignal(number)):
+            previous[number] = signal.signal(
+                number, lambda signum, frame: caught.append((signum, frame)))
     return previous, caught
 
 
 def _release(held) -> None:
-    """Put SIGINT's handler back; a Ctrl-C that came meanwhile is handed to it now (the
-    default handler raises KeyboardInterrupt here)."""
+    """Put the handlers back; a signal that came meanwhile is handed to its handler now
+    (SIGINT's default raises KeyboardInterrupt here)."""
     if held is None:
         return
     previous, caught = held
-    signal.signal(signal.SIGINT, previous)
+    for number, handler in previous.items():
+        signal.signal(number, handler)
     if caught:
-        if callable(previous):
-            previous(signal.SIGINT, caught[0])
-        elif previous == signal.SIG_DFL:
-            signal.raise_signal(signal.SIGINT)
+        number, frame = caught[0]
+        handler = previous[number]
+        if callable(handler):
+            handler(number, frame)
+        elif handler == signal.SIG_DFL:
+            signal.raise_signal(number)
 
 
 def _temporary_beside(path: Path, suffix: str | None) -> str:
@@ -71,8 +83,9 @@ def atomic_write(path, suffix: str | None = None, mode: int = 0o644):
     the exception propagates. The parent folder is created. ``suffix`` (default: the
     target's) matters to writers that choose a format from the file name.
 
-    Ctrl-C is held back from creating the temporary file until the code that removes it
-    is in place (a KeyboardInterrupt between the two would leave it behind).
+    Ctrl-C (and SIGTERM under ``glraster``) is held back from creating the temporary file
+    until the code that removes it is in place (an interrupt between the two would leave
+    it behind).
     """
     path = Path(path)
     tmp = None

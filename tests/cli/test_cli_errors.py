@@ -122,9 +122,14 @@ def test_ctrl_c_while_writing_leaves_no_file_and_exits_130(tmp_path):
     assert sorted(os.listdir(tmp_path)) == [], "no x.exr, no temporary file"
 
 
-def test_sigint_from_outside_during_a_write_leaves_no_file_and_exits_130(tmp_path):
-    """A real Ctrl-C from another process, sent as soon as the EXR's temporary file
-    appears (1024x1024, eight float channels: the write takes a while)."""
+@pytest.mark.parametrize("signum, code, said", [
+    (signal.SIGINT, exit_codes.INTERRUPTED, "glraster: interrupted"),
+    (signal.SIGTERM, exit_codes.TERMINATED, "glraster: terminated")])
+def test_a_signal_from_outside_during_a_write_leaves_no_file(tmp_path, signum, code, said):
+    """A real Ctrl-C, or the SIGTERM of a CI job cancelled or timed out (it killed the
+    process at once and left the temporary file), from another process, sent as soon as
+    the EXR's temporary file appears (1024x1024, eight float channels: the write takes a
+    while)."""
     pos = np.array([[-1, -1, 0, 1], [3, -1, 0, 1], [-1, 3, 0, 1]], np.float32)
     np.savez(tmp_path / "scene.npz", pos=pos, tri=np.array([[0, 1, 2]]),
              resolution=np.array([1024, 1024]))
@@ -137,10 +142,10 @@ def test_sigint_from_outside_during_a_write_leaves_no_file_and_exits_130(tmp_pat
     while not os.listdir(out) and proc.poll() is None and time.monotonic() < deadline:
         time.sleep(0.002)
     assert proc.poll() is None, "the render ended before its write was seen"
-    proc.send_signal(signal.SIGINT)
+    proc.send_signal(signum)
     stdout, stderr = proc.communicate(timeout=120)
-    assert proc.returncode == exit_codes.INTERRUPTED, stderr
-    assert _one_line(stderr.decode()) == "glraster: interrupted"
+    assert proc.returncode == code, stderr
+    assert _one_line(stderr.decode()) == said
     assert os.listdir(out) == [], "the interrupted write left nothing behind"
 
 

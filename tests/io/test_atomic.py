@@ -30,28 +30,42 @@ def test_failure_keeps_the_old_file_and_leaves_no_temporary(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["out.exr"]
 
 
-def test_ctrl_c_just_after_the_temporary_file_is_made_leaves_nothing(tmp_path, monkeypatch):
-    """SIGINT between mkstemp and the code that removes the temporary file (the race a
-    real Ctrl-C hit): held back, then raised inside atomic_write, which cleans up."""
+@pytest.mark.parametrize("name", ["SIGINT", "SIGTERM"])
+def test_a_signal_just_after_the_temporary_file_is_made_leaves_nothing(tmp_path, monkeypatch,
+                                                                       name):
+    """SIGINT, or SIGTERM with glraster's handler (glraster.cli.main), between mkstemp and
+    the code that removes the temporary file (the race a real Ctrl-C hit): held back, then
+    raised inside atomic_write, which cleans up."""
     import os
     import signal
     import tempfile
 
+    from glraster.cli import Terminated, _terminated
+
+    signum = getattr(signal, name)
+    raised = KeyboardInterrupt if name == "SIGINT" else Terminated
+    previous = signal.signal(signal.SIGTERM, _terminated) if name == "SIGTERM" else None
     real_mkstemp = tempfile.mkstemp
 
-    def mkstemp_then_ctrl_c(*args, **kwargs):
+    def mkstemp_then_signal(*args, **kwargs):
         made = real_mkstemp(*args, **kwargs)
-        os.kill(os.getpid(), signal.SIGINT)
+        os.kill(os.getpid(), signum)
         return made
 
-    monkeypatch.setattr(tempfile, "mkstemp", mkstemp_then_ctrl_c)
+    monkeypatch.setattr(tempfile, "mkstemp", mkstemp_then_signal)
     body_ran = []
-    with pytest.raises(KeyboardInterrupt):
-        with atomic_write(tmp_path / "x.txt"):
-            body_ran.append(True)
-    assert body_ran == [], "the interrupt comes before the body"
-    assert list(tmp_path.iterdir()) == []
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    try:
+        with pytest.raises(raised):
+            with atomic_write(tmp_path / "x.txt"):
+                body_ran.append(True)
+        assert body_ran == [], "the signal comes before the body"
+        assert list(tmp_path.iterdir()) == []
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        if name == "SIGTERM":
+            assert signal.getsignal(signal.SIGTERM) is _terminated
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 def test_write_text_is_atomic_and_names_a_blocked_target(tmp_path):
