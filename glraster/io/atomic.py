@@ -134,7 +134,10 @@ def staged_folder(folder):
         try:
             yield stage
         except OSError as exc:
-            raise staged_error(exc, stage, folder) from exc
+            error = staged_error(exc, stage, folder)
+            if error is exc:
+                raise
+            raise error from exc
         held = _hold_interrupts()
         for item in sorted(stage.iterdir()):
             os.replace(item, folder / item.name)
