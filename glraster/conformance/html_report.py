@@ -153,6 +153,7 @@ class HtmlReport:
         if final.exists():
             old = Path(tempfile.mkdtemp(prefix=".img.old.", dir=self.dir))
             os.replace(final, old / "img")
+        os.chmod(self.img, 0o755)   # (mkdtemp made it 0700; the images are shared, 0644)
         os.replace(self.img, final)
         self.img = final
         return old

@@ -131,6 +131,7 @@ def test_a_run_that_fails_leaves_the_report_that_was_there(gl_context, tmp_path)
         rep.finish(result)
     before = _snapshot(out)
     assert "index.html" in before and "img/torus_gpu.png" in before
+    assert (out / "img").stat().st_mode & 0o777 == 0o755, "readable by a web server"
 
     with pytest.raises(KeyboardInterrupt):
         with HtmlReport(out) as rep:
