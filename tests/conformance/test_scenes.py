@@ -118,6 +118,16 @@ def test_user_scene_files_round_trip(tmp_path):
         {"resolution": [64, 64], "builder": "soup",
          "params": {"count": 5, "size_px": [2, 4], "seed": 1}}))
     assert len(load_scene_file(tmp_path / "r.json").tri) == 5
+    (tmp_path / "m.json").write_text(json.dumps(
+        {"pos": pos.tolist(), "tri": [[0, 1, 2]], "resolution": [8, 8], "samples": 4,
+         "interpolation": "centroid", "tags": ["multisample"]}))
+    m = load_scene_file(tmp_path / "m.json")
+    assert (m.samples, m.interpolation, m.tags) == (4, "centroid", ("multisample",))
+    np.savez(tmp_path / "m.npz", pos=pos, tri=np.array([[0, 1, 2]]), resolution=[8, 8],
+             samples=np.array(2), interpolation=np.array("sample"))
+    m = load_scene_file(tmp_path / "m.npz")
+    assert (m.samples, m.interpolation) == (2, "sample")
+    assert resolve("ms_fan_offcenter@2x").samples == 2   # a catalog scene at another count
 
 
 @pytest.mark.parametrize("content, message", [
@@ -130,6 +140,16 @@ def test_user_scene_files_round_trip(tmp_path):
     ({"tri": [[0, 0, 0]], "resolution": [4, 4]}, "missing field"),
     ({"resolution": [4, 4], "builder": "nope"}, "unknown builder"),
     ({"resolution": [4, 4], "builder": "soup", "params": {"bogus": 1}}, "bad parameters"),
+    # a field the format does not have is refused, not ignored (a misspelt "samples")
+    ({"pos": [[0, 0, 0, 1]], "tri": [[0, 0, 0]], "resolution": [4, 4], "sample": 4},
+     "unknown field 'sample'; a scene file's fields are pos, tri, resolution, name, "
+     "description, outputs, tags, samples, interpolation"),
+    ({"resolution": [4, 4], "builder": "soup", "param": {}, "cull": False},
+     "unknown fields 'param', 'cull'; a recipe's fields are builder, params"),
+    ({"pos": [[0, 0, 0, 1]], "tri": [[0, 0, 0]], "resolution": [4, 4], "samples": 3},
+     "samples must be a power of two"),
+    ({"pos": [[0, 0, 0, 1]], "tri": [[0, 0, 0]], "resolution": [4, 4],
+      "interpolation": "flat"}, "interpolation"),
 ])
 def test_bad_user_scene_files_raise_clear_errors(tmp_path, content, message):
     path = tmp_path / "bad.json"
@@ -155,6 +175,12 @@ def test_bad_file_types_and_npz(tmp_path):
              resolution=[8, 8])                 # object arrays would need pickle
     with pytest.raises(ValueError, match=r"o.npz: array 'tri' cannot be read \(Object arrays"):
         load_scene_file(tmp_path / "o.npz")
+    np.savez(tmp_path / "u.npz", pos=np.zeros((3, 4)), tri=[[0, 1, 2]], resolution=[8, 8],
+             uv=np.zeros((3, 2)))
+    with pytest.raises(ValueError, match="u.npz: unknown array 'uv'; a scene file's arrays "
+                                         "are pos, tri, resolution, name, samples, "
+                                         "interpolation"):
+        load_scene_file(tmp_path / "u.npz")
     (tmp_path / "j.json").write_text("{not json")
     with pytest.raises(ValueError, match="invalid JSON"):
         load_scene_file(tmp_path / "j.json")

@@ -36,6 +36,13 @@ from glraster.conformance.scenes.builders import BUILDERS
 from glraster.types import OUTPUTS as ALL_OUTPUTS
 MAX_RESOLUTION = 16384
 
+# The fields a scene file may hold; any other is refused (a misspelt "samples" must not
+# silently render one sample a pixel). Raw geometry (.json fields, .npz arrays) and recipes:
+_OPTIONAL = ("name", "description", "outputs", "tags", "samples", "interpolation")
+GEOMETRY_FIELDS = ("pos", "tri", "resolution") + _OPTIONAL
+RECIPE_FIELDS = ("builder", "params", "resolution") + _OPTIONAL
+NPZ_ARRAYS = ("pos", "tri", "resolution", "name", "samples", "interpolation")
+
 
 @dataclass(frozen=True)
 class Scene:
@@ -126,6 +133,7 @@ def build_scene(entry: dict, source: str = "scene") -> Scene:
     for key in ("name", "resolution", "builder"):
         if key not in entry:
             raise ArgumentError("entry", f"{source}: missing field {key!r}")
+    _refuse_unknown(entry, RECIPE_FIELDS, "field", "recipe", source)
     fn = BUILDERS.get(entry["builder"])
     if fn is None:
         raise ArgumentError("entry", f"{source}: unknown builder {entry['builder']!r}; "
@@ -180,10 +188,14 @@ def load_scene_file(path) -> Scene:
     """Load a user scene file.
 
     ``.npz``: arrays ``pos`` (V, 4) clip space, ``tri`` (T, 3) integer, ``resolution``
-    (2,) = (height, width); optional ``name`` (string array).
+    (2,) = (height, width); optional ``name`` (string), ``samples`` (int, samples per
+    pixel) and ``interpolation`` (string), 0-d arrays.
     ``.json``: either ``{"pos": [[x, y, z, w], ...], "tri": [[i, j, k], ...],
     "resolution": [H, W]}`` or a catalog-style recipe ``{"name", "resolution",
-    "builder", "params"}``. Raises ValueError naming the file and the faulty field.
+    "builder", "params"}``; both may add ``name``, ``description``, ``outputs``, ``tags``,
+    ``samples`` and ``interpolation`` (:data:`GEOMETRY_FIELDS`, :data:`RECIPE_FIELDS`).
+    Raises ValueError naming the file and the faulty field; a field or array the format
+    does not have is refused, not ignored.
     """
     path = Path(path)
     src = str(path)
@@ -202,8 +214,9 @@ def load_scene_file(path) -> Scene:
             if missing:
                 raise ArgumentError("path", f"{src}: missing array(s) {', '.join(missing)} "
                                             f"(found: {', '.join(data.files) or 'none'})")
+            _refuse_unknown(data.files, NPZ_ARRAYS, "array", "scene file", src)
             arrays = {}
-            for key in ("pos", "tri", "resolution", "name"):
+            for key in NPZ_ARRAYS:
                 if key in data.files:
                     try:
                         arrays[key] = data[key]
@@ -212,7 +225,8 @@ def load_scene_file(path) -> Scene:
                                                     f"({exc})") from None
             name = str(arrays["name"]) if "name" in arrays else path.stem
             return make_scene(name, arrays["pos"], arrays["tri"], arrays["resolution"],
-                              source=src)
+                              source=src, samples=_scalar(arrays.get("samples", 1)),
+                              interpolation=str(arrays.get("interpolation", "center")))
     if suffix == ".json":
         try:
             entry = json.loads(path.read_text())
@@ -227,6 +241,7 @@ def load_scene_file(path) -> Scene:
         missing = [k for k in ("pos", "tri", "resolution") if k not in entry]
         if missing:
             raise ArgumentError("path", f"{src}: missing field(s) {', '.join(missing)}")
+        _refuse_unknown(entry, GEOMETRY_FIELDS, "field", "scene file", src)
         try:
             pos = np.array(entry["pos"], dtype=np.float64)
             tri = np.array(entry["tri"])             # integers stay integers
@@ -235,15 +250,37 @@ def load_scene_file(path) -> Scene:
                 "path", f"{src}: pos and tri must be rectangular numeric lists ({exc})") from None
         return make_scene(entry.get("name", path.stem), pos, tri, entry["resolution"],
                           entry.get("description", ""),
-                          outputs=tuple(entry.get("outputs", ALL_OUTPUTS)), source=src)
+                          outputs=tuple(entry.get("outputs", ALL_OUTPUTS)),
+                          tags=tuple(entry.get("tags", ())), source=src,
+                          samples=entry.get("samples", 1),
+                          interpolation=entry.get("interpolation", "center"))
     raise ArgumentError(
         "path", f"{src}: unsupported scene file type {suffix!r} (use .npz or .json)")
 
 
+def _refuse_unknown(keys, known, kind: str, holder: str, source: str) -> None:
+    """ArgumentError naming the ``kind``s ("field", "array") of ``keys`` not in ``known``,
+    the ones a ``holder`` ("scene file", "recipe") may hold."""
+    unknown = [k for k in keys if k not in known]
+    if unknown:
+        raise ArgumentError(
+            "path", f"{source}: unknown {kind}{'s' if len(unknown) > 1 else ''} "
+                    f"{', '.join(map(repr, unknown))}; a {holder}'s {kind}s are "
+                    f"{', '.join(known)}")
+
+
+def _scalar(value):
+    """A 0-d (or 1-element) .npz array as its Python value; anything else unchanged (for
+    validate to name)."""
+    value = np.asarray(value)
+    return value.item() if value.size == 1 else value
+
+
 def resolve(name_or_path) -> Scene:
-    """A catalog scene by name, or a user scene file by path."""
+    """A catalog scene by name (``<name>@<S>x`` for a multisample scene at S samples), or a
+    user scene file by path."""
     s = str(name_or_path)
-    if s in _catalog():
+    if s.partition("@")[0] in _catalog():
         return load_scene(s)
     if Path(s).suffix.lower() in (".npz", ".json") or Path(s).exists():
         return load_scene_file(s)
