@@ -242,6 +242,29 @@ def test_render_command_with_server_matches_local_render(server, gl_backend, tmp
     assert "reference" in exr.read_raster(tmp_path / "ref.exr").metadata["producer"]
 
 
+def test_render_command_with_server_renders_a_multisampled_scene_as_locally(server, gl_backend,
+                                                                            tmp_path):
+    """A multisampled scene's .npz through the service: the per-sample arrays, mask and
+    positions of a local render, bit for bit (NaN where the local one has NaN); the
+    reference's float64 not said to be rounded."""
+    def render(*extra, out):
+        return subprocess.run([sys.executable, "-m", "glraster.cli", "render",
+                               "ms_fan_offcenter", "-o", str(out), *extra],
+                              capture_output=True, text=True, timeout=300)
+    for extra, local_extra in ((["--server", server.url], ["--backend", gl_backend]),
+                               (["--server", server.url, "--reference"], ["--reference"])):
+        remote = render(*extra, out=tmp_path / "remote.npz")
+        assert remote.returncode == 0, remote.stderr
+        local = render(*local_extra, out=tmp_path / "local.npz")
+        assert local.returncode == 0, local.stderr
+        with np.load(tmp_path / "remote.npz") as a, np.load(tmp_path / "local.npz") as b:
+            for key in ("persp", "screen", "depth", "tri_id", "mask", "sample_positions"):
+                assert a[key].shape == b[key].shape and a[key].dtype == b[key].dtype, key
+                assert np.array_equal(a[key], b[key], equal_nan=True), key
+            producer = json.loads(str(a["metadata"]))["producer"]
+        assert server.url in producer and "rounded" not in producer
+
+
 def test_render_command_exit_codes_with_server(server, tmp_path):
     """A refused request is exit 2 (bad input), an unreachable service exit 3."""
     too_big = tmp_path / "big.json"

@@ -1,15 +1,21 @@
-"""`glraster render`: render a catalog scene or a scene file (.npz/.json) to an EXR.
+"""`glraster render`: render a catalog scene or a scene file (.npz/.json) to an EXR or .npz.
 
 Rasterize a scene on the GPU (or with the float64 reference) and write a multi-channel
-EXR: persp.b0..b2, screen.b0..b2, depth.Z and the exact triangle id, upright. Scene files:
-.npz with pos (V,4), tri (T,3), resolution (2,) = (H, W); or .json with the same keys, or
-a recipe {name, resolution, builder, params} as in the catalog.
+EXR: persp.b0..b2, screen.b0..b2, depth.Z and the exact triangle id, upright; or an .npz
+of the arrays as glraster.rasterize returns them (bit for bit; a multisampled scene's
+per-sample arrays only fit there). Scene files: .npz with pos (V,4), tri (T,3),
+resolution (2,) = (H, W); or .json with the same keys, or a recipe {name, resolution,
+builder, params} as in the catalog; samples and interpolation as the scene sets them.
 """
 
 from __future__ import annotations
 
+import json
 import sys
 import time
+from pathlib import Path
+
+import numpy as np
 
 from glraster.cli import exit_codes
 from glraster.cli.errors import describe
@@ -22,16 +28,19 @@ def register(subparsers) -> None:
     p = add_command(subparsers, "render", __doc__)
     p.add_argument("scene", metavar="SCENE_OR_FILE",
                    help="catalog scene name (see 'glraster check --list') or scene file")
-    p.add_argument("-o", "--output", action=OutputFile,
-                   required=True, metavar="OUT.exr", help="EXR to write")
+    p.add_argument("-o", "--output", action=OutputFile, required=True,
+                   metavar="OUT.exr|OUT.npz",
+                   help="EXR or .npz to write (.npz: the arrays, the mask and the sample "
+                        "positions bit for bit, and a JSON metadata string)")
     add_backend_argument(p)
     p.add_argument("--outputs", default=None, metavar="LIST",
                    help="comma-separated subset of persp,screen,depth,tri_id "
                         "(default: the scene's outputs)")
     p.add_argument("--reference", action="store_true",
-                   help="write the float64 reference (rounded to float32) instead of the GPU")
+                   help="write the float64 reference instead of the GPU (rounded to float32 "
+                        "in an EXR, float64 in an .npz)")
     p.add_argument("--crop", action="store_true",
-                   help="store only the bounding box of covered pixels (lossless)")
+                   help="store only the bounding box of covered pixels in the EXR (lossless)")
     p.add_argument("--png", action=OutputFile, default=None, metavar="OUT.png",
                    help="also write a preview PNG of the perspective barycentrics")
     p.add_argument("--server", default=None, metavar="URL",
@@ -53,8 +62,7 @@ def run(args) -> int:
             from glraster.validate import outputs as check_outputs
 
             outputs = check_outputs([o.strip() for o in args.outputs.split(",") if o.strip()])
-        if not str(args.output).lower().endswith(".exr"):
-            raise ArgumentError("output", f"output must end in .exr, got {args.output!r}")
+        _check_output(args, scene)
         if args.png is not None and not str(args.png).lower().endswith(".png"):
             raise ArgumentError("png", f"png must end in .png, got {args.png!r}")
         if args.server is not None and not args.server.strip():
@@ -77,8 +85,10 @@ def run(args) -> int:
     elif args.reference:
         from glraster.reference import rasterize as ref_rasterize
 
-        raster = ref_rasterize(scene.pos, scene.tri, scene.resolution, outputs=outputs)
-        producer = "glraster.reference.rasterize (float64, fill rule llvmpipe), rounded to float32"
+        raster = ref_rasterize(scene.pos, scene.tri, scene.resolution, outputs=outputs,
+                               samples=scene.samples, interpolation=scene.interpolation)
+        producer = "glraster.reference.rasterize (float64, fill rule llvmpipe)" + \
+            (", rounded to float32" if _is_exr(args.output) else "")
     else:
         from glraster.errors import BackendUnavailable
         from glraster.gpu.context import Context
@@ -90,41 +100,90 @@ def run(args) -> int:
             print(f"glraster render: {describe(exc, args)}", file=sys.stderr)
             return exit_codes.NO_BACKEND
         try:
-            raster = rasterize(scene.pos, scene.tri, scene.resolution, ctx=ctx, outputs=outputs)
+            raster = rasterize(scene.pos, scene.tri, scene.resolution, ctx=ctx, outputs=outputs,
+                               samples=scene.samples, interpolation=scene.interpolation)
         except ValueError as exc:
             print(f"glraster render: {describe(exc, args)}", file=sys.stderr)
             return exit_codes.USAGE
         producer = f"glraster.rasterize on {ctx.renderer} via {ctx.backend}, {ctx.gl_version}"
     seconds = time.perf_counter() - t
-    _write(args, raster, outputs, metadata={"scene": scene.name, "scene_hash": scene.hash,
-                                            "producer": producer})
+    metadata = {"scene": scene.name, "scene_hash": scene.hash, "producer": producer}
+    if scene.samples > 1:
+        metadata.update(samples=scene.samples, interpolation=scene.interpolation)
+    _write(args, raster, outputs, metadata)
     h, w = scene.resolution
     tris = f"{len(scene.tri)} triangle" + ("" if len(scene.tri) == 1 else "s")
-    print(f"{scene.name}: {h}x{w} (HxW), {tris}, {int(raster.mask.sum())} "
+    covered = _pixel_mask(raster.mask)
+    per_sample = f", {scene.samples} samples ({scene.interpolation})" if scene.samples > 1 else ""
+    print(f"{scene.name}: {h}x{w} (HxW){per_sample}, {tris}, {int(covered.sum())} "
           f"pixels covered, {seconds:.3f} s -> {args.output} ({', '.join(outputs)})")
     if args.png:
         print(f"preview: {args.png}")
     return exit_codes.OK
 
 
+def _is_exr(path) -> bool:
+    return str(path).lower().endswith(".exr")
+
+
+def _check_output(args, scene) -> None:
+    """ArgumentError naming the option when OUT's type cannot hold what is asked for."""
+    out = str(args.output)
+    if not (_is_exr(out) or out.lower().endswith(".npz")):
+        raise ArgumentError("output", f"output must end in .exr or .npz, got {out!r}")
+    if _is_exr(out) and scene.samples > 1:
+        raise ArgumentError(
+            "output", f"{scene.name} has {scene.samples} samples a pixel and an EXR holds one "
+                      f"value a pixel: write an .npz (-o {Path(out).with_suffix('.npz')})")
+    if args.crop and not _is_exr(out):
+        raise ArgumentError("crop", "--crop crops an EXR's data window; an .npz holds the "
+                                    "whole arrays")
+
+
 def _write(args, raster, outputs, metadata) -> None:
-    """Write the EXR (and the --png preview): both or neither. Each goes to a temporary
-    file beside its target, and the targets are replaced only once both are complete."""
+    """Write the EXR or .npz (and the --png preview): both or neither. Each goes to a
+    temporary file beside its target, and the targets are replaced only once both are
+    complete."""
     from contextlib import ExitStack
 
-    from glraster.io import exr
     from glraster.io.atomic import atomic_write
 
     with ExitStack() as stack:
-        exr_tmp = stack.enter_context(atomic_write(args.output))
+        out_tmp = stack.enter_context(atomic_write(args.output))
         png_tmp = stack.enter_context(atomic_write(args.png)) if args.png else None
-        exr.write_raster(exr_tmp, **{n: getattr(raster, n) for n in outputs},
-                         window="covered" if args.crop else "full", metadata=metadata)
+        arrays = {n: getattr(raster, n) for n in outputs}
+        if _is_exr(args.output):
+            from glraster.io import exr
+
+            exr.write_raster(out_tmp, **arrays, window="covered" if args.crop else "full",
+                             metadata=metadata)
+        else:
+            from glraster.io.npz import write_npz
+
+            arrays.update(mask=raster.mask, sample_positions=raster.sample_positions,
+                          metadata=np.array(json.dumps(metadata)))
+            Path(out_tmp).write_bytes(write_npz(arrays))
         if png_tmp is not None:
             from glraster.io.png import bary_rgb, write_png
 
-            bary = raster.persp if raster.persp is not None else raster.screen
-            write_png(png_tmp, bary_rgb(bary, raster.mask))
+            write_png(png_tmp, bary_rgb(*_preview(raster)))
+
+
+def _pixel_mask(mask):
+    """(H, W) bool: pixels with a covered sample, from a (H, W) or (H, W, S) mask."""
+    return mask.any(axis=2) if mask.ndim == 3 else mask
+
+
+def _preview(raster):
+    """(bary (H, W, 3) or None, mask (H, W)) for the preview picture: the perspective
+    barycentrics (else window-space), of the pixel's lowest-numbered covered sample when
+    they are per sample (the value a "center" raster keeps, glraster.types.Raster)."""
+    from glraster.types import first_covered_sample, per_pixel
+
+    bary = raster.persp if raster.persp is not None else raster.screen
+    if bary is not None and bary.ndim == 4:
+        bary = per_pixel(bary, first_covered_sample(raster.mask))
+    return bary, _pixel_mask(raster.mask)
 
 
 def _token(args):
@@ -153,7 +212,8 @@ def _remote(args, scene, outputs):
     try:
         with Client(args.server, _token(args)) as client:
             raster = client.rasterize(scene.pos, scene.tri, scene.resolution, outputs=outputs,
-                                      reference=args.reference)
+                                      reference=args.reference, samples=scene.samples,
+                                      interpolation=scene.interpolation)
             renderer = raster.info["headers"].get("x-glraster-source", "gpu")
             info = client.info().get("driver", {}) if not args.reference else {}
     except ServiceUnavailable as exc:
@@ -166,7 +226,7 @@ def _remote(args, scene, outputs):
             f"the service at {args.server} refused the request: {exc}") from None
     if renderer == "reference":
         producer = (f"glraster.reference.rasterize (float64, fill rule llvmpipe) at "
-                    f"{args.server}, rounded to float32")
+                    f"{args.server}" + (", rounded to float32" if _is_exr(args.output) else ""))
     else:
         producer = (f"glraster.rasterize on {info.get('renderer', '?')} via "
                     f"{info.get('backend', '?')}, {info.get('gl_version', '?')} at {args.server}")
