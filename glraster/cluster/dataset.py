@@ -45,13 +45,18 @@ DEFAULT_SHARD_SIZE = 64
 
 def render_scene(ctx, scene, outputs, method="hw") -> dict:
     """``{output: array}`` of :func:`glraster.rasterize` of ``scene`` on ``ctx`` (``outputs``
-    None: the scene's), as ``glraster render`` renders it."""
+    None: the scene's) at the scene's samples and interpolation, as ``glraster render``
+    renders it; a multisampled scene adds its per-sample ``mask`` (H, W, S) and
+    ``sample_positions`` (S, 2)."""
     from glraster.gpu.rasterize import rasterize
 
     outputs = tuple(outputs) if outputs else scene.outputs
     raster = rasterize(scene.pos, scene.tri, scene.resolution, ctx=ctx, outputs=outputs,
-                       method=method)
-    return {name: getattr(raster, name) for name in outputs}
+                       method=method, samples=scene.samples, interpolation=scene.interpolation)
+    arrays = {name: getattr(raster, name) for name in outputs}
+    if scene.samples > 1:    # which samples a value belongs to, and where they lie
+        arrays.update(mask=raster.mask, sample_positions=raster.sample_positions)
+    return arrays
 
 
 class ShardRenderer:

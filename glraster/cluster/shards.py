@@ -8,6 +8,9 @@ the requested outputs as members ``s<k:04d>.<output>``, arrays exactly as
 
 - ``persp``, ``screen``: (H, W, 3) float32, ``depth``: (H, W) float32, ``tri_id``: (H, W)
   int32 (-1 empty), row 0 at the bottom (GL window coordinates);
+- for a multisampled scene file (``samples`` S > 1) the per-sample arrays of
+  :class:`glraster.types.Raster` ((H, W, S) and, with interpolation "sample",
+  (H, W, S, 3)), plus ``mask`` (H, W, S) bool and ``sample_positions`` (S, 2) float64;
 
 and a member ``manifest``: a 0-d unicode array, the JSON list of the shard's manifest lines.
 A shard file therefore says by itself which items it finished: a rerun skips every shard
