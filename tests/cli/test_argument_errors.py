@@ -86,3 +86,54 @@ def test_size_and_service_options_are_named_in_their_errors(argv, line, capsys, 
         == exit_codes.USAGE
     assert capsys.readouterr().err.strip() == line.format(limit=gl_context.max_texture_size)
     assert not (tmp_path / "d").exists()
+
+
+LIST_METAVARS = {"LIST", "PATTERN", "A,B", "M1,M2"}
+
+
+def _list_options():
+    """(command words, option) of every option of every command whose help says it takes a
+    comma-separated list, with its argparse action."""
+    found = []
+
+    def walk(parser, words):
+        for action in parser._actions:   # argparse offers no public list of them
+            if isinstance(action, argparse._SubParsersAction):
+                for name, sub in action.choices.items():
+                    walk(sub, words + [name])
+            elif action.option_strings and ("comma-separated" in (action.help or "")
+                                            or action.metavar in LIST_METAVARS):
+                found.append((words, action))
+
+    walk(build_parser(), [])
+    return found
+
+
+def test_every_comma_separated_option_refuses_an_empty_list():
+    """An option given an empty list ('', ',') used to read as the option left out (--scenes
+    "$UNSET" ran the whole catalog); every such option is now a comma_list, and so is
+    every one a new command adds."""
+    from glraster.cli.commands import comma_list
+
+    options = _list_options()
+    assert len(options) >= 9
+    assert [f"{' '.join(w)} {a.option_strings[-1]}" for w, a in options
+            if a.type is not comma_list] == []
+
+
+@pytest.mark.parametrize("words, option, value", [
+    (["check"], "--scenes", ""), (["check", "--ray"], "--drivers", ","),
+    (["check", "--ray"], "--methods", " "), (["check"], "--mutants", ""),
+    (["render", "torus", "-o", "x.npz"], "--outputs", ","), (["bench"], "--methods", ""),
+    (["stress"], "--sweeps", ""), (["stress"], "--methods", ", ,"),
+    (["batch", "in", "out"], "--outputs", ""),
+])
+def test_an_empty_list_is_a_usage_error_naming_the_option(capsys, tmp_path, monkeypatch,
+                                                          words, option, value):
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as exit_:
+        main([*words, option, value])
+    assert exit_.value.code == exit_codes.USAGE
+    assert capsys.readouterr().err.splitlines()[-1].endswith(
+        f"error: argument {option}: lists nothing (got {value!r}): name at least one")
+    assert list(tmp_path.iterdir()) == []

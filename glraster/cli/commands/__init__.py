@@ -1,5 +1,7 @@
 """Subcommands of the ``glraster`` CLI: each module defines ``register(subparsers)``."""
 
+import argparse
+
 
 def add_backend_argument(parser) -> None:
     """The ``--backend`` option every command that opens a GL context shares."""
@@ -14,3 +16,13 @@ def add_command(subparsers, name: str, doc: str):
     summary = title.split(": ", 1)[-1].rstrip(".")
     return subparsers.add_parser(name, help=summary,
                                  description=" ".join(details.split()) or summary)
+
+
+def comma_list(text: str) -> str:
+    """argparse ``type`` of a comma-separated list option (``--scenes``, ``--outputs``,
+    ...): the text unchanged, refused when it lists nothing (``''``, ``','``), which the
+    command would otherwise read as the option left out (``--scenes "$UNSET"`` running the
+    whole catalog)."""
+    if not any(item.strip() for item in text.split(",")):
+        raise argparse.ArgumentTypeError(f"lists nothing (got {text!r}): name at least one")
+    return text

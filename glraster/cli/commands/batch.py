@@ -15,7 +15,7 @@ import sys
 
 from glraster.cli import exit_codes
 from glraster.cli.errors import describe
-from glraster.cli.commands import add_backend_argument, add_command
+from glraster.cli.commands import add_backend_argument, add_command, comma_list
 from glraster.errors import ArgumentError
 from glraster.io.destinations import OutputFile, OutputFolder
 
@@ -32,7 +32,7 @@ def register(subparsers) -> None:
     p.add_argument("--driver", default=None, metavar="NAME",
                    help="render on nodes advertising driver:NAME, selected by its environment "
                         "(llvmpipe, softpipe, ...; default: each node's own GL)")
-    p.add_argument("--outputs", default=None, metavar="LIST",
+    p.add_argument("--outputs", default=None, type=comma_list, metavar="LIST",
                    help="comma-separated subset of persp,screen,depth,tri_id "
                         "(default: each scene's outputs)")
     p.add_argument("--shard-size", type=int, default=None, metavar="N",

@@ -14,7 +14,7 @@ import sys
 
 from glraster.cli import exit_codes
 from glraster.cli.errors import describe
-from glraster.cli.commands import add_command
+from glraster.cli.commands import add_command, comma_list
 from glraster.io.atomic import write_text
 from glraster.io.destinations import OutputFile
 
@@ -31,7 +31,7 @@ def _add_presets(parser) -> None:
 def register(subparsers) -> None:
     p = add_command(subparsers, "bench", __doc__)
     _add_presets(p)
-    p.add_argument("--methods", default=None, metavar="LIST",
+    p.add_argument("--methods", default=None, type=comma_list, metavar="LIST",
                    help="comma-separated methods (default: all)")
     p.add_argument("--backend", default="egl", choices=("egl", "osmesa"),
                    help="OpenGL backend (default: egl, the driver pyrender uses too)")

@@ -13,14 +13,14 @@ import time
 
 from glraster.cli import exit_codes
 from glraster.cli.errors import describe as describe_error
-from glraster.cli.commands import add_backend_argument, add_command
+from glraster.cli.commands import add_backend_argument, add_command, comma_list
 from glraster.io.destinations import OutputFile, OutputFolder
 
 
 def register(subparsers) -> None:
     p = add_command(subparsers, "check", __doc__)
     add_backend_argument(p)
-    p.add_argument("--scenes", default=None, metavar="PATTERN",
+    p.add_argument("--scenes", default=None, type=comma_list, metavar="PATTERN",
                    help="comma-separated fnmatch patterns of scene names (default: all)")
     p.add_argument("--method", default="hw", metavar="NAME",
                    help="barycentric method to check: hw (default), divw, homogeneous, "
@@ -29,9 +29,11 @@ def register(subparsers) -> None:
                    default=None, metavar="FILE", help="write JUnit XML here")
     p.add_argument("--html", action=OutputFolder, default=None, metavar="DIR",
                    help="write an HTML report (DIR/index.html)")
-    p.add_argument("--mutants", nargs="?", const="all", default=None, metavar="PATTERN",
-                   help="also run the fault-injection mutants (all, or matching PATTERN); "
-                        "each must be caught by some scene")
+    p.add_argument("--mutants", nargs="?", const="all", default=None, type=comma_list,
+                   metavar="PATTERN",
+                   help="also run the fault-injection mutants (all, or those matching "
+                        "PATTERN, comma-separated fnmatch patterns); each must be caught by "
+                        "some scene")
     p.add_argument("--golden-dir", default=None, metavar="DIR",
                    help="golden folder (default: $GLRASTER_GOLDEN_DIR or golden/)")
     p.add_argument("--no-golden", action="store_true", help="skip the golden comparison")
@@ -46,11 +48,11 @@ def register(subparsers) -> None:
                         "merged JUnit and HTML report with a driver matrix. ADDRESS: a "
                         "cluster's; without it $RAY_ADDRESS, else a local cluster on this "
                         "machine (docs/cluster.md)")
-    p.add_argument("--drivers", default=None, metavar="A,B",
-                   help="with --ray: the drivers to check (default: every driver the cluster "
-                        "advertises); on one machine llvmpipe, softpipe, zink are selected by "
-                        "GALLIUM_DRIVER")
-    p.add_argument("--methods", default=None, metavar="M1,M2",
+    p.add_argument("--drivers", default=None, type=comma_list, metavar="A,B",
+                   help="with --ray: the drivers to check, comma-separated (default: every "
+                        "driver the cluster advertises); on one machine llvmpipe, softpipe, "
+                        "zink are selected by GALLIUM_DRIVER")
+    p.add_argument("--methods", default=None, type=comma_list, metavar="M1,M2",
                    help="with --ray: comma-separated methods (default: --method)")
     p.set_defaults(func=run)
 

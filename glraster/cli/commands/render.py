@@ -19,7 +19,7 @@ import numpy as np
 
 from glraster.cli import exit_codes
 from glraster.cli.errors import describe
-from glraster.cli.commands import add_backend_argument, add_command
+from glraster.cli.commands import add_backend_argument, add_command, comma_list
 from glraster.errors import ArgumentError
 from glraster.io.destinations import OutputFile
 
@@ -33,7 +33,7 @@ def register(subparsers) -> None:
                    help="EXR or .npz to write (.npz: the arrays, the mask and the sample "
                         "positions bit for bit, and a JSON metadata string)")
     add_backend_argument(p)
-    p.add_argument("--outputs", default=None, metavar="LIST",
+    p.add_argument("--outputs", default=None, type=comma_list, metavar="LIST",
                    help="comma-separated subset of persp,screen,depth,tri_id "
                         "(default: the scene's outputs)")
     p.add_argument("--reference", action="store_true",

@@ -13,17 +13,18 @@ from __future__ import annotations
 import sys
 
 from glraster.cli import exit_codes
-from glraster.cli.commands import add_backend_argument, add_command
+from glraster.cli.commands import add_backend_argument, add_command, comma_list
 from glraster.io.destinations import OutputFile
 
 
 def register(subparsers) -> None:
     p = add_command(subparsers, "stress", __doc__)
     add_backend_argument(p)
-    p.add_argument("--sweeps", default=None, metavar="LIST",
+    p.add_argument("--sweeps", default=None, type=comma_list, metavar="LIST",
                    help="comma-separated sweeps (default: all of origin, origin_y, origin_xy, origin_w1, "
                         "w_ratio, aspect, size, near, extent, scale)")
-    p.add_argument("--methods", default=None, metavar="LIST", help="comma-separated methods")
+    p.add_argument("--methods", default=None, type=comma_list, metavar="LIST",
+                   help="comma-separated methods")
     p.add_argument("--json", action=OutputFile,
                    default=None, metavar="FILE", help="write the curves as JSON")
     p.add_argument("--plot", action=OutputFile,
@@ -37,8 +38,8 @@ def run(args) -> int:
     from glraster.gpu.rasterize import METHODS
     from glraster.studies import stress
 
-    sweeps = tuple(s.strip() for s in args.sweeps.split(",")) if args.sweeps else stress.SWEEPS
-    methods = tuple(m.strip() for m in args.methods.split(",")) if args.methods else tuple(METHODS)
+    sweeps = _names(args.sweeps) if args.sweeps else stress.SWEEPS
+    methods = _names(args.methods) if args.methods else tuple(METHODS)
     bad = [s for s in sweeps if s not in stress.SWEEPS] + [m for m in methods if m not in METHODS]
     if bad:
         print(f"glraster stress: unknown sweep or method {bad}; sweeps {stress.SWEEPS}, "
@@ -69,3 +70,8 @@ def run(args) -> int:
         stress.plot(result, args.plot)
         print(f"wrote {args.plot}")
     return exit_codes.OK
+
+
+def _names(text: str) -> tuple:
+    """The names of a comma-separated list, blanks dropped ("size," is "size")."""
+    return tuple(name.strip() for name in text.split(",") if name.strip())
