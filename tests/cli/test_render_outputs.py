@@ -139,3 +139,29 @@ def test_the_preview_of_per_sample_values_shows_each_pixels_first_covered_sample
         mask, persp = got["mask"], got["persp"]
     want = bary_rgb(per_pixel(persp, first_covered_sample(mask)), mask.any(axis=2))
     np.testing.assert_array_equal(_read_png(tmp_path / "r.png"), want)
+
+
+def test_samples_and_interpolation_options_override_the_scenes(tmp_path, gl_backend, ctx,
+                                                              capsys):
+    """--samples 4 --interpolation centroid on a single-sample scene gives rasterize at 4
+    samples, centroid; --samples 1 makes a multisampled scene an EXR; a count that is no
+    power of two names --samples."""
+    scene = load_scene("basic_perspective_triangle")
+    assert _render(scene.name, "--samples", "4", "--interpolation", "centroid", "-o",
+                   tmp_path / "c.npz", "--backend", gl_backend) == exit_codes.OK
+    want = gr.rasterize(scene.pos, scene.tri, scene.resolution, ctx=ctx, outputs=OUTPUTS,
+                        samples=4, interpolation="centroid")
+    with np.load(tmp_path / "c.npz") as got:
+        for key in OUTPUTS + ("mask",):
+            np.testing.assert_array_equal(got[key], getattr(want, key), err_msg=key)
+        meta = json.loads(str(got["metadata"]))
+    assert (meta["samples"], meta["interpolation"]) == (4, "centroid")
+    assert _render("ms_fan_offcenter", "--samples", "1", "-o", tmp_path / "one.exr",
+                   "--reference") == exit_codes.OK
+    capsys.readouterr()
+    assert _render(scene.name, "--samples", "3", "-o", tmp_path / "x.npz",
+                   "--reference") == exit_codes.USAGE
+    assert capsys.readouterr().err.strip() == (
+        "glraster render: argument --samples: samples must be a power of two >= 1 (1, 2, 4, "
+        "8, ...), got 3")
+    assert not (tmp_path / "x.npz").exists()

@@ -21,6 +21,7 @@ from glraster.cli import exit_codes
 from glraster.cli.errors import describe
 from glraster.cli.commands import add_backend_argument, add_command, comma_list
 from glraster.errors import ArgumentError
+from glraster.types import INTERPOLATIONS
 from glraster.io.destinations import OutputFile
 
 
@@ -36,6 +37,13 @@ def register(subparsers) -> None:
     p.add_argument("--outputs", default=None, type=comma_list, metavar="LIST",
                    help="comma-separated subset of persp,screen,depth,tri_id "
                         "(default: the scene's outputs)")
+    p.add_argument("--samples", type=int, default=None, metavar="S",
+                   help="samples per pixel (default: the scene's; 1 unless it sets more): "
+                        "1 or a count the driver offers ('glraster info'); above 1 the "
+                        "output must be an .npz")
+    p.add_argument("--interpolation", default=None, choices=INTERPOLATIONS,
+                   help="where multisampled barycentrics are evaluated (default: the "
+                        "scene's, else center)")
     p.add_argument("--reference", action="store_true",
                    help="write the float64 reference instead of the GPU (rounded to float32 "
                         "in an EXR, float64 in an .npz)")
@@ -56,7 +64,7 @@ def run(args) -> int:
     from glraster.conformance.scenes import resolve
 
     try:
-        scene = resolve(args.scene)
+        scene = _with_options(resolve(args.scene), args)
         outputs = scene.outputs
         if args.outputs:
             from glraster.validate import outputs as check_outputs
@@ -120,6 +128,20 @@ def run(args) -> int:
     if args.png:
         print(f"preview: {args.png}")
     return exit_codes.OK
+
+
+def _with_options(scene, args):
+    """``scene`` at the --samples / --interpolation given (validated, named by option)."""
+    from dataclasses import replace
+
+    from glraster import validate
+
+    changes = {}
+    if args.samples is not None:
+        changes["samples"] = validate.samples(args.samples)
+    if args.interpolation is not None:
+        changes["interpolation"] = args.interpolation
+    return replace(scene, **changes) if changes else scene
 
 
 def _is_exr(path) -> bool:
