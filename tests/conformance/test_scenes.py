@@ -140,6 +140,9 @@ def test_user_scene_files_round_trip(tmp_path):
     ({"tri": [[0, 0, 0]], "resolution": [4, 4]}, "missing field"),
     ({"resolution": [4, 4], "builder": "nope"}, "unknown builder"),
     ({"resolution": [4, 4], "builder": "soup", "params": {"bogus": 1}}, "bad parameters"),
+    ({"resolution": [4, 4], "builder": "soup", "params": {"count": -5, "size_px": [2, 4]}},
+     "bad parameters for builder 'soup': negative dimensions"),   # numpy's ValueError
+    ({"resolution": [4, 4], "builder": "soup", "params": [5]}, "params must be an object"),
     # a field the format does not have is refused, not ignored (a misspelt "samples")
     ({"pos": [[0, 0, 0, 1]], "tri": [[0, 0, 0]], "resolution": [4, 4], "sample": 4},
      "unknown field 'sample'; a scene file's fields are pos, tri, resolution, name, "

@@ -142,9 +142,13 @@ def build_scene(entry: dict, source: str = "scene") -> Scene:
         resolution = validate.resolution(entry["resolution"], MAX_RESOLUTION)
     except ArgumentError as exc:
         raise ArgumentError(exc.argument, f"{source}: {exc}") from None
+    params = entry.get("params", {})
+    if not isinstance(params, dict):
+        raise ArgumentError("entry", f"{source}: params must be an object of the builder's "
+                                     f"parameters, got {type(params).__name__}")
     try:
-        pos, tri = fn(resolution, **entry.get("params", {}))
-    except TypeError as exc:
+        pos, tri = fn(resolution, **params)
+    except (TypeError, ValueError, IndexError) as exc:   # a parameter the builder cannot take
         raise ArgumentError("entry", f"{source}: bad parameters for builder "
                                      f"{entry['builder']!r}: {exc}") from exc
     outputs = tuple(entry.get("outputs", ALL_OUTPUTS))
