@@ -114,7 +114,7 @@ def apply(op: Op, inputs: Sequence, params: dict):
     names = _input_names(op, len(inputs))
     arrays = [None if v is None else jnp.asarray(v) for v in inputs]
     for name, value in zip(names, arrays):
-        if value is not None and not jnp.issubdtype(value.dtype, jnp.floating):
+        if value is not None and value.dtype not in (jnp.float32, jnp.float64):
             raise ArgumentError(name, f"{name} must be a float32 or float64 array, got "
                                       f"{value.dtype}")
     traced = any(is_traced(v) for v in inputs if v is not None)

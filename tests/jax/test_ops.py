@@ -304,6 +304,11 @@ def test_depth_peeler_refuses_rasterize_while_active(glctx):
     (lambda c, p: dr.rasterize(c, p, TRI, RES, grad_db=1), "grad_db", "grad_db must be"),
     (lambda c, p: dr.rasterize(c, p.astype(jnp.int32), TRI, RES), "pos",
      "pos must be a float32 or float64"),
+    # half precision is refused as glraster.torch refuses it, not rounded up in silence
+    (lambda c, p: dr.rasterize(c, p.astype(jnp.float16), TRI, RES), "pos",
+     "pos must be a float32 or float64 array, got float16"),
+    (lambda c, p: dr.interpolate(jnp.ones((3, 2), jnp.bfloat16), p, TRI), "attr",
+     "attr must be a float32 or float64 array, got bfloat16"),
     (lambda c, p: dr.interpolate(np.ones((7, 1), np.float32), p, TRI, p, diff_attrs="all"),
      "rast_db", "rast_db is empty"),
     (lambda c, p: dr.RasterizeGLContext(device="cuda"), "device", "device must be None"),
@@ -376,3 +381,13 @@ def test_a_dropped_context_is_not_kept_alive_by_the_call_cache(gl_backend):
     gc.collect()
     assert dropped() is None and inner() is None
     assert not any(("ctx", token) in key[-1] for key in bridge._CACHE)
+
+
+def test_gradients_are_reverse_mode_only(glctx):
+    """docs/jax.md: jacrev works, forward mode stops with JAX's custom_vjp error."""
+    pos = jnp.asarray(scenes.POS, jnp.float32)
+    f = lambda p: jnp.sum(dr.rasterize(glctx, p, TRI, RES)[0][..., :2], axis=(1, 2))  # noqa: E731
+    jacobian = jax.jacrev(f)(pos)
+    assert jacobian.shape == (1, 2) + pos.shape and bool(jnp.any(jacobian != 0))
+    with pytest.raises(TypeError, match="can't apply forward-mode autodiff"):
+        jax.jvp(f, (pos,), (jnp.ones_like(pos),))
