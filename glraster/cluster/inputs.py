@@ -12,12 +12,15 @@ A dataset source is one of
                                          # trimesh format (the mesh extra)
        "resolution": [H, W],
        "outputs": ["persp", "tri_id"],   # optional, default all four
+       "samples": 4,                     # optional: samples per pixel (default 1)
+       "interpolation": "sample",        # optional: center, centroid or sample
        "cameras": [
          {"view": 4x4, "proj": 4x4},                                # OpenGL matrices
          {"K": 3x3, "R": 3x3, "t": [3], "near": 0.1, "far": 100},   # OpenCV camera
          {"eye": [3], "target": [3], "up": [3], "fovy": 40, "near": 0.1, "far": 100}]}
 
-  One scene per camera, named ``<views file>#<index>``.
+  One scene per camera, named ``<views file>#<index>``. A field the file or a camera form
+  does not have (a misspelt ``"sample"``, a camera mixing two forms) is an error naming it.
 
 Items are plain strings (a path, or ``path#index``), cheap to ship to workers; a worker
 loads each with :func:`load_item` (a views file's mesh once per worker).
@@ -34,6 +37,12 @@ import numpy as np
 from glraster.errors import ArgumentError
 
 SCENE_SUFFIXES = (".npz", ".json")
+
+# A views file's fields, and each camera form's: any other is refused, as in scene files.
+VIEWS_FIELDS = ("mesh", "resolution", "cameras", "outputs", "samples", "interpolation")
+CAMERA_FORMS = {"view": ("view", "proj"),
+                "K": ("K", "R", "t", "near", "far"),
+                "eye": ("eye", "target", "up", "fovy", "near", "far")}
 
 
 def _is_views_file(path: Path) -> bool:
@@ -80,9 +89,10 @@ def list_items(source) -> list:
 
 @lru_cache(maxsize=4)
 def _views(path: str) -> dict:
-    """A views file, checked: {"mesh": Mesh, "resolution", "outputs", "cameras": [(view,
-    proj)]} (the mesh loaded once per process)."""
+    """A views file, checked: {"mesh": Mesh, "resolution", "outputs", "samples",
+    "interpolation", "cameras": [(view, proj)]} (the mesh loaded once per process)."""
     from glraster import validate
+    from glraster.conformance.scenes import refuse_unknown
     from glraster.geometry import camera
     from glraster.geometry.mesh import Mesh, load_mesh
 
@@ -93,9 +103,17 @@ def _views(path: str) -> dict:
     for key in ("mesh", "resolution", "cameras"):
         if key not in data:
             raise ArgumentError("path", f"{path}: views file lacks {key!r}")
+    refuse_unknown(data, VIEWS_FIELDS, "field", "views file", path)
     if not isinstance(data["cameras"], list) or not data["cameras"]:
         raise ArgumentError("path", f"{path}: cameras must be a non-empty list")
-    resolution = validate.resolution(data["resolution"])
+    try:
+        resolution = validate.resolution(data["resolution"])
+        outputs = validate.outputs(tuple(data.get("outputs", ("persp", "screen", "depth",
+                                                             "tri_id"))))
+        samples = validate.samples(data.get("samples", 1))
+        interpolation = validate.interpolation(data.get("interpolation", "center"))
+    except ArgumentError as exc:
+        raise ArgumentError(exc.argument, f"{path}: {exc}") from None
     mesh_path = Path(data["mesh"])
     if not mesh_path.is_absolute():
         mesh_path = Path(path).parent / mesh_path
@@ -112,6 +130,14 @@ def _views(path: str) -> dict:
     height, width = resolution
     cameras = []
     for i, cam in enumerate(data["cameras"]):
+        if not isinstance(cam, dict):
+            raise ArgumentError("path", f"{path}: camera {i} must be an object, got "
+                                        f"{type(cam).__name__}")
+        form = next((CAMERA_FORMS[key] for key in ("view", "K", "eye") if key in cam),
+                    CAMERA_FORMS["view"] if "proj" in cam else None)
+        if form is not None:   # "a K/R/t camera's fields are K, R, t, near, far"
+            refuse_unknown(cam, form, "field", f"{'/'.join(form[:3])} camera",
+                           f"{path}: camera {i}")
         try:
             if "view" in cam or "proj" in cam:
                 view, proj = cam.get("view"), cam.get("proj")
@@ -128,9 +154,8 @@ def _views(path: str) -> dict:
             raise ArgumentError("path", f"{path}: camera {i} lacks {exc}") from None
         except (TypeError, ValueError) as exc:
             raise ArgumentError("path", f"{path}: camera {i}: {exc}") from None
-    outputs = tuple(data.get("outputs", ("persp", "screen", "depth", "tri_id")))
-    return {"mesh": mesh, "resolution": resolution, "outputs": validate.outputs(outputs),
-            "cameras": cameras}
+    return {"mesh": mesh, "resolution": resolution, "outputs": outputs, "samples": samples,
+            "interpolation": interpolation, "cameras": cameras}
 
 
 def load_item(item: str):
@@ -151,5 +176,6 @@ def load_item(item: str):
         mesh = views["mesh"]
         return make_scene(Path(item).name, project(mesh.vertices, view=view, proj=proj),
                           mesh.faces, views["resolution"], outputs=views["outputs"],
-                          source=item)
+                          source=item, samples=views["samples"],
+                          interpolation=views["interpolation"])
     return load_scene_file(item)

@@ -10,6 +10,7 @@ import pytest
 
 from glraster.cli import exit_codes, main
 from glraster.cluster import inputs, shards
+from glraster.errors import ArgumentError
 from glraster.geometry import camera
 
 
@@ -173,3 +174,40 @@ def test_driver_names_from_renderer_strings():
     for bad in ("", "llvmpipe,,softpipe", "llvmpipe,llvmpipe", "Mesa Intel"):
         with pytest.raises(ValueError, match="drivers"):
             check_driver_names(bad)
+
+
+def test_a_views_file_sets_samples_and_interpolation_for_every_camera(tmp_path):
+    """"samples" / "interpolation" reach each camera's scene, which render_scene renders
+    at them (tests/cluster/test_render_scene.py)."""
+    cams = [{"eye": [0, 0, 4], "target": [0, 0, 0], "fovy": 40, "near": 0.1, "far": 50},
+            {"view": np.eye(4).tolist()}]
+    path, _, _ = _views(tmp_path, cams, samples=4, interpolation="sample")
+    scenes = [inputs.load_item(item) for item in inputs.list_items(path)]
+    assert [(s.samples, s.interpolation) for s in scenes] == [(4, "sample")] * 2
+    (tmp_path / "plain").mkdir()
+    plain, _, _ = _views(tmp_path / "plain", cams)
+    assert inputs.load_item(inputs.list_items(plain)[0]).samples == 1
+
+
+@pytest.mark.parametrize("extra, cameras, message", [
+    ({"sample": 4}, None, r"unknown field 'sample'; a views file's fields are mesh, "
+                          r"resolution, cameras, outputs, samples, interpolation"),
+    ({"samples": 3}, None, r"samples must be a power of two"),
+    ({"interpolation": "middle"}, None, r"interpolation must be one of"),
+    ({}, [{"eye": [0, 0, 4], "target": [0, 0, 0], "fovy": 40, "near": 0.1, "far": 50,
+           "samples": 4}],
+     r"camera 0: unknown field 'samples'; an eye/target/up camera's fields are eye, "),
+    ({}, [{"K": np.eye(3).tolist(), "R": np.eye(3).tolist(), "t": [0, 0, 4], "near": 0.1,
+           "far": 50, "eye": [0, 0, 4]}],
+     r"camera 0: unknown field 'eye'; a K/R/t camera's fields are K, R, t, near, far"),
+    ({}, [{"proj": np.eye(4).tolist(), "fovy": 40}],
+     r"camera 0: unknown field 'fovy'; a view/proj camera's fields are view, proj"),
+    ({}, [[0, 0, 4]], r"camera 0 must be an object, got list"),
+])
+def test_a_views_file_field_it_does_not_have_is_named(tmp_path, extra, cameras, message):
+    """A misspelt or misplaced field is an error, never ignored (as in scene files)."""
+    default = [{"eye": [0, 0, 4], "target": [0, 0, 0], "fovy": 40, "near": 0.1, "far": 50}]
+    path, _, _ = _views(tmp_path, cameras or default, **extra)
+    with pytest.raises(ArgumentError, match=message) as info:
+        inputs.list_items(path)
+    assert info.value.argument in ("path", "samples", "interpolation")

@@ -133,7 +133,7 @@ def build_scene(entry: dict, source: str = "scene") -> Scene:
     for key in ("name", "resolution", "builder"):
         if key not in entry:
             raise ArgumentError("entry", f"{source}: missing field {key!r}")
-    _refuse_unknown(entry, RECIPE_FIELDS, "field", "recipe", source)
+    refuse_unknown(entry, RECIPE_FIELDS, "field", "recipe", source)
     fn = BUILDERS.get(entry["builder"])
     if fn is None:
         raise ArgumentError("entry", f"{source}: unknown builder {entry['builder']!r}; "
@@ -218,7 +218,7 @@ def load_scene_file(path) -> Scene:
             if missing:
                 raise ArgumentError("path", f"{src}: missing array(s) {', '.join(missing)} "
                                             f"(found: {', '.join(data.files) or 'none'})")
-            _refuse_unknown(data.files, NPZ_ARRAYS, "array", "scene file", src)
+            refuse_unknown(data.files, NPZ_ARRAYS, "array", "scene file", src)
             arrays = {}
             for key in NPZ_ARRAYS:
                 if key in data.files:
@@ -245,7 +245,7 @@ def load_scene_file(path) -> Scene:
         missing = [k for k in ("pos", "tri", "resolution") if k not in entry]
         if missing:
             raise ArgumentError("path", f"{src}: missing field(s) {', '.join(missing)}")
-        _refuse_unknown(entry, GEOMETRY_FIELDS, "field", "scene file", src)
+        refuse_unknown(entry, GEOMETRY_FIELDS, "field", "scene file", src)
         try:
             pos = np.array(entry["pos"], dtype=np.float64)
             tri = np.array(entry["tri"])             # integers stay integers
@@ -262,14 +262,15 @@ def load_scene_file(path) -> Scene:
         "path", f"{src}: unsupported scene file type {suffix!r} (use .npz or .json)")
 
 
-def _refuse_unknown(keys, known, kind: str, holder: str, source: str) -> None:
+def refuse_unknown(keys, known, kind: str, holder: str, source: str) -> None:
     """ArgumentError naming the ``kind``s ("field", "array") of ``keys`` not in ``known``,
-    the ones a ``holder`` ("scene file", "recipe") may hold."""
+    the ones a ``holder`` ("scene file", "recipe", "views file") may hold."""
     unknown = [k for k in keys if k not in known]
     if unknown:
+        article = "an" if holder[0] in "aeiou" else "a"
         raise ArgumentError(
             "path", f"{source}: unknown {kind}{'s' if len(unknown) > 1 else ''} "
-                    f"{', '.join(map(repr, unknown))}; a {holder}'s {kind}s are "
+                    f"{', '.join(map(repr, unknown))}; {article} {holder}'s {kind}s are "
                     f"{', '.join(known)}")
 
 
