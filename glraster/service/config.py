@@ -9,6 +9,7 @@ and the deadline from the moment the request arrived (queueing included).
 from __future__ import annotations
 
 import ipaddress
+import math
 import os
 import stat
 from dataclasses import dataclass, field, replace
@@ -81,10 +82,17 @@ class ServiceConfig:
                                           f"{1 if name == 'workers' else 0}, got {value!r}")
         if not (0 <= int(self.port) <= 65535):
             raise ArgumentError("port", f"port must be in [0, 65535], got {self.port}")
-        for name in ("deadline", "check_deadline", "body_timeout", "worker_start_timeout"):
-            if not float(getattr(self, name)) > 0:
-                raise ArgumentError(name, f"{name} must be > 0 seconds, "
-                                          f"got {getattr(self, name)!r}")
+        seconds = {name: getattr(self, name) for name in (
+            "deadline", "check_deadline", "body_timeout", "worker_start_timeout")}
+        seconds["max_deadline"] = self.limits.max_deadline
+        for name, value in seconds.items():   # inf too: the request models need a bound
+            if not 0 < float(value) < math.inf:
+                raise ArgumentError(name, f"{name} must be a finite number > 0 seconds, "
+                                          f"got {value!r}")
+        if self.drain_timeout is not None and not 0 <= float(self.drain_timeout) < math.inf:
+            raise ArgumentError("drain_timeout", f"drain_timeout must be None or a finite "
+                                                 f"number >= 0 seconds, got "
+                                                 f"{self.drain_timeout!r}")
         if self.backend not in (None, "auto", "egl", "osmesa"):
             raise ArgumentError("backend", f"backend must be auto, egl or osmesa, "
                                            f"got {self.backend!r}")

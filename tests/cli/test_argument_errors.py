@@ -76,6 +76,11 @@ def test_an_option_check_of_the_cli_is_one_line_naming_the_option(capsys, tmp_pa
      "the driver's maximum of {limit}"),
     (["serve", "--queue", "-1"],
      "glraster serve: error: argument --queue: queue_size must be an integer >= 0, got -1"),
+    # crosscheck named "resolution[1]", which its command line does not have
+    (["crosscheck", "pyrender", "--width", "0"],
+     "glraster crosscheck: error: --width must be >= 1, got 0"),
+    (["crosscheck", "pyrender", "--margin", "-1"],
+     "glraster crosscheck: error: --margin must be >= 0, got -1"),
 ])
 def test_size_and_service_options_are_named_in_their_errors(argv, line, capsys, tmp_path,
                                                             gl_context, monkeypatch):
@@ -137,3 +142,50 @@ def test_an_empty_list_is_a_usage_error_naming_the_option(capsys, tmp_path, monk
     assert capsys.readouterr().err.splitlines()[-1].endswith(
         f"error: argument {option}: lists nothing (got {value!r}): name at least one")
     assert list(tmp_path.iterdir()) == []
+
+
+def _float_options():
+    """(command words, option) of every option of every command that takes a number with
+    a fraction (its argparse type parses a float)."""
+    from glraster.cli.commands import non_negative_float, positive_float
+
+    found = []
+
+    def walk(parser, words):
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                for name, sub in action.choices.items():
+                    walk(sub, words + [name])
+            elif action.type in (float, positive_float, non_negative_float):
+                found.append((words, action))
+
+    walk(build_parser(), [])
+    return found
+
+
+def test_every_float_option_is_checked_as_it_is_parsed():
+    """A bare ``type=float`` takes nan, inf and negative values: serve started with a
+    --drain-timeout of -2, and crosscheck judged a median against nan. Every float option
+    is positive_float or non_negative_float, so each new one is too."""
+    from glraster.cli.commands import non_negative_float, positive_float
+
+    options = _float_options()
+    assert len(options) >= 10
+    assert [f"{' '.join(w)} {a.option_strings[-1]}" for w, a in options
+            if a.type not in (positive_float, non_negative_float)] == []
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "-1", "x"])
+def test_a_float_option_refuses_what_is_not_a_finite_number_in_range(value, capsys):
+    for words, action in _float_options():
+        option = action.option_strings[-1]
+        with pytest.raises(SystemExit) as exit_:
+            build_parser().parse_args([*words, option, value])
+        assert exit_.value.code == exit_codes.USAGE
+        assert capsys.readouterr().err.splitlines()[-1].endswith(
+            f"error: argument {option}: must be a finite number "
+            f"{'>' if action.type.__name__ == 'positive_float' else '>='} 0, got {value!r}")
+    # 0 is the boundary: refused where the option must be > 0, taken where >= 0
+    assert build_parser().parse_args(["serve", "--drain-timeout", "0"]).drain_timeout == 0.0
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["serve", "--deadline", "0"])

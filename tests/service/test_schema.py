@@ -169,3 +169,22 @@ def test_rows_above_the_limit_in_json_are_413_naming_the_array():
     with pytest.raises(protocol.RequestError) as err:
         protocol.parse_rasterize(protocol.JSON, body, {}, LIMITS)
     assert (err.value.status, err.value.field) == (413, "pos")
+
+
+@pytest.mark.parametrize("changes, argument", [
+    ({"deadline": float("inf")}, "deadline"),        # the request models need a finite bound
+    ({"check_deadline": float("nan")}, "check_deadline"),
+    ({"body_timeout": 0.0}, "body_timeout"),
+    ({"limits": Limits(max_deadline=-1.0)}, "max_deadline"),
+    ({"limits": Limits(max_deadline=float("inf"))}, "max_deadline"),
+    ({"drain_timeout": -2.0}, "drain_timeout"),
+    ({"drain_timeout": float("nan")}, "drain_timeout"),
+])
+def test_a_config_with_a_time_that_is_not_a_finite_positive_number_is_refused(changes,
+                                                                               argument):
+    from glraster.errors import ArgumentError
+
+    with pytest.raises(ArgumentError, match=f"{argument} must be") as info:
+        ServiceConfig(**changes)
+    assert info.value.argument == argument
+    assert ServiceConfig(drain_timeout=0.0).effective_drain_timeout == 0.0   # 0: no drain

@@ -8,7 +8,8 @@ from __future__ import annotations
 import json
 
 from glraster.cli import exit_codes
-from glraster.cli.commands import add_backend_argument, add_command
+from glraster.cli.commands import add_backend_argument, add_command, non_negative_float
+from glraster.errors import ArgumentError
 from glraster.io.destinations import OutputFile
 
 
@@ -31,7 +32,7 @@ def register(subparsers) -> None:
                         "sample N); default auto = best median")
     q.add_argument("--margin", type=int, default=1,
                    help="pixels excluded around silhouettes and depth jumps (1)")
-    q.add_argument("--max-median", type=float, default=1e-4,
+    q.add_argument("--max-median", type=non_negative_float, default=1e-4,
                    help="fail if the median relative difference exceeds this (1e-4)")
     q.add_argument("--json", action=OutputFile,
                    metavar="PATH", help="also write the report as JSON")
@@ -43,6 +44,10 @@ def _pyrender(args) -> int:
     from glraster.gpu.context import Context
     from glraster.studies.crosscheck import crosscheck_pyrender
 
+    for name, least in (("width", 1), ("height", 1), ("margin", 0)):
+        if getattr(args, name) < least:
+            raise ArgumentError(f"--{name}", f"--{name} must be >= {least}, "
+                                             f"got {getattr(args, name)}")
     rep = crosscheck_pyrender(args.mesh, resolution=(args.height, args.width),
                               ctx=Context(backend=args.backend), platform=args.platform,
                               sample=args.sample, margin=args.margin)

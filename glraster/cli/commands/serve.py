@@ -13,7 +13,12 @@ import json
 import sys
 
 from glraster.cli import exit_codes
-from glraster.cli.commands import add_backend_argument, add_command
+from glraster.cli.commands import (
+    add_backend_argument,
+    add_command,
+    non_negative_float,
+    positive_float,
+)
 from glraster.errors import ArgumentError
 from glraster.io.destinations import OutputFile
 
@@ -31,23 +36,23 @@ def register(subparsers) -> None:
                    help="require 'Authorization: Bearer TOKEN' with a token from FILE (one per "
                         "line; not readable by others)")
     add_backend_argument(p)
-    p.add_argument("--max-body", type=float, default=64, metavar="MiB",
+    p.add_argument("--max-body", type=positive_float, default=64, metavar="MiB",
                    help="largest request body (default 64 MiB)")
     p.add_argument("--max-vertices", type=int, default=1 << 21, metavar="N")
     p.add_argument("--max-triangles", type=int, default=1 << 21, metavar="N")
     p.add_argument("--max-resolution", type=int, default=4096, metavar="PX",
                    help="largest height or width (default 4096; the driver's maximum applies "
                         "too)")
-    p.add_argument("--deadline", type=float, default=30.0, metavar="S",
+    p.add_argument("--deadline", type=positive_float, default=30.0, metavar="S",
                    help="seconds a rasterize request may take from arrival (default 30); "
                         "past it the request is cancelled (504) and its worker replaced")
-    p.add_argument("--max-deadline", type=float, default=None, metavar="S",
+    p.add_argument("--max-deadline", type=positive_float, default=None, metavar="S",
                    help="largest ?deadline= a request may ask for (default: --deadline)")
-    p.add_argument("--check-deadline", type=float, default=600.0, metavar="S",
+    p.add_argument("--check-deadline", type=positive_float, default=600.0, metavar="S",
                    help="seconds a conformance check request may take (default 600)")
-    p.add_argument("--body-timeout", type=float, default=30.0, metavar="S",
+    p.add_argument("--body-timeout", type=positive_float, default=30.0, metavar="S",
                    help="a body not received within S seconds gets 408 (default 30)")
-    p.add_argument("--drain-timeout", type=float, default=None, metavar="S",
+    p.add_argument("--drain-timeout", type=non_negative_float, default=None, metavar="S",
                    help="on shutdown, how long in-flight requests may finish (default: "
                         "--deadline + 5)")
     p.add_argument("--log-level", default="warning",
@@ -88,7 +93,8 @@ def _config(args):
     tokens = read_token_file(args.token_file) if args.token_file else ()
     limits = Limits(max_body_bytes=int(args.max_body * MiB), max_vertices=args.max_vertices,
                     max_triangles=args.max_triangles, max_resolution=args.max_resolution,
-                    max_deadline=args.max_deadline if args.max_deadline else args.deadline)
+                    max_deadline=(args.deadline if args.max_deadline is None
+                                  else args.max_deadline))
     for name in ("max_vertices", "max_triangles", "max_resolution"):
         if getattr(limits, name) < 1:
             option = "--" + name.replace("_", "-")
