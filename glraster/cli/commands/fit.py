@@ -139,8 +139,8 @@ def register(subparsers) -> None:
     common(q, seeds=5, iterations=1000, out_name="cube")
     q.add_argument("--resolutions", default="4,8,16", help="image sizes in pixels (4,8,16)")
     _views(q, 4, "random views per iteration")
-    q.add_argument("--lr", type=positive_float, default=1e-2, help="Adam's learning rate (1e-2), "
-                                                          "falling to a tenth by the end")
+    q.add_argument("--lr", type=positive_float, default=1e-2,
+                   help="Adam's learning rate (1e-2), falling to a tenth by the end")
     _no_antialias(q)
     q.set_defaults(func=_run_cube)
 
